@@ -1,0 +1,108 @@
+"""The ``facegeom`` command line (also ``python -m facegeom``).
+
+User mistakes (bad files, bad arguments, missing data) print one line on
+stderr, ``facegeom: error: ...``, and exit with status 2; no traceback.
+"""
+from __future__ import annotations
+
+import platform
+import sys
+from importlib.metadata import PackageNotFoundError, version
+
+import click
+
+from . import __version__
+from .errors import FacegeomError
+
+DEPENDENCIES = ("numpy", "scipy", "libigl", "pymeshlab", "polyscope", "click", "tqdm", "matplotlib", "cholespy")
+
+
+class _Context:
+    def __init__(self, data):
+        self.data = data
+
+    def face_model(self):
+        from .data import load_face_model
+
+        return load_face_model(self.data)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="facegeom")
+@click.option("--data", "data", type=click.Path(), default=None, envvar=None,
+              help="Face data bundle (folder or .npz). Default: $FACEGEOM_DATA, "
+                   "else ../shared/data/ict-face-light next to the repository.")
+@click.pass_context
+def cli(ctx, data):
+    """facegeom: face driving, expression retargeting and blendshape fitting on libigl."""
+    ctx.obj = _Context(data)
+
+
+def _pkg_version(name: str) -> str:
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "not installed"
+
+
+@cli.command()
+@click.pass_obj
+def info(obj: _Context):
+    """Versions, where the face data was found and what it holds."""
+    from .data import locate_data
+
+    path = locate_data(obj.data)
+    model = obj.face_model()
+    click.echo(f"facegeom {__version__}  (Python {platform.python_version()}, {platform.machine()})")
+    for dep in DEPENDENCIES:
+        click.echo(f"  {dep:<11} {_pkg_version(dep)}")
+    click.echo(f"face data: {path}")
+    for k, v in model.summary().items():
+        if k != "path":
+            click.echo(f"  {k:<18} {v}")
+    click.echo(f"  expression names   {', '.join(model.expression_names[:6])}, ... ({model.n_expressions})")
+
+
+@cli.command()
+@click.option("--kind", type=click.Choice(["deformers", "retargeters", "fitters"]), default=None,
+              help="Only this kind of method.")
+def methods(kind):
+    """Registered method plugins, by kind (entry points)."""
+    from .registry import KINDS, available
+
+    for k in [kind] if kind else KINDS:
+        plugins = available(k)
+        click.echo(f"{k}:")
+        if not plugins:
+            click.echo("  (none)")
+        for name, target in plugins.items():
+            click.echo(f"  {name:<14} {target}")
+
+
+@cli.command()
+@click.pass_context
+def demo(ctx):
+    """The main job: show what the suite holds (grows with each capability)."""
+    ctx.invoke(info)
+    ctx.invoke(methods)
+
+
+def main(argv=None):
+    """Entry point: run the CLI, turning user errors into one line and exit 2."""
+    try:
+        cli.main(args=argv, prog_name="facegeom", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("facegeom: aborted", err=True)
+        sys.exit(130)
+    except click.exceptions.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except FacegeomError as exc:
+        click.echo(f"facegeom: error: {exc}", err=True)
+        sys.exit(2)
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+        click.echo(f"facegeom: error: {exc.filename}: {exc.strerror}", err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        click.echo("facegeom: interrupted", err=True)
+        sys.exit(130)

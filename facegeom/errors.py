@@ -1,0 +1,36 @@
+"""Exceptions for user mistakes.
+
+Every error that a user can cause (a bad file, a bad argument, missing data)
+is an :class:`InputError` (a ``ValueError``). The CLI prints its message on one
+line and exits with status 2; no traceback.
+"""
+from __future__ import annotations
+
+
+class FacegeomError(Exception):
+    """Base class of all facegeom errors."""
+
+
+class InputError(FacegeomError, ValueError):
+    """Bad input: a malformed file, an invalid array or argument.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong.
+    path : str or os.PathLike, optional
+        The file the problem is in; it is named first in the message.
+    """
+
+    def __init__(self, message: str, path=None):
+        self.path = None if path is None else str(path)
+        self.reason = message
+        super().__init__(f"{self.path}: {message}" if self.path else message)
+
+
+class DataNotFoundError(InputError):
+    """The face-model data bundle was found nowhere."""
+
+
+class SolveError(FacegeomError, ValueError):
+    """A system cannot be solved as posed (e.g. a component with no label)."""

@@ -1,0 +1,39 @@
+"""Shared fixtures: the real face data (read from ../shared or $FACEGEOM_DATA) and small synthetic meshes."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from facegeom.errors import DataNotFoundError
+
+
+@pytest.fixture(scope="session")
+def face_model():
+    from facegeom.data import load_face_model
+
+    try:
+        return load_face_model()
+    except DataNotFoundError as exc:  # pragma: no cover - CI always has the data
+        pytest.skip(f"real face data not available: {exc}")
+
+
+@pytest.fixture(scope="session")
+def face_mesh(face_model):
+    return face_model.neutral.copy(), face_model.triangles.copy()
+
+
+def grid_mesh(nx: int = 8, ny: int = 8, bump: float = 0.0):
+    """A triangulated (nx x ny)-vertex grid on [0,1]^2, optionally bumped in z."""
+    x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 1, ny), indexing="xy")
+    z = bump * np.sin(np.pi * x) * np.sin(np.pi * y)
+    V = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    F = np.r_[np.c_[a, b, d], np.c_[a, d, c]]
+    return V.astype(np.float64), F.astype(np.int64)
+
+
+@pytest.fixture
+def grid():
+    return grid_mesh()

@@ -1,0 +1,108 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from facegeom import data as fd
+from facegeom.errors import DataNotFoundError, InputError
+
+ORIGINAL = fd.default_data_path() / "original"
+
+
+def test_locate_order(tmp_path, monkeypatch):
+    real = fd.locate_data()
+    # explicit path wins, and may be the folder or the file
+    assert fd.locate_data(real.parent) == real
+    assert fd.locate_data(real) == real
+    # env var is used when no path is given
+    monkeypatch.setenv(fd.ENV_VAR, str(real.parent))
+    assert fd.locate_data() == real
+    # a wrong explicit path is an error even though env/default would work
+    with pytest.raises(DataNotFoundError, match="given path"):
+        fd.locate_data(tmp_path)
+
+
+def test_not_found_names_all_three_places(tmp_path, monkeypatch):
+    monkeypatch.setenv(fd.ENV_VAR, str(tmp_path / "nowhere"))
+    monkeypatch.setattr(fd, "default_data_path", lambda: tmp_path / "also-nowhere")
+    with pytest.raises(DataNotFoundError) as e:
+        fd.locate_data()
+    msg = str(e.value)
+    assert "--data" in msg and "FACEGEOM_DATA" in msg and "also-nowhere" in msg
+
+
+def test_bundle_with_missing_key_or_bad_shape(tmp_path, face_model):
+    good = fd.load_bundle()
+    arrays = {k: v for k, v in good.items() if not k.startswith("_")}
+    broken = dict(arrays)
+    del broken["identity_modes"]
+    np.savez(tmp_path / "a.npz", **broken)
+    with pytest.raises(InputError, match="lacks the keys identity_modes"):
+        fd.load_bundle(tmp_path / "a.npz")
+    broken = dict(arrays)
+    broken["expression_deltas"] = arrays["expression_deltas"][:, :100]
+    np.savez(tmp_path / "b.npz", **broken)
+    with pytest.raises(InputError, match="expression_deltas"):
+        fd.load_bundle(tmp_path / "b.npz")
+    (tmp_path / "c.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="c.npz"):
+        fd.load_bundle(tmp_path / "c.npz")
+
+
+def test_face_model_composition(face_model):
+    m = face_model
+    assert m.neutral.shape == (9409, 3) and m.triangles.shape == (18460, 3)
+    assert m.n_expressions == 53 and m.n_identities == 100 and m.landmarks.shape == (68,)
+    j = m.expression_index("jawOpen")
+    V = m.face(identity=[1.0, -0.5], expression={"jawOpen": 0.5})
+    ref = (m.neutral + 1.0 * m.identity_modes[0] - 0.5 * m.identity_modes[1]
+           + 0.5 * m.expression_deltas[j])
+    np.testing.assert_allclose(V, ref, atol=1e-5)
+    np.testing.assert_array_equal(m.face(), m.neutral)
+    np.testing.assert_allclose(m.landmark_positions(V), V[m.landmarks])
+    # the jaw opens downwards: the chin landmark (8) moves down in y
+    assert m.face(expression={"jawOpen": 1.0})[m.landmarks[8], 1] < m.neutral[m.landmarks[8], 1] - 0.5
+
+
+def test_face_model_errors(face_model):
+    with pytest.raises(InputError, match="unknown expression 'smile'"):
+        face_model.face(expression={"smile": 1.0})
+    with pytest.raises(InputError, match="at most 100"):
+        face_model.face(identity=np.zeros(101))
+    with pytest.raises(InputError, match="shape"):
+        face_model.face(expression=np.zeros(3))
+    with pytest.raises(InputError, match="NaN"):
+        face_model.face(expression={"jawOpen": float("nan")})
+
+
+def test_random_identity_is_seeded(face_model):
+    a = face_model.random_identity(7)
+    np.testing.assert_array_equal(a, face_model.random_identity(7))
+    assert not np.array_equal(a, face_model.random_identity(8))
+
+
+@pytest.mark.skipif(not ORIGINAL.is_dir(), reason="original ICT files not present")
+def test_import_ict_folder_matches_bundle(face_model):
+    a = fd.import_ict_folder(ORIGINAL)
+    m = face_model
+    np.testing.assert_allclose(a["neutral"], m.neutral, atol=1e-6)
+    np.testing.assert_array_equal(a["quads"], m.quads)
+    np.testing.assert_array_equal(a["triangles"], m.triangles)
+    np.testing.assert_array_equal(a["landmarks_multipie68"], m.landmarks)
+    assert set(a["expression_names"]) == {"jawOpen", "mouthSmile_L", "eyeBlink_R"}
+    for name, d in zip(a["expression_names"], a["expression_deltas"]):
+        np.testing.assert_allclose(d, m.expression_deltas[m.expression_index(name)], atol=1e-5)
+    for name, d in zip(a["identity_names"], a["identity_modes"]):
+        np.testing.assert_allclose(d, m.identity_modes[m.identity_names.index(name)], atol=1e-5)
+
+
+def test_import_ict_folder_errors(tmp_path):
+    with pytest.raises(InputError, match="not a folder"):
+        fd.import_ict_folder(tmp_path / "nope")
+    with pytest.raises(InputError, match="generic_neutral_mesh.obj: file not found"):
+        fd.import_ict_folder(tmp_path)
+    (tmp_path / "generic_neutral_mesh.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "vertex_indices.json").write_text("{not json")
+    with pytest.raises(InputError, match="malformed JSON"):
+        fd.import_ict_folder(tmp_path)
