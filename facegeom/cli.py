@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import platform
 import sys
+import time
 from importlib.metadata import PackageNotFoundError, version
 
 import click
@@ -79,12 +80,101 @@ def methods(kind):
             click.echo(f"  {name:<14} {target}")
 
 
+def _parse_params(items) -> dict:
+    from .bench.common import _value
+
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise click.BadParameter(f"{item!r} must be key=value", param_hint="--param")
+        k, v = item.split("=", 1)
+        out[k.strip()] = _value(v)
+    return out
+
+
 @cli.command()
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.argument("markers", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="Deformed mesh (.obj/.ply/.off); with --method all, a folder (one mesh per method).")
+@click.option("-m", "--method", default="tangent", show_default=True,
+              help="A registered deformer (see `facegeom methods`), or 'all'.")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
+              help="Method parameter, repeatable (e.g. -p d=3 -p rings=2).")
+@click.option("--format", "fmt", type=click.Choice(["obj", "ply", "off"]), default=None,
+              help="Mesh format of the per-method files with --method all (default: the input's).")
+def drive(mesh, markers, output, method, params, fmt):
+    """Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."""
+    from pathlib import Path
+
+    from . import registry
+    from .io import read_markers, read_mesh, write_mesh
+
+    V, F = read_mesh(mesh)
+    ids, pos = read_markers(markers, n_vertices=V.shape[0])
+    kw = _parse_params(params)
+    names = list(registry.available("deformers")) if method == "all" else [method]
+    if method == "all":
+        if kw:
+            raise click.BadParameter("parameters apply to one method; drop --param with --method all",
+                                     param_hint="--param")
+        out_dir = Path(output)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        suffix = "." + (fmt or Path(mesh).suffix.lstrip(".").lower())
+    for name in names:
+        deformer = registry.create("deformers", name, **kw)
+        t = time.perf_counter()
+        deformer.fit(V, F, ids)
+        fit_s = time.perf_counter() - t
+        t = time.perf_counter()
+        Y = deformer.deform(pos)
+        deform_ms = (time.perf_counter() - t) * 1e3
+        target = out_dir / f"{name}{suffix}" if method == "all" else Path(output)
+        write_mesh(target, Y, F)
+        click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
+
+
+@cli.group()
+def bench():
+    """Benchmarks that reproduce the papers' experiments (seeded; CSV + plot + table)."""
+
+
+@bench.command("drive")
+@click.option("--cases", default=50, show_default=True, type=click.IntRange(1, 10000), help="Source/target pairs.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of identities and expressions.")
+@click.option("--methods", default="all", show_default=True,
+              help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t1=tangent:rings=1'.")
+@click.option("--layout", "layout_name", default="ict80", show_default=True,
+              help="Marker layout: ict80, landmarks68 or random<k> (held-out layouts).")
+@click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/drive", show_default=True,
+              help="Folder for drive.csv, drive-summary.md and drive.png.")
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, out, no_plot, quiet):
+    """Face driving on the real ICT face: every deformer, errors in mm, times (cf. the paper's Fig. 10)."""
+    from pathlib import Path
+
+    from .bench import drive as bd
+    from .bench.common import parse_methods
+
+    specs = parse_methods(methods, "deformers", bd.DEFAULT_METHODS)
+    model = obj.face_model()
+    bd.main(model, specs, cases, seed, layout_name, layout_seed, Path(out), progress=not quiet,
+            echo=click.echo, plot_it=not no_plot)
+
+
+@cli.command()
+@click.option("--cases", default=5, show_default=True, type=click.IntRange(1, 1000))
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/demo", show_default=True)
 @click.pass_context
-def demo(ctx):
-    """The main job: show what the suite holds (grows with each capability)."""
+def demo(ctx, cases, out):
+    """The main job: the face-driving comparison on a few real faces, with its table."""
     ctx.invoke(info)
-    ctx.invoke(methods)
+    click.echo("")
+    ctx.invoke(bench_drive, cases=cases, seed=0, methods="all", layout_name="ict80", layout_seed=0, out=out,
+               no_plot=False, quiet=False)
 
 
 def main(argv=None):

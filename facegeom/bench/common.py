@@ -1,0 +1,110 @@
+"""Helpers shared by the benchmark protocols: method specs, timing, tables, CSV."""
+from __future__ import annotations
+
+import csv
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import atomic_path
+from .. import registry
+
+__all__ = ["MethodSpec", "parse_method", "parse_methods", "median_time", "write_csv", "format_table",
+           "machine_note"]
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A method to benchmark: ``label=name:key=value,key=value`` (label and params optional)."""
+
+    label: str
+    name: str
+    params: dict = field(default_factory=dict)
+
+    def build(self, kind: str):
+        return registry.create(kind, self.name, **self.params)
+
+
+def _value(text: str):
+    t = text.strip()
+    low = t.lower()
+    if low in ("none", "null"):
+        return None
+    if low in ("true", "false"):
+        return low == "true"
+    for cast in (int, float):
+        try:
+            return cast(t)
+        except ValueError:
+            pass
+    return t
+
+
+def parse_method(spec: str) -> MethodSpec:
+    """Parse ``[label=]name[:k=v,k=v]``; e.g. ``tangent-paper=tangent:d=3,rings=1``."""
+    spec = spec.strip()
+    label = None
+    head, _, params = spec.partition(":")
+    if "=" in head:
+        label, head = head.split("=", 1)
+    kv = {}
+    if params:
+        for item in params.split(","):
+            if "=" not in item:
+                raise InputError(f"bad method spec {spec!r}: parameter {item!r} needs key=value")
+            k, v = item.split("=", 1)
+            kv[k.strip()] = _value(v)
+    return MethodSpec(label or spec, head.strip(), kv)
+
+
+def parse_methods(text: str, kind: str, defaults: list[str]) -> list[MethodSpec]:
+    """``all`` -> ``defaults``; else ``;``-separated specs (``,`` separates params)."""
+    specs = [parse_method(s) for s in (defaults if text == "all" else text.split(";")) if s.strip()]
+    known = registry.available(kind)
+    for s in specs:
+        if s.name not in known:
+            raise InputError(f"no {kind[:-1]} named {s.name!r}; available: {', '.join(known)}")
+    return specs
+
+
+def median_time(fn, repeat: int = 5) -> tuple[float, object]:
+    """Median wall time of ``fn()`` over ``repeat`` calls (seconds) and the last result."""
+    times, out = [], None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)), out
+
+
+def write_csv(path: Path, rows: list[dict]) -> Path:
+    if not rows:
+        raise InputError("nothing to write", path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    return path
+
+
+def format_table(header: list[str], rows: list[list]) -> str:
+    """A GitHub-markdown table."""
+    def fmt(x):
+        if isinstance(x, float):
+            return f"{x:.3g}" if abs(x) < 1000 else f"{x:.0f}"
+        return str(x)
+    cells = [[fmt(c) for c in r] for r in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(header)]
+    line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
+    return "\n".join([line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *map(line, cells)])
+
+
+def machine_note() -> str:
+    import os
+
+    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
