@@ -23,6 +23,7 @@ import numpy as np
 
 from .errors import InputError
 from .interfaces import as_faces, as_handles, as_vertices
+from .utils import quiet_native
 
 __all__ = [
     "MESH_FORMATS",
@@ -60,23 +61,6 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
-@contextlib.contextmanager
-def _quiet_stderr():
-    """Silence what libigl's C++ prints on stderr (we raise our own message)."""
-    try:
-        fd = os.dup(2)
-    except OSError:  # pragma: no cover - no stderr
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(fd, 2)
-        os.close(fd)
-
-
 def _check_mesh_path(path: Path) -> None:
     if not path.exists():
         raise InputError("file not found", path)
@@ -108,7 +92,7 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     _check_mesh_path(path)
     try:
-        with _quiet_stderr():
+        with quiet_native((2,)):
             V, F = igl.read_triangle_mesh(str(path))[:2]
     except RuntimeError:
         head = path.read_bytes()[:1 << 22]
@@ -140,7 +124,7 @@ def write_mesh(path: str | os.PathLike, V, F) -> Path:
     V = as_vertices(V)
     F = as_faces(F, V.shape[0])
     with atomic_path(path) as tmp:
-        with _quiet_stderr():
+        with quiet_native((2,)):
             ok = igl.write_triangle_mesh(str(tmp), V, F)
         if ok is False:
             raise InputError("libigl could not write the mesh", path)

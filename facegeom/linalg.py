@@ -13,6 +13,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolveError
+from .utils import quiet_native
 
 __all__ = ["SPDSolver", "factorize_spd"]
 
@@ -51,10 +52,13 @@ class SPDSolver:
 
 
 def _check_solution(A: sp.spmatrix, solver: SPDSolver, tol: float = 1e-6) -> bool:
-    """A cheap probe: does the factor solve a random system accurately?"""
+    """A cheap probe: does the factor solve a random system accurately?
+
+    ``b`` is random, not ``A @ x``: for a singular ``A`` it is (almost surely)
+    outside the range, so no factor can give a small residual.
+    """
     rng = np.random.default_rng(0)
-    x = rng.standard_normal(A.shape[0])
-    b = A @ x
+    b = rng.standard_normal(A.shape[0])
     y = solver.solve(b)
     if not np.all(np.isfinite(y)):
         return False
@@ -89,13 +93,14 @@ def factorize_spd(A, backend: str = "auto") -> SPDSolver:
     tried = []
     if backend in ("auto", "cholespy") and CholeskySolverD is not None:
         try:
-            impl = CholeskySolverD(
-                n,
-                A.indptr.astype(np.int32),
-                A.indices.astype(np.int32),
-                np.ascontiguousarray(A.data),
-                MatrixType.CSR,
-            )
+            with quiet_native():
+                impl = CholeskySolverD(
+                    n,
+                    A.indptr.astype(np.int32),
+                    A.indices.astype(np.int32),
+                    np.ascontiguousarray(A.data),
+                    MatrixType.CSR,
+                )
             s = SPDSolver(n, "cholespy", impl)
             if _check_solution(A, s):
                 return s
