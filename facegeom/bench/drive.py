@@ -35,6 +35,7 @@ DEFAULT_METHODS = [
     "markers-only",
     "rbf",
     "laplacian",
+    "laplacian-plain=laplacian:mode=plain",
     "arap",
     "biharmonic",
     "tangent-paper=tangent:d=3,rings=1,field=position,align=none",

@@ -1,0 +1,89 @@
+"""libigl's ARAP and biharmonic deformation behind the Deformer interface."""
+from __future__ import annotations
+
+import igl
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.interfaces import as_positions, check_fitted
+
+from ._common import fit_inputs, require_handle_per_component
+
+ENERGIES = {
+    "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,
+    "spokes_and_rims": igl.ARAP_ENERGY_TYPE_SPOKES_AND_RIMS,
+    "elements": igl.ARAP_ENERGY_TYPE_ELEMENTS,
+}
+
+
+class ARAPDeformer:
+    """As-rigid-as-possible deformation (Sorkine & Alexa 2007), libigl's implementation.
+
+    ``fit`` runs ``arap_precomputation`` (the factorization); every ``deform``
+    starts from the rest mesh and runs ``iterations`` local/global steps, so
+    results do not depend on earlier calls.
+
+    Parameters
+    ----------
+    iterations : int
+        Local/global iterations per ``deform``.
+    energy : {"spokes_and_rims", "spokes", "elements"}
+        libigl's ARAP energy for triangle meshes.
+    """
+
+    def __init__(self, iterations: int = 10, energy: str = "spokes_and_rims"):
+        if int(iterations) != iterations or iterations < 1:
+            raise InputError(f"iterations must be a positive integer, got {iterations!r}")
+        if energy not in ENERGIES:
+            raise InputError(f"energy must be one of {', '.join(ENERGIES)}, got {energy!r}")
+        self.iterations, self.energy = int(iterations), energy
+        self.data_ = None
+
+    def fit(self, vertices, faces, handles) -> "ARAPDeformer":
+        V, F, H = fit_inputs(vertices, faces, handles)
+        require_handle_per_component(F, V.shape[0], H, "arap")
+        data = igl.ARAPData()
+        data.max_iter = self.iterations
+        data.energy = ENERGIES[self.energy]
+        igl.arap_precomputation(V, F, 3, H.astype(np.int32), data)
+        self.vertices_, self.faces_, self.handles_, self.data_ = V, F, H, data
+        return self
+
+    def deform(self, handle_positions) -> np.ndarray:
+        check_fitted(self, "data_")
+        P = as_positions(handle_positions, self.handles_.size)
+        return np.asarray(igl.arap_solve(P, self.data_, self.vertices_.copy()))
+
+
+class BiharmonicDeformer:
+    """k-harmonic interpolation of the marker displacements (libigl ``harmonic``).
+
+    ``k = 2`` (biharmonic) is the classic smooth deformation of Botsch & Kobbelt /
+    Jacobson et al.; ``k = 1`` harmonic, ``k = 3`` triharmonic. The result is
+    linear in the displacements: ``fit`` solves once for unit data and keeps the
+    ``(n, k)`` weight map, so ``deform`` is one matrix product.
+    """
+
+    def __init__(self, k: int = 2):
+        if int(k) != k or not 1 <= k <= 3:
+            raise InputError(f"k must be 1, 2 or 3, got {k!r}")
+        self.k = int(k)
+        self.map_ = None
+
+    def fit(self, vertices, faces, handles) -> "BiharmonicDeformer":
+        V, F, H = fit_inputs(vertices, faces, handles)
+        require_handle_per_component(F, V.shape[0], H, "biharmonic")
+        W = igl.harmonic(V, F, H, np.eye(H.size), self.k)
+        if not np.all(np.isfinite(W)):
+            raise InputError("biharmonic: libigl's solve failed (degenerate mesh?); clean the mesh first")
+        self.map_ = np.ascontiguousarray(np.asarray(W).T)  # (k, n)
+        self.vertices_, self.handles_ = V, H
+        return self
+
+    def deform(self, handle_positions) -> np.ndarray:
+        check_fitted(self, "map_")
+        P = as_positions(handle_positions, self.handles_.size)
+        D = P - self.vertices_[self.handles_]
+        Y = self.vertices_ + (D.T @ self.map_).T
+        Y[self.handles_] = P
+        return Y

@@ -1,0 +1,81 @@
+"""RBF interpolation of marker displacements (scipy's RBFInterpolator)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import RBFInterpolator
+
+from facegeom.errors import InputError
+from facegeom.interfaces import as_positions, check_fitted
+
+from ._common import fit_inputs
+
+KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
+           "inverse_quadratic", "gaussian")
+
+
+class RBFDeformer:
+    """Scattered-data interpolation of the marker displacements over Euclidean distance.
+
+    ``d(x) = sum_j c_j phi(|x - m_j|) + p(x)``, fitted so that ``d(m_j)`` is
+    marker ``j``'s displacement; every vertex moves by ``d``. The interpolant is
+    linear in the displacements, so ``fit`` evaluates it once for unit data and
+    stores the ``(n, k)`` map; ``deform`` is one matrix product.
+
+    Parameters
+    ----------
+    kernel : str
+        One of scipy's kernels (``thin_plate_spline``, ``cubic``, ``quintic``,
+        ``linear``, ``multiquadric``, ``inverse_multiquadric``,
+        ``inverse_quadratic``, ``gaussian``).
+    smoothing : float
+        0 interpolates the markers exactly.
+    epsilon : float, optional
+        Shape parameter, required by the scale-dependent kernels
+        (``gaussian``, ``*multiquadric``, ``inverse_quadratic``); default 1 /
+        the mean marker spacing for those.
+    degree : int
+        Degree of the added polynomial; 1 (affine) reproduces any affine, hence
+        any rigid, motion of all markers exactly.
+    """
+
+    def __init__(self, kernel: str = "thin_plate_spline", smoothing: float = 0.0, epsilon: float | None = None,
+                 degree: int = 1):
+        if kernel not in KERNELS:
+            raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+        if not np.isfinite(smoothing) or smoothing < 0:
+            raise InputError(f"smoothing must be a non-negative number, got {smoothing!r}")
+        if epsilon is not None and (not np.isfinite(epsilon) or epsilon <= 0):
+            raise InputError(f"epsilon must be a positive number, got {epsilon!r}")
+        if int(degree) != degree or degree < -1:
+            raise InputError(f"degree must be an integer >= -1, got {degree!r}")
+        self.kernel, self.smoothing, self.epsilon, self.degree = kernel, float(smoothing), epsilon, int(degree)
+        self.map_ = None
+
+    def fit(self, vertices, faces, handles) -> "RBFDeformer":
+        V, _, H = fit_inputs(vertices, faces, handles, min_handles=4 if self.degree >= 1 else 1)
+        M = V[H]
+        eps = self.epsilon
+        if eps is None and self.kernel in ("gaussian", "multiquadric", "inverse_multiquadric",
+                                           "inverse_quadratic"):
+            from scipy.spatial import cKDTree
+
+            dist, _ = cKDTree(M).query(M, k=2)
+            eps = 1.0 / max(float(dist[:, 1].mean()), 1e-12)
+        kw = {} if eps is None else {"epsilon": eps}
+        try:
+            rbf = RBFInterpolator(M, np.eye(H.size), kernel=self.kernel, smoothing=self.smoothing,
+                                  degree=self.degree, **kw)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise InputError(f"rbf: cannot interpolate from these markers ({exc})") from None
+        self.map_ = np.ascontiguousarray(rbf(V).T)  # (k, n), transposed for a fast product
+        self.vertices_, self.handles_ = V, H
+        return self
+
+    def deform(self, handle_positions) -> np.ndarray:
+        check_fitted(self, "map_")
+        P = as_positions(handle_positions, self.handles_.size)
+        D = P - self.vertices_[self.handles_]
+        Y = self.vertices_ + (D.T @ self.map_).T
+        if self.smoothing == 0:
+            Y[self.handles_] = P  # exact at the markers (removes round-off)
+        return Y
