@@ -165,6 +165,27 @@ def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, o
             echo=click.echo, plot_it=not no_plot)
 
 
+@bench.command("scaling")
+@click.option("--levels", default="0,1,2", show_default=True,
+              help="Subdivision levels of the face (0: 9,409 vertices, 1: ~37k, 2: ~150k).")
+@click.option("--methods", default="all", show_default=True, help="'all' (tangent, biharmonic, arap) or specs.")
+@click.pass_obj
+def bench_scaling(obj: _Context, levels, methods):
+    """Fit and deform times on the face subdivided to ~37k and ~150k vertices."""
+    from .bench import scaling as bs
+    from .bench.common import parse_methods
+    from .errors import InputError
+
+    try:
+        lv = [int(x) for x in levels.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--levels must be comma-separated integers, got {levels!r}") from None
+    if not lv or min(lv) < 0 or max(lv) > 3:
+        raise InputError("--levels must lie in 0..3")
+    specs = parse_methods(methods, "deformers", bs.DEFAULT_METHODS)
+    bs.main(obj.face_model(), specs, lv, echo=click.echo)
+
+
 @cli.command()
 @click.option("--cases", default=5, show_default=True, type=click.IntRange(1, 1000))
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/demo", show_default=True)

@@ -117,7 +117,10 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_mesh(path: str | os.PathLike, V, F) -> Path:
-    """Write a triangle mesh atomically; the format follows the suffix (.obj, .ply, .off)."""
+    """Write a triangle mesh atomically; the format follows the suffix (.obj, .ply, .off).
+
+    OBJ and OFF are ascii with 15 significant digits, PLY is binary with doubles.
+    """
     path = Path(path)
     if path.suffix.lower() not in MESH_FORMATS:
         raise InputError(f"unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_FORMATS)}", path)
@@ -125,7 +128,10 @@ def write_mesh(path: str | os.PathLike, V, F) -> Path:
     F = as_faces(F, V.shape[0])
     with atomic_path(path) as tmp:
         with quiet_native((2,)):
-            ok = igl.write_triangle_mesh(str(tmp), V, F)
+            if path.suffix.lower() == ".ply":  # binary doubles: libigl's ascii PLY keeps 6 digits only
+                ok = igl.writePLY(str(tmp), V, F, encoding=igl.FileEncoding.Binary)
+            else:
+                ok = igl.write_triangle_mesh(str(tmp), V, F)
         if ok is False:
             raise InputError("libigl could not write the mesh", path)
     return path

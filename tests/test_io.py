@@ -10,7 +10,7 @@ def test_mesh_roundtrip(tmp_path, grid, ext):
     V, F = grid
     p = write_mesh(tmp_path / f"m{ext}", V, F)
     V2, F2 = read_mesh(p)
-    np.testing.assert_allclose(V2, V, atol=1e-6)
+    np.testing.assert_allclose(V2, V, rtol=1e-14, atol=1e-14)  # no precision lost
     np.testing.assert_array_equal(F2, F)
     assert V2.dtype == np.float64 and F2.dtype == np.int64
     assert [q.name for q in tmp_path.iterdir()] == [f"m{ext}"]  # no temporary left behind

@@ -32,7 +32,7 @@ class MethodSpec:
 def _value(text: str):
     t = text.strip()
     low = t.lower()
-    if low in ("none", "null"):
+    if t in ("None", "null"):  # lowercase "none" stays a word (e.g. align=none)
         return None
     if low in ("true", "false"):
         return low == "true"

@@ -1,0 +1,113 @@
+"""End-to-end: `facegeom drive` and `facegeom bench drive` on the real ICT face."""
+import csv
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from facegeom import markers
+from facegeom.io import read_mesh, write_markers, write_mesh
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "facegeom", *args], capture_output=True, text=True, timeout=300,
+                          cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def drive_inputs(tmp_path_factory, face_model):
+    d = tmp_path_factory.mktemp("drive")
+    m = face_model
+    X = m.identity_neutral(m.random_identity(1))
+    T = m.face(m.random_identity(1), {"jawOpen": 0.7, "mouthSmile_L": 0.5})
+    H = markers.ict80(m)
+    write_mesh(d / "face.obj", X, m.triangles)
+    write_markers(d / "markers.csv", H, T[H])
+    return d, X, T, H
+
+
+def test_drive_one_method(drive_inputs):
+    d, X, T, H = drive_inputs
+    r = run("drive", str(d / "face.obj"), str(d / "markers.csv"), "-o", str(d / "out.ply"))
+    assert r.returncode == 0, r.stderr
+    Y, F = read_mesh(d / "out.ply")
+    np.testing.assert_allclose(Y[H], T[H], atol=1e-5)
+    err = np.linalg.norm(Y - T, axis=1)[:6706].mean()
+    still = np.linalg.norm(X - T, axis=1)[:6706].mean()
+    assert err < 0.35 * still  # the face follows the markers, not only the markers move
+
+
+def test_drive_all_methods(drive_inputs):
+    d, X, T, H = drive_inputs
+    r = run("drive", str(d / "face.obj"), str(d / "markers.csv"), "-m", "all", "-o", str(d / "all"))
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.stem for p in (d / "all").iterdir())
+    assert {"tangent", "rbf", "laplacian", "arap", "biharmonic", "markers-only"} <= set(names)
+    assert all(p.suffix == ".obj" for p in (d / "all").iterdir())
+
+
+def test_drive_with_params_and_bad_params(drive_inputs):
+    d, X, T, H = drive_inputs
+    r = run("drive", str(d / "face.obj"), str(d / "markers.csv"), "-o", str(d / "p.obj"), "-p", "d=3",
+            "-p", "field=position", "-p", "align=none", "-p", "smoothness=0")
+    assert r.returncode == 0, r.stderr
+    r = run("drive", str(d / "face.obj"), str(d / "markers.csv"), "-o", str(d / "q.obj"), "-p", "d=9")
+    assert r.returncode == 2 and "d must be" in r.stderr and not (d / "q.obj").exists()
+    r = run("drive", str(d / "face.obj"), str(d / "markers.csv"), "-o", str(d / "q.obj"), "-m", "nope")
+    assert r.returncode == 2 and "no deformer named 'nope'" in r.stderr
+
+
+@pytest.mark.parametrize("content,problem", [
+    ("vertex_id,x,y,z\n999999,0,0,0\n", "out of range"),
+    ("vertex_id,x,y,z\n5,0,0,0\n5,1,1,1\n", "repeated"),
+    ("vertex_id,x,y,z\n5,0,nan,0\n", "NaN"),
+    ("id,a,b,c\n5,0,0,0\n", "wrong columns"),
+])
+def test_drive_bad_markers(drive_inputs, tmp_path, content, problem):
+    d, *_ = drive_inputs
+    (tmp_path / "m.csv").write_text(content)
+    r = run("drive", str(d / "face.obj"), str(tmp_path / "m.csv"), "-o", str(tmp_path / "o.obj"))
+    assert r.returncode == 2, r.stderr
+    assert "m.csv" in r.stderr and problem in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "o.obj").exists()
+
+
+def test_drive_bad_mesh(tmp_path, drive_inputs):
+    d, *_ = drive_inputs
+    (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n")
+    r = run("drive", str(tmp_path / "bad.obj"), str(d / "markers.csv"), "-o", str(tmp_path / "o.obj"))
+    assert r.returncode == 2 and "bad.obj" in r.stderr and "Traceback" not in r.stderr
+    r = run("drive", str(tmp_path / "missing.obj"), str(d / "markers.csv"), "-o", str(tmp_path / "o.obj"))
+    assert r.returncode == 2 and "missing.obj" in r.stderr
+
+
+def test_drive_component_without_marker(tmp_path, face_model):
+    m = face_model
+    V = np.r_[m.neutral, m.neutral + [40, 0, 0]]
+    F = np.r_[m.triangles, m.triangles + m.n_vertices]
+    write_mesh(tmp_path / "two.obj", V, F)
+    write_markers(tmp_path / "m.csv", m.landmarks, V[m.landmarks])
+    r = run("drive", str(tmp_path / "two.obj"), str(tmp_path / "m.csv"), "-o", str(tmp_path / "o.obj"))
+    assert r.returncode == 2 and "no label" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bench_drive_small(tmp_path):
+    out = tmp_path / "bench"
+    r = run("bench", "drive", "--cases", "2", "--methods", "markers-only;biharmonic;tangent", "--out", str(out),
+            "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "| method" in r.stdout and "tangent" in r.stdout
+    rows = list(csv.DictReader(open(out / "drive.csv")))
+    assert len(rows) == 6
+    by = {(r["case"], r["method"]): float(r["mean_mm"]) for r in rows}
+    for case in ("0", "1"):  # both deformers beat moving the markers only
+        assert by[(case, "tangent")] < by[(case, "markers-only")]
+        assert by[(case, "biharmonic")] < by[(case, "markers-only")]
+    assert (out / "drive.png").stat().st_size > 10_000
+
+
+def test_bench_bad_method_spec():
+    r = run("bench", "drive", "--cases", "1", "--methods", "tangent:rings")
+    assert r.returncode == 2 and "key=value" in r.stderr
