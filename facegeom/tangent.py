@@ -76,7 +76,7 @@ def as_neighbourhoods(neighbourhoods, n: int) -> sp.csr_matrix:
 # --------------------------------------------------------------------------- local PCA, alignment matrix
 
 
-def local_tangent_bases(P: np.ndarray, d: int) -> np.ndarray:
+def local_tangent_bases(P: np.ndarray, d: int, abs_tol: float = 0.0) -> np.ndarray:
     """Batched local PCA: the ``d`` leading left singular vectors of each centred block.
 
     Parameters
@@ -84,6 +84,9 @@ def local_tangent_bases(P: np.ndarray, d: int) -> np.ndarray:
     P : (m, k, D) float
         ``m`` neighbourhoods of ``k`` points each.
     d : int
+    abs_tol : float
+        Directions whose singular value is at most ``abs_tol`` are dropped too
+        (in addition to those below ``1e-10`` times the block's largest one).
 
     Returns
     -------
@@ -101,7 +104,7 @@ def local_tangent_bases(P: np.ndarray, d: int) -> np.ndarray:
         V = V[:, :, ::-1][:, :, :d]
         s = np.sqrt(np.clip(w, 0, None))
         scale = np.max(s[:, :1], axis=1, keepdims=True)
-        ok = s > 1e-10 * np.maximum(scale, 1e-300)
+        ok = (s > 1e-10 * np.maximum(scale, 1e-300)) & (s > abs_tol)
         U = np.einsum("mki,mij->mkj", Pc, V) / np.where(ok, s, 1.0)[:, None, :]
         U *= ok[:, None, :]
     else:
@@ -110,12 +113,12 @@ def local_tangent_bases(P: np.ndarray, d: int) -> np.ndarray:
         w = w[:, ::-1][:, :d]
         U = U[:, :, ::-1][:, :, :d]
         scale = np.max(w[:, :1], axis=1, keepdims=True)
-        ok = w > 1e-20 * np.maximum(scale, 1e-300)
+        ok = (w > 1e-20 * np.maximum(scale, 1e-300)) & (w > abs_tol**2)
         U = U * ok[:, None, :]
     return U
 
 
-def alignment_matrix(X, neighbourhoods, d: int, weights=None) -> sp.csr_matrix:
+def alignment_matrix(X, neighbourhoods, d: int, weights=None, rank_tol: float = 0.0) -> sp.csr_matrix:
     """The alignment matrix ``B`` of Algorithm 1, as one sparse ``(N, N)`` matrix.
 
     Parameters
@@ -130,6 +133,12 @@ def alignment_matrix(X, neighbourhoods, d: int, weights=None) -> sp.csr_matrix:
         zero block.
     weights : (N,) float, optional
         Non-negative weight of each neighbourhood's block (default 1).
+    rank_tol : float
+        A local direction counts only if its singular value exceeds ``rank_tol``
+        times the data's global spread ``sqrt(mean ||x - mean(x)||^2)``; weaker
+        ones (e.g. rounding noise in a window where nothing moves) are dropped,
+        so the block pins the window to its affine fit of fewer directions
+        instead of leaving a free, arbitrarily large coefficient.
 
     Returns
     -------
@@ -152,13 +161,16 @@ def alignment_matrix(X, neighbourhoods, d: int, weights=None) -> sp.csr_matrix:
         if weights.shape != (N,) or not np.all(np.isfinite(weights)) or (weights < 0).any():
             raise InputError(f"weights must be ({N},) non-negative finite numbers")
     sizes = np.diff(R.indptr)
+    abs_tol = 0.0
+    if rank_tol > 0:
+        abs_tol = float(rank_tol) * float(np.sqrt(((X - X.mean(axis=0)) ** 2).sum(axis=1).mean()))
     rows, cols, vals = [], [], []
     for k in np.unique(sizes):
         ids = np.flatnonzero(sizes == k)
         if k <= d + 1:
             continue  # an affine map of d coordinates fits k <= d+1 points exactly
         idx = R.indices[R.indptr[ids][:, None] + np.arange(k)]  # (m, k)
-        U = local_tangent_bases(X[idx], d)
+        U = local_tangent_bases(X[idx], d, abs_tol)
         # I - G G^T with G = [e/sqrt(k), U]
         blk = -np.einsum("mkd,mld->mkl", U, U)
         blk -= 1.0 / k

@@ -38,7 +38,7 @@ DEFAULT_METHODS = [
     "laplacian-plain=laplacian:mode=plain",
     "arap",
     "biharmonic",
-    "tangent-paper=tangent:d=3,rings=1,field=position,align=none",
+    "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0",
     "tangent",
 ]
 

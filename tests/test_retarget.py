@@ -1,0 +1,190 @@
+"""Expression retargeting: the tangent retargeter and its baselines."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from baselines.retarget import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
+from facegeom import registry
+from facegeom.errors import InputError, SolveError
+from facegeom.retarget import TangentRetargeter, marker_affine_fit, temporal_windows
+
+PAPER = dict(strategy="marker", window=2, d=1, field="position", smoothness=0.0)
+
+
+def smooth_sequence(T=60, p=6, seed=0):
+    """Markers moved by 4 smooth random 'expressions' with random per-marker directions."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, T)
+    curves = np.stack([np.sin(2 * np.pi * (f * t + ph)) for f, ph in rng.uniform(0.3, 1.5, (4, 2))], 1)  # (T, 4)
+    dirs = rng.normal(size=(4, p, 3))
+    rest = rng.normal(size=(p, 3)) * 3
+    return rest[None] + np.einsum("te,epi->tpi", curves, dirs)
+
+
+def random_rotation(rng):
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+ALL = [TangentRetargeter, lambda: TangentRetargeter(**PAPER), RBFRetargeter, LaplacianRetargeter, CopyRetargeter]
+
+
+def test_temporal_windows_clipped():
+    W = temporal_windows(6, 2).toarray()
+    assert W[0].tolist() == [1, 1, 1, 0, 0, 0]
+    assert W[3].tolist() == [0, 1, 1, 1, 1, 1]
+    assert W.sum() == 3 + 4 + 5 + 5 + 4 + 3
+
+
+def test_registry_lists_retargeters():
+    assert {"tangent", "rbf", "laplacian", "copy"} <= set(registry.available("retargeters"))
+    for name in ("tangent", "rbf", "laplacian", "copy"):
+        registry.create("retargeters", name)  # constructible with no arguments
+
+
+@pytest.mark.parametrize("make", ALL)
+def test_labelled_frames_are_met(make):
+    S = smooth_sequence()
+    lab = np.array([0, 15, 30, 45, 59])
+    Y_true = S * 1.3 + 0.5
+    Y = make().fit(S, lab, Y_true[lab]).transform()
+    assert Y.shape == S.shape
+    if not isinstance(make(), CopyRetargeter):
+        np.testing.assert_allclose(Y[lab], Y_true[lab], atol=1e-9)
+
+
+@pytest.mark.parametrize("cfg", [{"ridge": 1e-12}, PAPER | {"d": 3, "window": 3}])
+def test_global_affine_map_is_recovered(cfg):
+    """A character whose markers are one affine map of the actor's is retargeted exactly."""
+    rng = np.random.default_rng(1)
+    S = smooth_sequence(seed=2)
+    A, c = rng.normal(size=(3, 3)) + 2 * np.eye(3), rng.normal(size=3)
+    Y_true = S @ A.T + c
+    lab = np.round(np.linspace(0, S.shape[0] - 1, 8)).astype(int)
+    Y = TangentRetargeter(**cfg).fit(S, lab, Y_true[lab]).transform()
+    np.testing.assert_allclose(Y, Y_true, atol=1e-5 * np.abs(Y_true).max())
+
+
+def test_tangent_beats_copy_on_a_nonlinear_character():
+    S = smooth_sequence(T=80, p=5, seed=3)
+    Y_true = S + 0.3 * np.sin(S)  # a smooth non-linear per-coordinate style
+    lab = np.round(np.linspace(0, 79, 10)).astype(int)
+    err = {}
+    for name, m in {"tangent": TangentRetargeter(), "copy": CopyRetargeter()}.items():
+        err[name] = np.linalg.norm(m.fit(S, lab, Y_true[lab]).transform() - Y_true)
+    assert err["tangent"] < 0.2 * err["copy"]
+
+
+def test_marker_affine_fit_handles_static_markers():
+    S = smooth_sequence()
+    S[:, 2] = S[0, 2]  # marker 2 never moves
+    lab = np.array([0, 20, 40, 59])
+    Yh = S[lab] + 1.0
+    B = marker_affine_fit(S, lab, Yh)
+    assert np.all(np.isfinite(B))
+    np.testing.assert_allclose(B[:, 2], np.broadcast_to(S[0, 2] + 1.0, B[:, 2].shape), atol=1e-9)
+
+
+def test_rbf_survives_markers_that_barely_move():
+    S = smooth_sequence()
+    S[:, 1] = S[0, 1] + 1e-14 * np.arange(S.shape[0])[:, None]  # rounding-noise motion
+    S[:, 3, 1:] = S[0, 3, 1:]  # moves along x only (a line)
+    lab = np.round(np.linspace(0, 59, 10)).astype(int)
+    Y = RBFRetargeter().fit(S, lab, (2 * S)[lab]).transform()
+    assert np.all(np.isfinite(Y))
+    np.testing.assert_allclose(Y[:, 3], 2 * S[:, 3], atol=1e-6)
+
+
+def test_paper_strategies_run_and_frame_strategy_matches_shape():
+    S = smooth_sequence()
+    lab = np.round(np.linspace(0, 59, 10)).astype(int)
+    for strategy in ("marker", "frame"):
+        Y = TangentRetargeter(strategy=strategy).fit(S, lab, S[lab] * 2).transform()
+        assert Y.shape == S.shape and np.all(np.isfinite(Y))
+
+
+def test_deterministic():
+    S = smooth_sequence()
+    lab = np.array([0, 10, 30, 59])
+    a = TangentRetargeter().fit(S, lab, S[lab] + 1).transform()
+    b = TangentRetargeter().fit(S, lab, S[lab] + 1).transform()
+    assert np.array_equal(a, b)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), which=st.sampled_from(range(3)))
+def test_rigid_motion_of_the_target_moves_the_result_rigidly(seed, which):
+    """Tangent and RBF are linear in the labels with weights summing to one: equivariant.
+
+    (Copy and Laplacian keep the actor's motion vectors unrotated, so they are not.)
+    """
+    rng = np.random.default_rng(seed)
+    S = smooth_sequence(seed=seed % 7)
+    lab = np.round(np.linspace(0, 59, 7)).astype(int)
+    Yh = 1.2 * S[lab] + 0.3
+    R, t = random_rotation(rng), rng.normal(size=3) * 5
+    make = ALL[which]
+    Y = make().fit(S, lab, Yh).transform()
+    Y2 = make().fit(S, lab, Yh @ R.T + t).transform()
+    np.testing.assert_allclose(Y2, Y @ R.T + t, atol=1e-6 * (1 + np.abs(Y).max()))
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_rigid_motion_of_the_actor_changes_nothing(seed):
+    """Local PCA and the affine base are invariant to a rigid motion of the whole source."""
+    rng = np.random.default_rng(seed)
+    S = smooth_sequence(seed=seed % 5)
+    lab = np.round(np.linspace(0, 59, 7)).astype(int)
+    Yh = 1.2 * S[lab] + 0.3 * np.sin(S[lab])
+    R, t = random_rotation(rng), rng.normal(size=3) * 5
+    for make in (TangentRetargeter, lambda: TangentRetargeter(**PAPER), RBFRetargeter):
+        Y = make().fit(S, lab, Yh).transform()
+        Y2 = make().fit(S @ R.T + t, lab, Yh).transform()
+        np.testing.assert_allclose(Y2, Y, atol=1e-6 * (1 + np.abs(Y).max()))
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize("make", ALL)
+def test_bad_input(make):
+    S = smooth_sequence(T=20, p=4)
+    lab = np.array([0, 10, 19])
+    with pytest.raises(InputError, match="markers"):
+        make().fit(S, lab, S[lab][:, :3])
+    with pytest.raises(InputError, match="out of range"):
+        make().fit(S, np.array([0, 20]), S[[0, 19]])
+    with pytest.raises(InputError, match="repeated"):
+        make().fit(S, np.array([3, 3]), S[[3, 3]])
+    with pytest.raises(InputError, match="at least two"):
+        make().fit(S, np.array([5]), S[[5]])
+    bad = S.copy()
+    bad[4, 1, 0] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        make().fit(bad, lab, S[lab])
+    Yh = S[lab].copy()
+    Yh[1, 0, 2] = np.inf
+    with pytest.raises(InputError, match="label frame 1"):
+        make().fit(S, lab, Yh)
+    with pytest.raises(InputError, match="2 target label frames"):
+        make().fit(S, lab, S[lab][:2])
+
+
+def test_transform_before_fit():
+    with pytest.raises(InputError, match="not fitted"):
+        TangentRetargeter().transform()
+
+
+def test_degenerate_configuration_is_a_clear_error():
+    S = smooth_sequence(T=20, p=4)
+    # windows of 3 frames are fitted exactly by 3 directions: nothing ties frames together
+    with pytest.raises(SolveError, match="no label"):
+        TangentRetargeter(strategy="frame", window=1, d=3, smoothness=0).fit(S, [0, 19], S[[0, 19]])
+
+
+def test_bad_parameters():
+    for kw in ({"strategy": "x"}, {"window": 0}, {"d": 0}, {"beta": -1.0}, {"field": "x"}, {"smoothness": -1}):
+        with pytest.raises(InputError):
+            TangentRetargeter(**kw)
