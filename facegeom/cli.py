@@ -10,6 +10,8 @@ import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
 
+from pathlib import Path
+
 import click
 
 from . import __version__
@@ -163,6 +165,62 @@ def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, o
     model = obj.face_model()
     bd.main(model, specs, cases, seed, layout_name, layout_seed, Path(out), progress=not quiet,
             echo=click.echo, plot_it=not no_plot)
+
+
+@bench.command("retarget")
+@click.option("--sequences", default=50, show_default=True, type=click.IntRange(1, 10000),
+              help="Actor/character sequences (4 in 5 from real takes, every 5th synthetic).")
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of windows, identities and characters.")
+@click.option("--methods", default="all", show_default=True,
+              help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t=tangent:window=2'.")
+@click.option("--labels", default="2,3,4,6,8,10,15,20,25,30", show_default=True,
+              help="Numbers of labelled frames (evenly spread) to sweep.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of ARKit take CSVs (or one CSV). Default: $FACEGEOM_TAKES, "
+                   "else ../shared/data/arkit-takes next to the repository.")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes (no real recordings needed).")
+@click.option("--layout", "layout_name", default="ict80", show_default=True, help="Marker layout.")
+@click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/retarget", show_default=True,
+              help="Folder for retarget.csv, retarget-frames.csv, retarget-summary.md and retarget.png.")
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_retarget(obj: _Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, layout_name,
+                   layout_seed, out, no_plot, quiet):
+    """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
+    from .bench import retarget as br
+    from .bench.common import parse_methods
+    from .errors import InputError
+
+    try:
+        counts = sorted({int(x) for x in labels.split(",") if x.strip()})
+    except ValueError:
+        raise InputError(f"--labels must be comma-separated integers, got {labels!r}") from None
+    if not counts or counts[0] < 2 or counts[-1] > frames:
+        raise InputError(f"--labels must lie in [2, {frames}] (the frames of a sequence)")
+    specs = parse_methods(methods, "retargeters", br.DEFAULT_METHODS)
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
+            echo=click.echo, plot_it=not no_plot, progress=not quiet)
+
+
+def _load_takes(model, takes_path):
+    """``[(name, W (T, E))]`` ICT weights of every take CSV found (a note per take on stderr)."""
+    from .data import locate_takes
+    from .takes import find_takes, ict_weights, read_take
+
+    where = locate_takes(takes_path)
+    files = [where] if where.is_file() else find_takes(where)
+    out = []
+    for f in files:
+        take = read_take(f)
+        click.echo(f"take {f.name}: {take.n_frames} frames"
+                   + (f" ({take.lost_rows} lost-tracking rows {take.policy}d)" if take.lost_rows else ""), err=True)
+        out.append((f.stem, ict_weights(take, model.expression_names)))
+    return out
 
 
 @bench.command("scaling")

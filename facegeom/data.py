@@ -394,3 +394,37 @@ def import_ict_folder(folder: str | os.PathLike, n_face_vertices: int = 9409, n_
         "identity_modes": ids,
         "landmarks_multipie68": np.asarray(meta["idx_to_landmark_verts"], dtype=np.int32),
     }
+
+
+TAKES_ENV_VAR = "FACEGEOM_TAKES"
+
+
+def default_takes_path() -> Path:
+    """``../shared/data/arkit-takes`` next to the repository root."""
+    return REPO_ROOT.parent / "shared" / "data" / "arkit-takes"
+
+
+def locate_takes(path: str | os.PathLike | None = None) -> Path:
+    """Folder of ARKit take CSVs: ``path``, else ``$FACEGEOM_TAKES``, else the default.
+
+    Raises
+    ------
+    DataNotFoundError
+        Naming the places that were looked at.
+    """
+    if path is not None:
+        p = Path(path)
+        if p.is_dir() or p.is_file():
+            return p
+        raise DataNotFoundError(f"takes not found at the given path {path} (expected a folder of .csv takes)")
+    env = os.environ.get(TAKES_ENV_VAR)
+    if env and Path(env).exists():
+        return Path(env)
+    default = default_takes_path()
+    if default.is_dir():
+        return default
+    raise DataNotFoundError(
+        "ARKit takes not found; looked at: the --takes option (not given), "
+        + (f"${TAKES_ENV_VAR}={env}" if env else f"${TAKES_ENV_VAR} (not set)")
+        + f", {default}. Pass --takes PATH or set {TAKES_ENV_VAR}."
+    )

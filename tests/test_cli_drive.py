@@ -111,3 +111,29 @@ def test_bench_drive_small(tmp_path):
 def test_bench_bad_method_spec():
     r = run("bench", "drive", "--cases", "1", "--methods", "tangent:rings")
     assert r.returncode == 2 and "key=value" in r.stderr
+
+
+def test_bench_retarget_small_on_real_takes(tmp_path):
+    """End to end: 3 sequences (2 real-take windows if the takes exist, 1 synthetic), 2 label counts."""
+    from facegeom.data import default_takes_path
+
+    args = ["bench", "retarget", "--sequences", "3", "--frames", "40", "--labels", "4,10", "--quiet",
+            "--methods", "copy;rbf;tangent", "--out", str(tmp_path / "rt")]
+    if not default_takes_path().is_dir():
+        args.append("--synthetic-only")
+    r = run(*args)
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(tmp_path / "rt" / "retarget.csv")))
+    assert len(rows) == 3 * 2 * 3
+    err = {(x["method"], x["labels"]): [] for x in rows}
+    for x in rows:
+        err[(x["method"], x["labels"])].append(float(x["mean_mm"]))
+    # the copy reference is far off; the tangent framework is far better with 10 labels
+    assert sum(err[("tangent", "10")]) < 0.5 * sum(err[("copy", "10")])
+    assert (tmp_path / "rt" / "retarget.png").stat().st_size > 1000
+
+
+def test_bench_retarget_bad_takes_folder(tmp_path):
+    r = run("bench", "retarget", "--takes", str(tmp_path), "--sequences", "1")
+    assert r.returncode == 2
+    assert "no .csv take" in r.stderr and str(tmp_path) in r.stderr and "Traceback" not in r.stderr

@@ -1,0 +1,197 @@
+"""The retargeting benchmark (the paper's section 4.1-4.2, Figs. 6-8, on real performances).
+
+Protocol (seeded):
+
+- ``sequences`` actor/character pairs of ``frames`` frames (default 50 x 100)
+  built by :mod:`facegeom.sequences`. Four in five are windows of the real
+  ARKit takes (the takes cycled, start frame uniform in each take); every fifth
+  is a synthetic onset-apex-offset take. Sequence ``i`` has its own actor
+  identity and its own character (identity, per-expression intensities, warp).
+- Markers: the ``ict80`` layout (or ``--layout``).
+- Labels: ``L`` frames evenly spread (``round(linspace(0, T-1, L))``).
+- Errors against the character's true markers: the paper's Frobenius norm
+  over the whole sequence (mm), the mean marker error (mm), and the mean
+  marker error relative to the character's mean marker motion (distance from
+  its rest markers), in percent.
+
+Outputs: ``retarget.csv`` (sequence x labels x method), ``retarget-frames.csv``
+(per-frame error at the reference label count), ``retarget-summary.md`` and
+``retarget.png`` (Figs. 6, 7, 8 side by side).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import sequences as sq
+from ..errors import SolveError
+from ..markers import layout
+from .common import MethodSpec, format_table, machine_note, write_csv
+
+CM_TO_MM = 10.0
+LABEL_COUNTS = (2, 3, 4, 6, 8, 10, 15, 20, 25, 30)
+REFERENCE_LABELS = 10
+
+DEFAULT_METHODS = [
+    "copy",
+    "rbf",
+    "rbf-frame=rbf:strategy=frame",
+    "laplacian",
+    "tangent-paper=tangent:strategy=marker,window=2,d=1,field=position,smoothness=0",
+    "tangent",
+]
+
+
+def build_sequences(model, takes, count: int = 50, frames: int = 100, seed: int = 0, layout_name: str = "ict80",
+                    layout_seed: int = 0) -> list[sq.Sequence]:
+    """``count`` actor/character sequences: 4 in 5 real-take windows, every 5th synthetic.
+
+    ``takes`` is a list of ``(name, W (T, E))`` with ICT-ordered weights; takes shorter
+    than ``frames`` are skipped. With no usable take every sequence is synthetic.
+    """
+    ids = layout(model, layout_name, layout_seed)
+    rng = np.random.default_rng([int(seed), 31337])
+    usable = [(n, W) for n, W in takes if W.shape[0] >= frames]
+    out, k = [], 0
+    for i in range(count):
+        if usable and i % 5 != 4:
+            name, W = usable[k % len(usable)]
+            k += 1
+            start = int(rng.integers(0, W.shape[0] - frames + 1))
+            weights, label = W[start:start + frames], f"{name}@{start}"
+        else:
+            weights, label = sq.synthetic_weights(model, rng, frames)
+            label = f"synthetic:{label}"
+        actor_seed = int(seed) * 100_003 + i
+        out.append(sq.make_sequence(model, weights, ids, actor_seed, sq.make_character(model, actor_seed), label))
+    return out
+
+
+def _nanmean(values) -> float:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def evenly_spread(T: int, L: int) -> np.ndarray:
+    return np.unique(np.round(np.linspace(0, T - 1, L)).astype(np.int64))
+
+
+def run(model, seqs, specs: list[MethodSpec], label_counts=LABEL_COUNTS, echo=print, progress=True):
+    rows, frame_rows = [], []
+    ref = REFERENCE_LABELS if REFERENCE_LABELS in label_counts else label_counts[len(label_counts) // 2]
+    try:
+        from tqdm import tqdm
+        it = tqdm(list(enumerate(seqs)), desc="retarget", unit="seq", disable=not progress)
+    except ImportError:  # pragma: no cover
+        it = enumerate(seqs)
+    for si, s in it:
+        motion = s.mean_motion()
+        for L in label_counts:
+            lab = evenly_spread(s.n_frames, L)
+            for spec in specs:
+                method = spec.build("retargeters")
+                t = time.perf_counter()
+                try:
+                    Y = method.fit(s.source, lab, s.target[lab]).transform()
+                except SolveError:  # recorded as a failure (NaN), counted in the summary
+                    Y = np.full_like(s.target, np.nan)
+                dt = time.perf_counter() - t
+                E = np.linalg.norm(Y - s.target, axis=2)  # (T, p) cm
+                rows.append({
+                    "sequence": si, "name": s.name, "labels": int(lab.size), "method": spec.label,
+                    "frobenius_mm": float(np.linalg.norm(Y - s.target) * CM_TO_MM),
+                    "mean_mm": float(E.mean() * CM_TO_MM),
+                    "relative_pct": float(100.0 * E.mean() / motion) if motion > 0 else float("nan"),
+                    "motion_mm": motion * CM_TO_MM, "time_ms": dt * 1e3,
+                })
+                if L == ref:
+                    for t_, e in enumerate(np.linalg.norm(Y - s.target, axis=(2,)) ** 2):
+                        frame_rows.append({"sequence": si, "method": spec.label, "frame": t_,
+                                           "frobenius_mm": float(np.sqrt(e.sum()) * CM_TO_MM)})
+    return rows, frame_rows, ref
+
+
+def summarize(rows, specs, counts=(REFERENCE_LABELS, 20)):
+    """Means over sequences (failed solves excluded and counted in ``failed``, over all label counts)."""
+    header = ["method"]
+    for L in counts:
+        header += [f"Frob. L={L} (mm)", f"mean L={L} (mm)", f"% of motion L={L}"]
+    header += ["failed", "time (ms)"]
+    table = []
+    for spec in specs:
+        line = [spec.label]
+        for L in counts:
+            r = [x for x in rows if x["method"] == spec.label and x["labels"] == L]
+            if not r:
+                line += ["-", "-", "-"]
+                continue
+            line += [_nanmean([x["frobenius_mm"] for x in r]), _nanmean([x["mean_mm"] for x in r]),
+                     _nanmean([x["relative_pct"] for x in r])]
+        line.append(sum(int(np.isnan(x["mean_mm"])) for x in rows if x["method"] == spec.label))
+        line.append(np.median([x["time_ms"] for x in rows if x["method"] == spec.label]))
+        table.append(line)
+    return format_table(header, table)
+
+
+def plot(rows, frame_rows, specs, ref, path: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io import atomic_path
+
+    fig, ax = plt.subplots(1, 3, figsize=(17, 4.6))
+    counts = sorted({r["labels"] for r in rows})
+    for spec in specs:
+        m = [_nanmean([r["frobenius_mm"] for r in rows if r["method"] == spec.label and r["labels"] == L])
+             for L in counts]
+        ax[0].plot(counts, m, "o-", label=spec.label)
+        per = [r["frobenius_mm"] for r in rows if r["method"] == spec.label and r["labels"] == ref]
+        ax[1].plot(range(len(per)), per, ".-", label=spec.label)
+        fr = np.array([[r["frame"], r["frobenius_mm"]] for r in frame_rows if r["method"] == spec.label])
+        T = int(fr[:, 0].max()) + 1
+        ax[2].plot(range(T), np.bincount(fr[:, 0].astype(int), fr[:, 1], T) / np.bincount(fr[:, 0].astype(int), None, T),
+                   label=spec.label)
+    ax[0].set(xlabel="labelled frames", ylabel="mean Frobenius error (mm)", yscale="log",
+              title="Fig. 6: error vs number of labels")
+    ax[1].set(xlabel="sequence", ylabel="Frobenius error (mm)", yscale="log", title=f"Fig. 7: per sequence, {ref} labels")
+    ax[2].set(xlabel="frame", ylabel="mean Frobenius error of the frame (mm)", yscale="log",
+              title=f"Fig. 8: per frame, {ref} labels")
+    ax[0].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed=0, frames=100,
+         label_counts=LABEL_COUNTS, echo=print, plot_it=True, progress=True):
+    seqs = build_sequences(model, takes, count, frames, seed, layout_name, layout_seed)
+    n_real = sum(not s.name.startswith("synthetic") for s in seqs)
+    echo(f"{len(seqs)} sequences of {frames} frames ({n_real} from real takes, {len(seqs) - n_real} synthetic), "
+         f"{seqs[0].source.shape[1]} markers ({layout_name}); character mean marker motion "
+         f"{np.mean([s.mean_motion() for s in seqs]) * CM_TO_MM:.2f} mm")
+    rows, frame_rows, ref = run(model, seqs, specs, label_counts, echo, progress)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "retarget.csv", rows)
+    write_csv(out / "retarget-frames.csv", frame_rows)
+    counts = tuple(c for c in (ref, 20) if c in label_counts) or (ref,)
+    table = summarize(rows, specs, counts)
+    note = f"{len(seqs)} sequences, seed {seed}, layout {layout_name}; {machine_note()}"
+    echo(table)
+    echo(note)
+    from ..io import atomic_path
+
+    with atomic_path(out / "retarget-summary.md") as tmp:
+        Path(tmp).write_text(table + "\n\n" + note + "\n")
+    written = [out / "retarget.csv", out / "retarget-frames.csv", out / "retarget-summary.md"]
+    if plot_it:
+        plot(rows, frame_rows, specs, ref, out / "retarget.png")
+        written.append(out / "retarget.png")
+    echo("wrote " + ", ".join(str(p) for p in written))
+    return rows, table
