@@ -159,7 +159,7 @@ def plot(rows, frame_rows, specs, ref, path: Path):
     ax[0].set(xlabel="labelled frames", ylabel="mean Frobenius error (mm)", yscale="log",
               title="Fig. 6: error vs number of labels")
     ax[1].set(xlabel="sequence", ylabel="Frobenius error (mm)", yscale="log", title=f"Fig. 7: per sequence, {ref} labels")
-    ax[2].set(xlabel="frame", ylabel="mean Frobenius error of the frame (mm)", yscale="log",
+    ax[2].set(xlabel="frame", ylabel="mean Frobenius error of the frame (mm)",
               title=f"Fig. 8: per frame, {ref} labels")
     ax[0].legend(fontsize=8)
     fig.tight_layout()
