@@ -93,7 +93,7 @@ def test_drive_component_without_marker(tmp_path, face_model):
     assert r.returncode == 2 and "no label" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_bench_drive_small(tmp_path):
+def test_bench_drive_small(tmp_path, face_model):
     out = tmp_path / "bench"
     r = run("bench", "drive", "--cases", "2", "--methods", "markers-only;biharmonic;tangent", "--out", str(out),
             "--quiet")
@@ -113,7 +113,7 @@ def test_bench_bad_method_spec():
     assert r.returncode == 2 and "key=value" in r.stderr
 
 
-def test_bench_retarget_small_on_real_takes(tmp_path):
+def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
     """End to end: 3 sequences (2 real-take windows if the takes exist, 1 synthetic), 2 label counts."""
     from facegeom.data import default_takes_path
 
@@ -133,7 +133,7 @@ def test_bench_retarget_small_on_real_takes(tmp_path):
     assert (tmp_path / "rt" / "retarget.png").stat().st_size > 1000
 
 
-def test_bench_retarget_bad_takes_folder(tmp_path):
+def test_bench_retarget_bad_takes_folder(tmp_path, face_model):
     r = run("bench", "retarget", "--takes", str(tmp_path), "--sequences", "1")
     assert r.returncode == 2
     assert "no .csv take" in r.stderr and str(tmp_path) in r.stderr and "Traceback" not in r.stderr

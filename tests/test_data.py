@@ -10,7 +10,7 @@ from facegeom.errors import DataNotFoundError, InputError
 ORIGINAL = fd.default_data_path() / "original"
 
 
-def test_locate_order(tmp_path, monkeypatch):
+def test_locate_order(tmp_path, monkeypatch, face_model):
     real = fd.locate_data()
     # explicit path wins, and may be the folder or the file
     assert fd.locate_data(real.parent) == real
