@@ -218,7 +218,7 @@ def _load_takes(model, takes_path):
     for f in files:
         take = read_take(f)
         click.echo(f"take {f.name}: {take.n_frames} frames"
-                   + (f" ({take.lost_rows} lost-tracking rows {take.policy}d)" if take.lost_rows else ""), err=True)
+                   + (f" ({take.lost_rows} lost-tracking rows, policy {take.policy})" if take.lost_rows else ""), err=True)
         out.append((f.stem, ict_weights(take, model.expression_names)))
     return out
 
@@ -242,6 +242,69 @@ def bench_scaling(obj: _Context, levels, methods):
         raise InputError("--levels must lie in 0..3")
     specs = parse_methods(methods, "deformers", bs.DEFAULT_METHODS)
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
+
+
+@cli.command()
+@click.option("--take", "take_path", type=click.Path(), default=None,
+              help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes (for the default take).")
+@click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the window.")
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(2, 100000))
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of the actor and the character.")
+@click.option("--retargeter", default="tangent", show_default=True, help="Retargeter spec, e.g. 'rbf'.")
+@click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output .npz.")
+@click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
+@click.pass_obj
+def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
+    """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
+    import numpy as np
+
+    from . import sequences as sq
+    from .animate import animate as run_animation
+    from .bench.common import parse_method
+    from .data import locate_takes
+    from .errors import InputError
+    from .io import atomic_path, write_mesh
+    from .markers import layout
+    from .takes import find_takes, ict_weights, read_take
+
+    model = obj.face_model()
+    path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    take = read_take(path)
+    W = ict_weights(take, model.expression_names)
+    if start + frames > W.shape[0]:
+        raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end", path)
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    ids = layout(model, "ict80")
+    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
+                           f"{path.stem}@{start}")
+    r_spec, d_spec = parse_method(retargeter), parse_method(deformer)
+    anim = run_animation(model, seq, r_spec.build("retargeters"), d_spec.build("deformers"), labels,
+                         region=6706)
+    click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
+               f"{anim.times['retarget_s'] * 1e3:.1f} ms, deformer fit {anim.times['deformer_fit_s']:.2f} s, "
+               f"{frames} frames driven in {anim.times['drive_s']:.3f} s")
+    click.echo(f"mean marker error {anim.marker_error_mm.mean():.3f} mm; mean face error {anim.frame_error_mm.mean():.3f} "
+               f"mm (worst frame {anim.frame_error_mm.max():.3f} mm); character mean marker motion "
+               f"{seq.mean_motion() * 10:.2f} mm")
+    out = Path(output)
+    if out.suffix.lower() != ".npz":
+        raise InputError("the output must be a .npz file", out)
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
+                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
+                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
+    click.echo(f"wrote {out}")
+    if obj_dir:
+        d = Path(obj_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        for t in range(frames):
+            write_mesh(d / f"frame_{t:05d}.obj", anim.vertices[t], anim.faces)
+        click.echo(f"wrote {frames} OBJ files to {d}")
 
 
 @cli.command()
