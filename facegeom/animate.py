@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sequences as sq
+from .retarget import evenly_spread
 
 
 @dataclass
@@ -29,9 +30,6 @@ class Animation:
     marker_error_mm: np.ndarray  # (T,) mean marker error per frame
     times: dict
 
-
-def evenly_spread(T: int, L: int) -> np.ndarray:
-    return np.unique(np.round(np.linspace(0, T - 1, L)).astype(np.int64))
 
 
 def animate(model, seq: sq.Sequence, retargeter, deformer, labels: int = 10, region: int | None = None,

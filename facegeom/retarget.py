@@ -35,6 +35,11 @@ def temporal_windows(T: int, half: int) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(int(keep.sum()), bool), (rows[keep], cols[keep])), shape=(T, T))
 
 
+def evenly_spread(T: int, L: int) -> np.ndarray:
+    """``L`` labelled frames evenly spread over ``T`` (``round(linspace(0, T-1, L))``, unique)."""
+    return np.unique(np.round(np.linspace(0, T - 1, L)).astype(np.int64))
+
+
 def second_difference(T: int) -> sp.csr_matrix:
     """``(T-2, T)`` second-difference operator (``x[t-1] - 2 x[t] + x[t+1]``)."""
     if T < 3:

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sequences as sq
+from ..retarget import evenly_spread
 from ..errors import SolveError
 from ..markers import layout
 from .common import MethodSpec, format_table, machine_note, write_csv
@@ -74,9 +75,6 @@ def _nanmean(values) -> float:
     v = v[np.isfinite(v)]
     return float(v.mean()) if v.size else float("nan")
 
-
-def evenly_spread(T: int, L: int) -> np.ndarray:
-    return np.unique(np.round(np.linspace(0, T - 1, L)).astype(np.int64))
 
 
 def run(model, seqs, specs: list[MethodSpec], label_counts=LABEL_COUNTS, echo=print, progress=True):
