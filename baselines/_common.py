@@ -1,11 +1,9 @@
 """Input checks shared by the baseline deformers."""
 from __future__ import annotations
 
-import numpy as np
-from scipy.sparse import csgraph
 
 from facegeom.errors import SolveError
-from facegeom.geometry import adjacency
+from facegeom.geometry import adjacency, unlabelled_components
 from facegeom.interfaces import as_faces, as_handles, as_vertices
 
 
@@ -21,15 +19,18 @@ def fit_inputs(vertices, faces, handles, min_handles: int = 1):
     return V, F, H
 
 
+def apply_displacement_map(V, H, map_, P):
+    """``V + W (P - V[H])`` for a precomputed ``(k, n)`` map ``W^T``: one dense product per frame."""
+    D = P - V[H]
+    return V + (D.T @ map_).T
+
+
 def require_handle_per_component(F, n: int, H, method: str) -> None:
     """A mesh component without a handle leaves its position free: a clear error."""
-    count, comp = csgraph.connected_components(adjacency(F, n), directed=False)
-    has = np.zeros(count, bool)
-    has[comp[H]] = True
-    if not has.all():
-        bad = int(np.flatnonzero(~has)[0])
+    count, example, size = unlabelled_components(adjacency(F, n), H)
+    if count:
         raise SolveError(
-            f"{method}: {int((~has).sum())} mesh component(s) have no marker (e.g. the one holding vertex "
-            f"{int(np.flatnonzero(comp == bad)[0])}, {int((comp == bad).sum())} vertices); "
+            f"{method}: {count} mesh component(s) have no marker (e.g. the one holding vertex "
+            f"{example}, {size} vertices); "
             "put a marker on every component or remove it (facegeom clean --largest)"
         )

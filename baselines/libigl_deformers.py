@@ -7,7 +7,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.interfaces import as_positions, check_fitted
 
-from ._common import fit_inputs, require_handle_per_component
+from ._common import apply_displacement_map, fit_inputs, require_handle_per_component
 
 ENERGIES = {
     "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,
@@ -83,7 +83,6 @@ class BiharmonicDeformer:
     def deform(self, handle_positions) -> np.ndarray:
         check_fitted(self, "map_")
         P = as_positions(handle_positions, self.handles_.size)
-        D = P - self.vertices_[self.handles_]
-        Y = self.vertices_ + (D.T @ self.map_).T
+        Y = apply_displacement_map(self.vertices_, self.handles_, self.map_, P)
         Y[self.handles_] = P
         return Y

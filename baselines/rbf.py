@@ -7,7 +7,7 @@ from scipy.interpolate import RBFInterpolator
 from facegeom.errors import InputError
 from facegeom.interfaces import as_positions, check_fitted
 
-from ._common import fit_inputs
+from ._common import apply_displacement_map, fit_inputs
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
            "inverse_quadratic", "gaussian")
@@ -74,8 +74,7 @@ class RBFDeformer:
     def deform(self, handle_positions) -> np.ndarray:
         check_fitted(self, "map_")
         P = as_positions(handle_positions, self.handles_.size)
-        D = P - self.vertices_[self.handles_]
-        Y = self.vertices_ + (D.T @ self.map_).T
+        Y = apply_displacement_map(self.vertices_, self.handles_, self.map_, P)
         if self.smoothing == 0:
             Y[self.handles_] = P  # exact at the markers (removes round-off)
         return Y

@@ -7,7 +7,7 @@ from scipy.interpolate import RBFInterpolator
 
 from facegeom.errors import InputError
 from facegeom.interfaces import check_fitted
-from facegeom.retarget import check_retarget_inputs
+from facegeom.retarget import check_retarget_inputs, temporal_windows
 from facegeom.tangent import TangentSolver
 
 __all__ = ["CopyRetargeter", "RBFRetargeter", "LaplacianRetargeter"]
@@ -153,8 +153,6 @@ class LaplacianRetargeter:
         return {"window": self.window}
 
     def fit(self, source, labelled_frames, target_labels) -> "LaplacianRetargeter":
-        from facegeom.retarget import temporal_windows
-
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         A = temporal_windows(T, self.window).astype(np.float64)

@@ -213,6 +213,23 @@ def connected_components(F, n_vertices: int | None = None) -> tuple[int, np.ndar
     return int(count), labels.astype(np.int64)
 
 
+def unlabelled_components(graph, labelled) -> tuple[int, int, int]:
+    """Components of a sparse ``graph`` (non-zeros = edges) that hold none of ``labelled``.
+
+    Returns ``(count, example, size)``: how many such components, the first
+    point of the first one and its size (``(0, -1, 0)`` when every component
+    has a label).
+    """
+    count, comp = csgraph.connected_components(sp.csr_matrix(graph) != 0, directed=False)
+    has = np.zeros(count, bool)
+    has[comp[np.asarray(labelled, dtype=np.int64)]] = True
+    if has.all():
+        return 0, -1, 0
+    bad = int(np.flatnonzero(~has)[0])
+    members = comp == bad
+    return int((~has).sum()), int(np.flatnonzero(members)[0]), int(members.sum())
+
+
 def cotangent_laplacian(V, F) -> sp.csr_matrix:
     """libigl's cotangent Laplacian ``L`` (negative semidefinite, rows sum to 0)."""
     V = as_vertices(V)

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from .errors import InputError, SolveError
 from .interfaces import as_faces, as_handles, as_positions, as_vertices, check_fitted
@@ -260,15 +259,13 @@ class TangentSolver:
 
     @staticmethod
     def _check_components(B: sp.csr_matrix, labelled: np.ndarray) -> None:
-        count, comp = csgraph.connected_components(B != 0, directed=False)
-        has = np.zeros(count, bool)
-        has[comp[labelled]] = True
-        if not has.all():
-            bad = int(np.flatnonzero(~has)[0])
-            size = int((comp == bad).sum())
+        from .geometry import unlabelled_components
+
+        count, example, size = unlabelled_components(B, labelled)
+        if count:
             raise SolveError(
-                f"{int((~has).sum())} connected part(s) of the data have no label (e.g. one of {size} points, "
-                f"point {int(np.flatnonzero(comp == bad)[0])}); every connected component needs labels"
+                f"{count} connected part(s) of the data have no label (e.g. one of {size} points, "
+                f"point {example}); every connected component needs labels"
             )
 
     def solve(self, Y_hat) -> np.ndarray:

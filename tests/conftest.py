@@ -22,6 +22,12 @@ def face_mesh(face_model):
     return face_model.neutral.copy(), face_model.triangles.copy()
 
 
+def two_grids():
+    """Two disjoint bumped 5x5 grids (vertices 0-24 and 25-49): a mesh with two components."""
+    V1, F1 = grid_mesh(5, 5, bump=0.2)
+    return np.r_[V1, V1 + [3, 0, 0]], np.r_[F1, F1 + 25]
+
+
 def grid_mesh(nx: int = 8, ny: int = 8, bump: float = 0.0):
     """A triangulated (nx x ny)-vertex grid on [0,1]^2, optionally bumped in z."""
     x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 1, ny), indexing="xy")

@@ -11,7 +11,7 @@ from baselines.reference import MarkersOnly
 from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import NotFittedError
 
-from .conftest import grid_mesh
+from .conftest import grid_mesh, two_grids
 
 ALL = [RBFDeformer, LaplacianDeformer, ARAPDeformer, BiharmonicDeformer, MarkersOnly,
        lambda: LaplacianDeformer(mode="plain"), lambda: LaplacianDeformer(weights="uniform"),
@@ -60,9 +60,7 @@ def test_not_fitted_and_nan(make):
 @pytest.mark.parametrize("make", [LaplacianDeformer, ARAPDeformer, BiharmonicDeformer],
                          ids=["laplacian", "arap", "biharmonic"])
 def test_component_without_marker(make):
-    V1, F1 = grid_mesh(5, 5, bump=0.2)
-    V = np.r_[V1, V1 + [3, 0, 0]]
-    F = np.r_[F1, F1 + 25]
+    V, F = two_grids()
     with pytest.raises(SolveError, match="no marker"):
         make().fit(V, F, [0, 4, 20, 24])
 

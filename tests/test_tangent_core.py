@@ -10,7 +10,7 @@ from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import NotFittedError
 from facegeom.tangent import TangentDeformer, TangentSolver, alignment_matrix, kabsch
 
-from .conftest import grid_mesh
+from .conftest import grid_mesh, two_grids
 
 
 def loop_reference(X, neighbourhoods, d):
@@ -102,9 +102,7 @@ def test_hard_and_soft_constraints():
 
 
 def test_component_without_label_is_a_clear_error():
-    V1, F1 = grid_mesh(5, 5, bump=0.2)
-    V = np.r_[V1, V1 + [3, 0, 0]]
-    F = np.r_[F1, F1 + 25]
+    V, F = two_grids()
     with pytest.raises(SolveError, match="no label"):
         TangentDeformer().fit(V, F, [0, 4, 20, 24])
 

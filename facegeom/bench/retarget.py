@@ -106,9 +106,9 @@ def run(model, seqs, specs: list[MethodSpec], label_counts=LABEL_COUNTS, echo=pr
                     "motion_mm": motion * CM_TO_MM, "time_ms": dt * 1e3,
                 })
                 if L == ref:
-                    for t_, e in enumerate(np.linalg.norm(Y - s.target, axis=(2,)) ** 2):
-                        frame_rows.append({"sequence": si, "method": spec.label, "frame": t_,
-                                           "frobenius_mm": float(np.sqrt(e.sum()) * CM_TO_MM)})
+                    per_frame = np.linalg.norm(Y - s.target, axis=(1, 2)) * CM_TO_MM
+                    frame_rows.extend({"sequence": si, "method": spec.label, "frame": t_, "frobenius_mm": float(e)}
+                                      for t_, e in enumerate(per_frame))
     return rows, frame_rows, ref
 
 
