@@ -136,6 +136,72 @@ def drive(mesh, markers, output, method, params, fmt):
         click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
 
 
+@cli.command()
+@click.argument("source", type=click.Path(dir_okay=False))
+@click.argument("labels", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The retargeted sequence (.csv or .npz).")
+@click.option("-m", "--method", default="tangent", show_default=True,
+              help="A registered retargeter (see `facegeom methods --kind retargeters`).")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
+              help="Method parameter, repeatable (e.g. -p window=2 -p strategy=marker).")
+@click.option("--fill-gaps", is_flag=True,
+              help="Interpolate lost (empty/NaN) source markers over time instead of refusing them.")
+def retarget(source, labels, output, method, params, fill_gaps):
+    """Retarget the actor's markers SOURCE onto a character known at the frames of LABELS.
+
+    Both files are marker sequences (CSV with header frame,marker,x,y,z, or npz
+    with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
+    """
+    import numpy as np
+
+    from . import registry
+    from .errors import InputError
+    from .markerseq import fill_gaps as fill, read_marker_sequence, write_marker_sequence
+
+    src = read_marker_sequence(source)
+    T = src.n_frames
+    if not np.array_equal(src.frames, np.arange(T)):
+        hole = int(np.setdiff1d(np.arange(int(src.frames[-1]) + 1), src.frames)[0])
+        raise InputError(f"source frames must run 0..T-1 without holes; frame {hole} is absent", source)
+    miss = src.missing()
+    if miss.any():
+        f, j = (int(x) for x in np.argwhere(miss)[0])
+        if not fill_gaps:
+            raise InputError(f"frame {f}: marker {src.names[j]!r} is lost (empty or NaN) in {int(miss.sum())} "
+                             f"marker samples; pass --fill-gaps to interpolate them over time", source)
+        try:
+            P, n = fill(src.positions)
+        except InputError as exc:
+            raise InputError(exc.reason, source) from None
+        click.echo(f"filled {n} lost marker samples by interpolation over time")
+    else:
+        P = src.positions
+    lab = read_marker_sequence(labels)
+    if lab.n_markers != src.n_markers:
+        raise InputError(f"{lab.n_markers} markers per frame, but the source {source} has {src.n_markers}", labels)
+    lab = lab.reorder(src.names, "labels")
+    out_of_range = lab.frames[lab.frames >= T]
+    if out_of_range.size:
+        raise InputError(f"labelled frame {int(out_of_range[0])} is out of range: the source has frames 0..{T - 1}",
+                         labels)
+    if lab.n_frames < 2:
+        raise InputError(f"at least two labelled frames are needed, got {lab.n_frames}", labels)
+    lmiss = lab.missing()
+    if lmiss.any():
+        i, j = (int(x) for x in np.argwhere(lmiss)[0])
+        raise InputError(f"labelled frame {int(lab.frames[i])}: marker {lab.names[j]!r} is empty or NaN; "
+                         f"known character frames must be complete", labels)
+    r = registry.create("retargeters", method, **_parse_params(params))
+    t = time.perf_counter()
+    Y = r.fit(P, lab.frames, lab.positions).transform()
+    dt = time.perf_counter() - t
+    dev = float(np.abs(Y[lab.frames] - lab.positions).max())
+    write_marker_sequence(output, Y, names=src.names, extra={"labelled_frames": lab.frames})
+    click.echo(f"{method}: {T} frames x {src.n_markers} markers from {lab.n_frames} labelled frames in "
+               f"{dt * 1e3:.1f} ms (largest deviation from a label {dev:.3g}) -> {output}")
+
+
 @cli.group()
 def bench():
     """Benchmarks that reproduce the papers' experiments (seeded; CSV + plot + table)."""
