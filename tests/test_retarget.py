@@ -11,7 +11,7 @@ from facegeom import registry
 from facegeom.errors import InputError, SolveError
 from facegeom.retarget import TangentRetargeter, marker_affine_fit, temporal_windows
 
-PAPER = dict(strategy="marker", window=2, d=1, field="position", smoothness=0.0)
+PAPER = dict(strategy="marker", window=2, d=1, field="position", smoothness=0.0, beta=None, source_smoothing=0)
 
 
 def smooth_sequence(T=60, p=6, seed=0):
@@ -29,7 +29,9 @@ def random_rotation(rng):
     return q * np.sign(np.linalg.det(q))
 
 
-ALL = [TangentRetargeter, lambda: TangentRetargeter(**PAPER), RBFRetargeter, LaplacianRetargeter, CopyRetargeter]
+EXACT = {"beta": None, "ridge": 1e-4, "source_smoothing": 0}
+ALL = [TangentRetargeter, lambda: TangentRetargeter(**EXACT), lambda: TangentRetargeter(**PAPER), RBFRetargeter,
+       LaplacianRetargeter, CopyRetargeter]
 
 
 def test_temporal_windows_clipped():
@@ -52,13 +54,17 @@ def test_labelled_frames_are_met(make):
     Y_true = S * 1.3 + 0.5
     Y = make().fit(S, lab, Y_true[lab]).transform()
     assert Y.shape == S.shape
-    if not isinstance(make(), CopyRetargeter):
+    m = make()
+    motion = np.abs(Y_true - Y_true.mean(axis=0)).max()
+    if isinstance(m, TangentRetargeter) and m.beta == "auto":  # soft labels: followed closely on clean data
+        np.testing.assert_allclose(Y[lab], Y_true[lab], atol=0.01 * motion)
+    elif not isinstance(m, CopyRetargeter):
         np.testing.assert_allclose(Y[lab], Y_true[lab], atol=1e-9)
 
 
-@pytest.mark.parametrize("cfg", [{"ridge": 1e-12}, PAPER | {"d": 3, "window": 3}])
+@pytest.mark.parametrize("cfg", [{"ridge": 1e-12, "beta": None, "source_smoothing": 0}, PAPER | {"d": 3, "window": 3}])
 def test_global_affine_map_is_recovered(cfg):
-    """A character whose markers are one affine map of the actor's is retargeted exactly."""
+    """A character whose markers are one affine map of the actor's is retargeted exactly (exact configurations)."""
     rng = np.random.default_rng(1)
     S = smooth_sequence(seed=2)
     A, c = rng.normal(size=(3, 3)) + 2 * np.eye(3), rng.normal(size=3)
@@ -66,6 +72,39 @@ def test_global_affine_map_is_recovered(cfg):
     lab = np.round(np.linspace(0, S.shape[0] - 1, 8)).astype(int)
     Y = TangentRetargeter(**cfg).fit(S, lab, Y_true[lab]).transform()
     np.testing.assert_allclose(Y, Y_true, atol=1e-5 * np.abs(Y_true).max())
+
+
+def test_default_is_close_on_clean_affine_data():
+    """The robust default smooths the (clean) source a little: within 1 % of the motion, not exact."""
+    rng = np.random.default_rng(1)
+    S = smooth_sequence(seed=2)
+    A, c = rng.normal(size=(3, 3)) + 2 * np.eye(3), rng.normal(size=3)
+    Y_true = S @ A.T + c
+    lab = np.round(np.linspace(0, S.shape[0] - 1, 8)).astype(int)
+    Y = TangentRetargeter().fit(S, lab, Y_true[lab]).transform()
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    assert np.linalg.norm(Y - Y_true, axis=2).mean() < 0.01 * motion
+
+
+@pytest.mark.parametrize("where", ["labels", "source"])
+def test_default_degrades_gracefully_with_noise(where):
+    """With noisy labels or noisy source markers the auto defaults beat the exact configuration clearly."""
+    rng = np.random.default_rng(4)
+    S = smooth_sequence(T=100, p=8, seed=5)
+    Y_true = 1.2 * S + 0.2 * np.sin(S)
+    lab = np.round(np.linspace(0, 99, 10)).astype(int)
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    sigma = 0.05 * motion
+    err = {}
+    for name, m in {"auto": TangentRetargeter(), "exact": TangentRetargeter(**EXACT)}.items():
+        e = []
+        for _ in range(5):
+            Yh = Y_true[lab] + (rng.normal(size=(10, 8, 3)) * sigma if where == "labels" else 0)
+            X = S + (rng.normal(size=S.shape) * sigma if where == "source" else 0)
+            e.append(np.linalg.norm(m.fit(X, lab, Yh).transform() - Y_true, axis=2).mean())
+        err[name] = np.mean(e)
+    # measured here (seeded): labels 0.139 vs 0.166 (0.84x), source 0.038 vs 0.267 (0.14x)
+    assert err["auto"] < (0.9 if where == "labels" else 0.3) * err["exact"], err
 
 
 def test_tangent_beats_copy_on_a_nonlinear_character():

@@ -40,7 +40,9 @@ DEFAULT_METHODS = [
     "rbf",
     "rbf-frame=rbf:strategy=frame",
     "laplacian",
-    "tangent-paper=tangent:strategy=marker,window=2,d=1,field=position,smoothness=0",
+    "tangent-paper=tangent:strategy=marker,window=2,d=1,field=position,smoothness=0,beta=None,ridge=0.0001,"
+    "source_smoothing=0",
+    "tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0",
     "tangent",
 ]
 
