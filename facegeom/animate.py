@@ -32,6 +32,25 @@ class Animation:
 
 
 
+def drive_frames(deformer, markers: np.ndarray, progress=None) -> tuple[np.ndarray, float]:
+    """Drive a fitted deformer with every frame of ``markers (T, p, 3)``; returns ``(T, n, 3)`` and seconds."""
+    frames = range(markers.shape[0]) if progress is None else progress(range(markers.shape[0]))
+    out = None
+    t0 = time.perf_counter()
+    for t in frames:
+        v = deformer.deform(markers[t])
+        if out is None:
+            out = np.empty((markers.shape[0],) + v.shape)
+        out[t] = v
+    return out, time.perf_counter() - t0
+
+
+def face_error_mm(V: np.ndarray, truth: np.ndarray, region: int | None = None) -> np.ndarray:
+    """Mean vertex error per frame (mm) over vertices ``[0, region)`` (all by default); cm input."""
+    r = slice(None) if region is None else slice(0, region)
+    return np.linalg.norm(V[:, r] - truth[:, r], axis=2).mean(axis=1) * 10.0
+
+
 def animate(model, seq: sq.Sequence, retargeter, deformer, labels: int = 10, region: int | None = None,
             progress=None) -> Animation:
     """Run the pipeline on ``seq``; ``region`` = vertices ``[0, region)`` for the error (default all)."""
@@ -45,14 +64,8 @@ def animate(model, seq: sq.Sequence, retargeter, deformer, labels: int = 10, reg
     t0 = time.perf_counter()
     deformer.fit(rest, model.triangles, seq.marker_ids)
     t_fit = time.perf_counter() - t0
-    out = np.empty_like(truth)
-    t0 = time.perf_counter()
-    frames = range(T) if progress is None else progress(range(T))
-    for t in frames:
-        out[t] = deformer.deform(markers[t])
-    t_drive = time.perf_counter() - t0
-    r = slice(None) if region is None else slice(0, region)
-    frame_err = np.linalg.norm(out[:, r] - truth[:, r], axis=2).mean(axis=1) * 10.0
+    out, t_drive = drive_frames(deformer, markers, progress)
+    frame_err = face_error_mm(out, truth, region)
     marker_err = np.linalg.norm(markers - seq.target, axis=2).mean(axis=1) * 10.0
     return Animation(out, model.triangles.copy(), markers, lab, frame_err, marker_err,
                      {"retarget_s": t_ret, "deformer_fit_s": t_fit, "drive_s": t_drive})

@@ -289,6 +289,73 @@ def _load_takes(model, takes_path):
     return out
 
 
+@bench.command("noise")
+@click.option("--sequences", default=20, show_default=True, type=click.IntRange(1, 10000))
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--levels", default="0,0.1,0.2,0.5,1", show_default=True,
+              help="Comma-separated noise standard deviations (mm per coordinate).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True, help="'all' or ';'-separated retargeter specs.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/noise", show_default=True)
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_noise(obj: _Context, sequences, frames, labels, levels, seed, methods, takes_path, synthetic_only, out,
+                no_plot, quiet):
+    """Retargeting with Gaussian noise on the known character frames and on the actor's markers."""
+    from .bench import noise as bn
+    from .bench.common import parse_methods
+    from .errors import InputError
+
+    try:
+        lv = tuple(float(x) for x in levels.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"--levels must be comma-separated numbers (mm), got {levels!r}") from None
+    if not lv or min(lv) < 0:
+        raise InputError(f"--levels must be non-negative numbers (mm), got {levels!r}")
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    specs = parse_methods(methods, "retargeters", bn.DEFAULT_METHODS)
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    bn.main(model, takes, specs, sequences, seed, out, lv, labels, frames, echo=click.echo, plot_it=not no_plot,
+            progress=not quiet)
+
+
+@bench.command("animate")
+@click.option("--sequences", default=10, show_default=True, type=click.IntRange(1, 10000))
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--retargeters", default="all", show_default=True,
+              help="'all' (copy, rbf, tangent) or ';'-separated retargeter specs.")
+@click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/animate", show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, deformer, takes_path, synthetic_only,
+                  out, quiet):
+    """Performance-driven animation over many takes: face error and times per retargeter."""
+    from .bench import animate as ba
+    from .bench.common import parse_method, parse_methods
+    from .errors import InputError
+
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    specs = parse_methods(retargeters, "retargeters", ba.DEFAULT_RETARGETERS)
+    d_spec = parse_method(deformer)
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    ba.main(model, takes, specs, d_spec, sequences, seed, out, labels, frames, echo=click.echo, progress=not quiet)
+
+
 @bench.command("scaling")
 @click.option("--levels", default="0,1,2", show_default=True,
               help="Subdivision levels of the face (0: 9,409 vertices, 1: ~37k, 2: ~150k).")

@@ -225,7 +225,9 @@ def closest_point_rms(vertices, points, direction: str = "mesh_to_cloud") -> flo
 
 def interocular_distance(a, b) -> float:
     """``|a - b|`` for two eye points (2-D or 3-D); InputError if zero or not finite."""
-    x, y = _pair(a, b)
+    x, y = _flat(a, "first eye point"), _flat(b, "second eye point")
+    if x.size != y.size:
+        raise InputError(f"eye points differ in dimension: {x.size} vs {y.size}")
     d = float(np.linalg.norm(x - y))
     if not d > 0:
         raise InputError("inter-ocular distance is zero: the two eye points coincide")
@@ -343,7 +345,7 @@ def correlation_metrics(rig, weights, *, gram=None) -> CorrelationMetrics:
             raise InputError(f"gram is {G.shape} for {w.size} weights")
     terms = np.triu(np.outer(w, w) * G, k=1)
     pos = float(terms[terms > 0].sum())
-    neg = float(-terms[terms < 0].sum())
+    neg = float(np.abs(terms[terms < 0]).sum())
     return CorrelationMetrics(pos + neg, pos, neg)
 
 

@@ -89,13 +89,26 @@ def loo_label_weight(B, labelled, residual, grid=BETA_GRID, zero_score: float | 
     scale = B.diagonal().mean()
     scale = scale if scale > 0 else 1.0
     r = np.asarray(residual, dtype=np.float64).reshape(len(labelled), -1)
+    labelled = np.asarray(labelled)
+    dense = B.toarray() if B.shape[0] <= 1500 else None
+    if dense is not None:
+        E = np.zeros((B.shape[0], labelled.size))
+        E[labelled, np.arange(labelled.size)] = 1.0
     scores = np.empty(len(grid))
     for k, g in enumerate(grid):
         if g == 0:  # no correction at all: each label is predicted as 0
             scores[k] = float((r ** 2).sum()) if zero_score is None else float(zero_score)
             continue
-        W = TangentSolver(B, labelled, g * scale, dense_map=True).map_  # (M, N): Y = (r.T @ W).T
-        S = W[:, labelled].T  # (M, M): Y_lab = S r
+        if dense is not None:  # small systems (a frame-strategy sequence): one dense solve per candidate
+            A = dense.copy()
+            A[labelled, labelled] += g * scale
+            try:
+                S = g * scale * np.linalg.solve(A, E)[labelled]  # (M, M): Y_lab = S r
+            except np.linalg.LinAlgError:
+                S = None
+        if dense is None or S is None:
+            W = TangentSolver(B, labelled, g * scale, dense_map=True).map_  # (M, N): Y = (r.T @ W).T
+            S = W[:, labelled].T
         denom = np.maximum(1.0 - np.diag(S), 1e-9)
         scores[k] = float(((((r - S @ r)) / denom[:, None]) ** 2).sum())
     return float(grid[int(np.argmin(scores))] * scale), scores

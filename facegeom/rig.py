@@ -535,6 +535,9 @@ class PinholeCamera:
         p = np.asarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
             raise InputError(f"points must have shape (N, 3), got {p.shape}")
+        bad = _first_nonfinite(p)
+        if bad is not None:
+            raise InputError(f"point {bad[0]} is NaN or inf")
         return p @ self.R.T + self.t
 
     def _depth(self, pc: np.ndarray, what: str) -> np.ndarray:

@@ -118,3 +118,37 @@ def test_retarget_bad_source(files):
     assert r.returncode == 2 and "file not found" in r.stderr
     r = run("retarget", str(d / "actor.csv"), str(d / "labels.csv"), "-o", str(d / "o.txt"))
     assert r.returncode == 2 and "unsupported marker-sequence format" in r.stderr
+
+
+def test_bench_noise_small(tmp_path, face_model):
+    import csv
+
+    out = tmp_path / "nz"
+    r = run("bench", "noise", "--sequences", "2", "--frames", "40", "--levels", "0,0.5", "--synthetic-only",
+            "--quiet", "--methods", "rbf;tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0;tangent",
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(out / "noise.csv")))
+    assert len(rows) == 2 * 2 * 2 * 3  # sequences x kinds x levels x methods
+    err = {}
+    for x in rows:
+        err.setdefault((x["method"], x["kind"], float(x["sigma_mm"])), []).append(float(x["mean_mm"]))
+    for kind in ("labels", "source"):  # noise hurts the exact configuration; the default degrades far less
+        assert np.mean(err[("tangent-exact", kind, 0.5)]) > np.mean(err[("tangent-exact", kind, 0.0)])
+        assert np.mean(err[("tangent", kind, 0.5)]) < 0.8 * np.mean(err[("tangent-exact", kind, 0.5)])
+    assert (out / "noise.png").stat().st_size > 1000
+    r = run("bench", "noise", "--levels", "a,b")
+    assert r.returncode == 2 and "--levels" in r.stderr
+
+
+def test_bench_animate_small(tmp_path, face_model):
+    import csv
+
+    out = tmp_path / "an"
+    r = run("bench", "animate", "--sequences", "1", "--frames", "20", "--labels", "5", "--synthetic-only", "--quiet",
+            "--retargeters", "copy;tangent", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = {x["retargeter"]: x for x in csv.DictReader(open(out / "animate.csv"))}
+    assert set(rows) == {"copy", "tangent"}
+    assert float(rows["tangent"]["marker_mm"]) < float(rows["copy"]["marker_mm"])
+    assert float(rows["tangent"]["face_mm"]) < 1.0  # the driven character stays within a millimetre of its faces

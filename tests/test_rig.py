@@ -208,6 +208,8 @@ def test_behind_camera_and_camera_validation():
         cam.project([[0, 0, -1], [0, 0, 1]], what="landmark")
     with pytest.raises(InputError, match="behind the camera"):
         cam.project([[0, 0, 0.0]])
+    with pytest.raises(InputError, match="point 1 is NaN"):
+        cam.project([[0, 0, -1], [0, np.nan, -1]])
     with pytest.raises(InputError, match="focal must be > 0"):
         PinholeCamera(0, 0, 0)
     with pytest.raises(InputError, match="rotation matrix"):
@@ -236,7 +238,7 @@ def test_look_at_camera_frames_the_mesh():
     cam = look_at_camera(NEUTRAL, focal=500, image_size=(640, 480))
     assert np.allclose(cam.R, np.eye(3))
     uv = cam.project(NEUTRAL)
-    assert np.all((uv >= 0) & (uv[:, 0] <= 640) & (uv[:, 1] <= 480))
+    assert np.all((uv >= 0) & (uv <= [640, 480]))
     # +x goes right, +y goes up (smaller v)
     assert uv[1, 0] > uv[0, 0] and uv[2, 1] < uv[0, 1]
     far = look_at_camera(NEUTRAL, focal=500, distance=100)
