@@ -445,11 +445,18 @@ def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, r
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/demo", show_default=True)
 @click.pass_context
 def demo(ctx, cases, out):
-    """The main job: the face-driving comparison on a few real faces, with its table."""
+    """The main job: face driving and expression retargeting compared on a few real faces, with tables."""
     ctx.invoke(info)
     click.echo("")
     ctx.invoke(bench_drive, cases=cases, seed=0, methods="all", layout_name="ict80", layout_seed=0, out=out,
                no_plot=False, quiet=False)
+    click.echo("")
+    from .data import default_takes_path
+
+    have_takes = default_takes_path().is_dir()
+    ctx.invoke(bench_retarget, sequences=cases, frames=100, seed=0, methods="copy;rbf;tangent", labels="10,20",
+               takes_path=None, synthetic_only=not have_takes, layout_name="ict80", layout_seed=0,
+               out=str(Path(out) / "retarget"), no_plot=False, quiet=False)
 
 
 def main(argv=None):
