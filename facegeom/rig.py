@@ -497,9 +497,10 @@ class PinholeCamera:
     t : (3,) translation, default zero.
     """
 
-    __slots__ = ("focal", "cx", "cy", "R", "t")
+    __slots__ = ("focal", "cx", "cy", "R", "t", "posed")
 
     def __init__(self, focal: float, cx: float, cy: float, R=None, t=None):
+        self.posed = R is not None or t is not None  # False: the pose is unknown (fitters estimate it)
         self.focal = _as_scalar(focal, "focal", positive=True)
         self.cx = _as_scalar(cx, "cx")
         self.cy = _as_scalar(cy, "cy")
@@ -524,6 +525,10 @@ class PinholeCamera:
 
     def __repr__(self) -> str:
         return f"PinholeCamera(focal={self.focal:g}, cx={self.cx:g}, cy={self.cy:g}, t={self.t.tolist()})"
+
+    def with_pose(self, R, t) -> "PinholeCamera":
+        """The same intrinsics with the pose ``(R, t)`` (world -> camera)."""
+        return PinholeCamera(self.focal, self.cx, self.cy, R, t)
 
     @property
     def center(self) -> np.ndarray:

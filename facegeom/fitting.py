@@ -1,0 +1,75 @@
+"""Shared pieces of blendshape fitting: target dispatch, pose alternation, results.
+
+Every fitter (SEM in :mod:`facegeom.sem`, the baselines in ``baselines.fitting``)
+takes a :class:`~facegeom.rig.BlendshapeRig` and one of the targets of
+:mod:`facegeom.rig` and returns a :class:`~facegeom.interfaces.FitResult`
+(``weights`` in the rig's shape order, ``vertices`` the fitted face, ``info``).
+
+Landmark targets whose camera has no pose (``camera.posed`` is False) get the
+rigid pose estimated from the landmarks on the neutral face first, then
+alternately with the expression (:func:`fit_with_pose`), as in Sec. III of the
+SEM paper.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .errors import InputError
+from .interfaces import FitResult
+from .pose import estimate_pose
+from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+
+__all__ = ["check_fit_inputs", "fit_with_pose", "result", "landmark_motion_basis"]
+
+TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
+
+
+def check_fit_inputs(rig, target):
+    """Validate ``rig`` and ``target`` (type, vertex counts, landmark ids) and return them."""
+    if not isinstance(rig, BlendshapeRig):
+        raise InputError(f"rig must be a BlendshapeRig, got {type(rig).__name__}")
+    if not isinstance(target, TARGETS):
+        raise InputError(f"target must be a MeshTarget, LandmarkTarget or PointCloudTarget, got {type(target).__name__}")
+    if isinstance(target, (MeshTarget, LandmarkTarget)):
+        target.check(rig)
+    return rig, target
+
+
+def fit_with_pose(rig: BlendshapeRig, target: LandmarkTarget, solve: Callable[[PinholeCamera], np.ndarray],
+                  alternations: int = 3) -> tuple[np.ndarray, PinholeCamera]:
+    """Solve the expression under a known pose, or alternate pose and expression.
+
+    ``solve(camera) -> weights (B,)`` fits the expression for a posed camera.
+    With an unposed camera: pose from the neutral face's landmarks, then
+    ``alternations`` rounds of (expression, pose refined from the fitted face),
+    and a final expression solve.
+    """
+    if target.camera.posed:
+        return solve(target.camera), target.camera
+    ids = target.vertex_ids
+    cam = estimate_pose(rig.neutral[ids], target.points2d, target.camera)
+    for _ in range(alternations):
+        w = solve(cam)
+        cam = estimate_pose(rig.evaluate(w, ids), target.points2d, target.camera, init=cam)
+    return solve(cam), cam
+
+
+def landmark_motion_basis(rig: BlendshapeRig, camera: PinholeCamera, ids: np.ndarray,
+                          base: np.ndarray | None = None) -> np.ndarray:
+    """``Pi(base + dB_i) - Pi(base)`` at the landmark vertices for every shape -> ``(B, 2L)``.
+
+    With ``base=None`` it is the neutral face: the ``Pi(B_i) - Pi(B_1)`` of eqs. 20-22.
+    """
+    base_pts = (rig.neutral if base is None else base)[ids]
+    p0 = camera.project(base_pts, "landmark")
+    shapes = base_pts[None] + rig.deltas[:, ids]  # (B, L, 3)
+    pts = camera.project(shapes.reshape(-1, 3), "landmark").reshape(rig.n_shapes, len(ids), 2)
+    return (pts - p0[None]).reshape(rig.n_shapes, -1)
+
+
+def result(rig: BlendshapeRig, weights, **info) -> FitResult:
+    """A :class:`FitResult` with the fitted face evaluated from ``weights``."""
+    w = np.asarray(weights, dtype=np.float64)
+    return FitResult(weights=w, vertices=rig.evaluate(w), info=dict(info))

@@ -1,0 +1,399 @@
+"""Selective Expression Manipulation (SEM): greedy delta-blendshape selection (Kang et al., Sec. IV).
+
+Starting from the neutral face ``F^1 = B_1``, each iteration ``t``
+
+1. measures, for every remaining candidate ``dB_i``, its coefficient
+   ``e_i = max(ERSim(dB_i, dT^t), 0)`` (eq. 18) against the remaining motion
+   ``dT^t = T - F^t`` and the motional energy index from the initial face
+   ``r(t, dB_i) = 1 - ERSim(dT, sum_k e^k dB^k + e_i dB_i)`` (eq. 19);
+2. **excludes** (one-step backtracking) every candidate whose index would exceed
+   in magnitude the index reached by the previous selection,
+   ``|r(t-1, dB^{t-1})| < |r(t, dB_i)|`` -- a candidate that would undo the
+   motion selected so far, or overshoot the target, is dropped for good;
+3. **selects** the candidate of largest expressional similarity
+   ``s_i = ESim(dB_i, dT^t)`` (eqs. 16-17), with coefficient ``e^t`` (eq. 18),
+   ``F^{t+1} = F^t + e^t dB^t`` (eq. 13), and removes it from the candidates;
+
+until no candidate remains. ``ESim`` and ``ERSim`` are eqs. 9 and 10
+(:mod:`facegeom.fitmetrics`). The first iteration has no previous index and
+excludes nothing; the index of the empty selection is ``1``.
+
+Targets
+-------
+- :class:`~facegeom.rig.MeshTarget` (Sec. IV-B): everything is an inner product
+  of motions, so after ``c = D^T dT`` (one product per target) the whole
+  selection runs on the precomputed Gram matrix ``G = D^T D`` of the deltas
+  (:func:`sem_gram`, vectorised over many targets at once).
+- :class:`~facegeom.rig.LandmarkTarget` (Sec. IV-C, eqs. 20-22): motions are
+  2-D on the image, ``Pi(B_i) - Pi(B_1)`` for the candidates and
+  ``L - Pi(F^t)`` for the target, with the current face projected exactly. An
+  unposed camera gets its pose from the landmarks, then alternately with the
+  expression (:func:`facegeom.fitting.fit_with_pose`).
+- :class:`~facegeom.rig.PointCloudTarget` (Sec. IV-D, eqs. 23-25): per
+  candidate, closest points ``P_i`` of the face moved by that candidate alone
+  (one ICP step from the coefficient on the current correspondences, a
+  KD-tree), then ``s_i = ESim(dB_i, P_i - F^t)``, ``e = ERSim(dB, P_i - F^t)``,
+  ``r = 1 - ERSim(P_i - F^1, B~_i)``; after each selection the selected
+  coefficients are refined on the new correspondences (non-negative least
+  squares), as the paper allows.
+
+Options beyond the paper (off by default, so the published algorithm runs):
+``clamp=True`` bounds every coefficient to ``[0, 1]`` (eq. 1's constraint), and
+``refit=True`` finishes with a bounded least-squares refit of the selected
+shapes' coefficients on the data.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.optimize import lsq_linear, nnls
+from scipy.spatial import cKDTree
+
+from .errors import InputError
+from .fitting import check_fit_inputs, fit_with_pose, landmark_motion_basis, result
+from .interfaces import FitResult
+from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+
+__all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
+
+_TINY = 1e-300
+
+
+def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None):
+    """SEM on motions known only through inner products, for ``K`` targets at once.
+
+    Parameters
+    ----------
+    c : (K, B) or (B,)
+        ``dT . dB_i`` for each target motion ``dT`` and candidate.
+    G : (B, B)
+        Gram matrix ``dB_i . dB_j``.
+    tt : (K,) or scalar
+        ``|dT|^2``.
+    exclusion : bool
+        The one-step backtracking exclusion (eq. 19 and its condition).
+    upper : float or None
+        Upper bound of a coefficient (``None``: the paper, only ``e >= 0``).
+
+    Returns
+    -------
+    e : (K, B) or (B,) coefficients
+    order : (K, B) int, the selected candidates in selection order (-1 after the last)
+    """
+    c = np.asarray(c, dtype=np.float64)
+    single = c.ndim == 1
+    c = np.atleast_2d(c)
+    K, B = c.shape
+    G = np.asarray(G, dtype=np.float64)
+    tt = np.broadcast_to(np.asarray(tt, dtype=np.float64), (K,))
+    diag = np.diag(G).copy()
+    moves = diag > _TINY
+    inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
+    inv_diag = np.where(moves, 1.0 / np.where(moves, diag, 1.0), 0.0)
+    inv_tt = np.where(tt > _TINY, 1.0 / np.where(tt > _TINY, tt, 1.0), 0.0)
+    e = np.zeros((K, B))
+    proj = c.copy()  # dT^t . dB_i, kept up to date
+    explained = np.zeros(K)  # dT . (sum_k e^k dB^k)
+    alive = np.broadcast_to(moves, (K, B)).copy()  # a shape that moves nothing is never a candidate
+    r_prev = np.ones(K)
+    order = np.full((K, B), -1, dtype=np.int64)
+    rows = np.arange(K)
+    for t in range(B):
+        active = alive.any(axis=1)
+        if not active.any():
+            break
+        ei = np.maximum(proj * inv_diag, 0.0)  # eq. 18 for every candidate
+        if upper is not None:
+            ei = np.minimum(ei, upper)
+        if exclusion and t > 0:
+            r = 1.0 - (explained[:, None] + ei * c) * inv_tt[:, None]  # eq. 19
+            alive &= ~(np.abs(r) > np.abs(r_prev)[:, None])
+            active = alive.any(axis=1)
+            if not active.any():
+                break
+        score = np.where(alive, proj * inv_norm, -np.inf)  # ESim up to the common factor 1/|dT^t|
+        pick = np.argmax(score, axis=1)
+        et = np.where(active, ei[rows, pick], 0.0)
+        e[rows, pick] += et
+        proj -= et[:, None] * G[pick]
+        explained += et * c[rows, pick]
+        r_prev = np.where(active, 1.0 - explained * inv_tt, r_prev)
+        order[active, t] = pick[active]
+        alive[rows[active], pick[active]] = False
+    return (e[0], order[0]) if single else (e, order)
+
+
+def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = True, upper: float | None = None):
+    """SEM on explicit motion vectors (rows of ``motions (B, D)``, target ``(D,)``), via :func:`sem_gram`."""
+    M = np.asarray(motions, dtype=np.float64)
+    d = np.asarray(target_motion, dtype=np.float64).ravel()
+    return sem_gram(M @ d, M @ M.T, float(d @ d), exclusion, upper)
+
+
+class SEMFitter:
+    """Selective Expression Manipulation as a :class:`~facegeom.interfaces.Fitter`.
+
+    Parameters
+    ----------
+    exclusion : bool
+        One-step backtracking exclusion (the paper: on).
+    clamp : bool
+        Bound coefficients to ``[0, 1]`` (beyond the paper; off).
+    refit : bool
+        Finish with a bounded least-squares refit of the selected shapes (beyond the paper; off).
+    alternations : int
+        Pose/expression alternations for landmark targets with an unknown pose.
+    region : array of vertex ids or None
+        Vertices used for point-cloud matching (default: all).
+    max_points : int
+        At most this many region vertices (an evenly strided subset) take part in
+        point-cloud matching, for speed; ``0`` = all.
+    """
+
+    def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
+                 region=None, max_points: int = 4000):
+        for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
+            if not isinstance(v, (bool, np.bool_)):
+                raise InputError(f"{name} must be true or false, got {v!r}")
+        if int(alternations) != alternations or alternations < 0:
+            raise InputError(f"alternations must be a non-negative integer, got {alternations!r}")
+        if int(max_points) != max_points or max_points < 0:
+            raise InputError(f"max_points must be a non-negative integer, got {max_points!r}")
+        self.exclusion, self.clamp, self.refit = bool(exclusion), bool(clamp), bool(refit)
+        self.alternations, self.max_points = int(alternations), int(max_points)
+        self.region = None if region is None else np.asarray(region, dtype=np.int64)
+
+    def get_params(self) -> dict:
+        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points")}
+
+    def __repr__(self) -> str:
+        return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
+
+    @property
+    def _upper(self):
+        return 1.0 if self.clamp else None
+
+    # ------------------------------------------------------------------ dispatch
+    def fit(self, rig: BlendshapeRig, target) -> FitResult:
+        rig, target = check_fit_inputs(rig, target)
+        t0 = time.perf_counter()
+        if isinstance(target, MeshTarget):
+            e, info = self._fit_mesh(rig, target)
+        elif isinstance(target, LandmarkTarget):
+            e, info = self._fit_landmarks(rig, target)
+        else:
+            e, info = self._fit_points(rig, target)
+        info["time_s"] = time.perf_counter() - t0
+        info["selected"] = [rig.names[i] for i in np.flatnonzero(e > 0)]
+        return result(rig, e, **info)
+
+    # ------------------------------------------------------------------ meshes
+    def _fit_mesh(self, rig, target: MeshTarget):
+        dT = target.vertices - rig.neutral
+        if target.weights is None:
+            c = rig.delta_matrix().T @ dT.ravel()
+            G = rig.gram()
+            tt = float((dT * dT).sum())
+        else:
+            w = np.repeat(target.weights, 3)
+            D = rig.delta_matrix()
+            c = D.T @ (w * dT.ravel())
+            G = D.T @ (w[:, None] * D)
+            tt = float((w * dT.ravel() ** 2).sum())
+        e, order = sem_gram(c, G, tt, self.exclusion, self._upper)
+        if self.refit:
+            e = self._refit_linear(rig.delta_matrix(), dT.ravel(), e, target.weights)
+        return e, {"order": [int(i) for i in order if i >= 0]}
+
+    def fit_meshes(self, rig: BlendshapeRig, targets) -> np.ndarray:
+        """Coefficients ``(K, B)`` for ``K`` corresponding target meshes ``(K, n, 3)`` at once (fast path)."""
+        T = np.asarray(targets, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (rig.n_vertices, 3):
+            raise InputError(f"targets must have shape (K, {rig.n_vertices}, 3), got {T.shape}")
+        if not np.all(np.isfinite(T)):
+            raise InputError("targets contain NaN or inf")
+        dT = (T - rig.neutral[None]).reshape(T.shape[0], -1)
+        c = dT @ rig.delta_matrix()
+        tt = np.einsum("ij,ij->i", dT, dT)
+        e, _ = sem_gram(c, rig.gram(), tt, self.exclusion, self._upper)
+        if self.refit:
+            e = np.stack([self._refit_linear(rig.delta_matrix(), d, ek, None) for d, ek in zip(dT, e)])
+        return e
+
+    def _refit_linear(self, A, b, e, weights=None):
+        sel = np.flatnonzero(e > 0)
+        if sel.size == 0:
+            return e
+        As = A[:, sel]
+        if weights is not None:
+            w = np.sqrt(np.repeat(weights, 3)) if As.shape[0] == 3 * weights.size else np.sqrt(weights)
+            As, b = As * w[:, None], b * w
+        out = np.zeros_like(e)
+        out[sel] = lsq_linear(As, b, bounds=(0.0, 1.0 if self.clamp else np.inf)).x
+        return out
+
+    # ------------------------------------------------------------------ landmarks
+    def _fit_landmarks(self, rig, target: LandmarkTarget):
+        ids = target.vertex_ids
+        L = target.points2d
+        orders = []
+
+        def solve(cam: PinholeCamera) -> np.ndarray:
+            e, order = self._sem_landmarks(rig, ids, L, cam)
+            orders.append(order)
+            return e
+
+        e, cam = fit_with_pose(rig, target, solve, self.alternations)
+        return e, {"order": orders[-1], "camera": cam, "pose_estimated": not target.camera.posed}
+
+    def _sem_landmarks(self, rig, ids, L, cam):
+        """Eqs. 20-22 with the exact projection of the current face."""
+        M = landmark_motion_basis(rig, cam, ids)  # (B, 2L): Pi(B_i) - Pi(B_1)
+        nrm2 = np.einsum("ij,ij->i", M, M)
+        moves = nrm2 > _TINY
+        base = rig.neutral[ids]
+        p1 = cam.project(base, "landmark")
+        dT = (L - p1).ravel()  # L - Pi(F^1)
+        tt = float(dT @ dT)
+        deltas = rig.deltas[:, ids]  # (B, L, 3)
+        B = rig.n_shapes
+        e = np.zeros(B)
+        F = base.copy()
+        alive = moves.copy()
+        r_prev = 1.0
+        order = []
+        upper = self._upper
+        for t in range(B):
+            if not alive.any():
+                break
+            resid = (L - cam.project(F, "landmark")).ravel()  # L - Pi(F^t)
+            proj = M @ resid
+            ei = np.where(moves, np.maximum(proj / np.where(moves, nrm2, 1.0), 0.0), 0.0)  # eq. 21 (clamped, eq. 18)
+            if upper is not None:
+                ei = np.minimum(ei, upper)
+            if self.exclusion and t > 0 and tt > _TINY:
+                cand = np.flatnonzero(alive)
+                moved = F[None] + ei[cand, None, None] * deltas[cand]  # F^t + e_i dB_i
+                proj_moved = cam.project(moved.reshape(-1, 3), "landmark").reshape(cand.size, -1) - p1.ravel()
+                r = 1.0 - proj_moved @ dT / tt  # eq. 22
+                alive[cand[np.abs(r) > abs(r_prev)]] = False
+                if not alive.any():
+                    break
+            score = np.where(alive, proj / np.sqrt(np.where(moves, nrm2, 1.0)), -np.inf)  # eq. 20
+            i = int(np.argmax(score))
+            e[i] += ei[i]
+            F = F + ei[i] * deltas[i]
+            if tt > _TINY:
+                r_prev = 1.0 - float((cam.project(F, "landmark") - p1).ravel() @ dT) / tt
+            order.append(i)
+            alive[i] = False
+        if self.refit:
+            e = self._refit_landmarks(rig, ids, L, cam, e)
+        return e, order
+
+    def _refit_landmarks(self, rig, ids, L, cam, e):
+        sel = np.flatnonzero(e > 0)
+        if sel.size == 0:
+            return e
+        from scipy.optimize import least_squares
+
+        def resid(x):
+            w = np.zeros_like(e)
+            w[sel] = x
+            return (cam.project(rig.evaluate(w, ids), "landmark") - L).ravel()
+
+        hi = 1.0 if self.clamp else np.inf
+        x = least_squares(resid, np.minimum(e[sel], 1.0 if self.clamp else e[sel].max() + 1), bounds=(0.0, hi)).x
+        out = np.zeros_like(e)
+        out[sel] = x
+        return out
+
+    # ------------------------------------------------------------------ point clouds
+    def _fit_points(self, rig, target: PointCloudTarget):
+        n = rig.n_vertices
+        region = np.arange(n) if self.region is None else self.region
+        if region.size == 0 or region.min() < 0 or region.max() >= n:
+            raise InputError(f"region must hold vertex ids in [0, {n})")
+        if self.max_points and region.size > self.max_points:
+            region = region[np.linspace(0, region.size - 1, self.max_points).astype(np.int64)]
+        tree = cKDTree(target.points)
+        F1 = rig.neutral[region]  # (m, 3)
+        D = rig.deltas[:, region]  # (B, m, 3)
+        B = rig.n_shapes
+        nrm2 = np.einsum("bij,bij->b", D, D)
+        moves = nrm2 > _TINY
+        # vertices a candidate actually moves (others keep their correspondence)
+        mag = np.linalg.norm(D, axis=2)  # (B, m)
+        support = [np.flatnonzero(mag[b] > 1e-3 * mag[b].max()) if moves[b] else np.zeros(0, np.int64)
+                   for b in range(B)]
+
+        def closest(X):
+            return target.points[tree.query(X, workers=-1)[1]]
+
+        e = np.zeros(B)
+        F = F1.copy()
+        P = closest(F)
+        alive = moves.copy()
+        r_prev = 1.0
+        order = []
+        upper = self._upper
+        queries = 0
+        for t in range(B):
+            if not alive.any():
+                break
+            cand = np.flatnonzero(alive)
+            s = np.full(B, -np.inf)
+            ei = np.zeros(B)
+            r = np.zeros(B)
+            Pi_store = {}
+            resid0 = P - F
+            for i in cand:
+                e0 = max(float((D[i] * resid0).sum()) / nrm2[i], 0.0)  # coefficient on the current matches
+                if upper is not None:
+                    e0 = min(e0, upper)
+                Pi = P
+                if e0 > 0 and support[i].size:  # eq. 23: one ICP step of the face moved by this candidate
+                    Pi = P.copy()
+                    sup = support[i]
+                    Pi[sup] = closest(F[sup] + e0 * D[i, sup])
+                    queries += sup.size
+                m = Pi - F
+                dot = float((D[i] * m).sum())
+                s[i] = dot / np.sqrt(nrm2[i])  # eq. 24 (ESim up to 1/|m|, which differs per candidate)
+                mn = float(np.sqrt((m * m).sum()))
+                s[i] = s[i] / mn if mn > _TINY else -np.inf
+                ei[i] = max(dot / nrm2[i], 0.0)
+                if upper is not None:
+                    ei[i] = min(ei[i], upper)
+                Pi_store[i] = Pi
+                if self.exclusion and t > 0:
+                    dT1 = Pi - F1  # P_i - F^1
+                    motion = (F - F1) + ei[i] * D[i]  # B~_i
+                    tt1 = float((dT1 * dT1).sum())
+                    r[i] = 1.0 - float((dT1 * motion).sum()) / tt1 if tt1 > _TINY else 0.0  # eq. 25
+            if self.exclusion and t > 0:
+                drop = cand[np.abs(r[cand]) > abs(r_prev)]
+                alive[drop] = False
+                s[drop] = -np.inf
+                if not alive.any():
+                    break
+            i = int(np.argmax(s))
+            e[i] += ei[i]
+            order.append(i)
+            alive[i] = False
+            P = Pi_store[i]  # P^t
+            sel = np.flatnonzero(e > 0)
+            if sel.size:  # refine the selected coefficients on the updated correspondences
+                A = D[sel].reshape(sel.size, -1).T
+                if upper is None:
+                    e[sel] = nnls(A, (P - F1).ravel())[0]
+                else:
+                    e[sel] = lsq_linear(A, (P - F1).ravel(), bounds=(0.0, upper)).x
+            F = F1 + np.tensordot(e, D, axes=1)
+            dT1 = P - F1
+            tt1 = float((dT1 * dT1).sum())
+            r_prev = 1.0 - float((dT1 * (F - F1)).sum()) / tt1 if tt1 > _TINY else 0.0
+            P = closest(F)
+            queries += F.shape[0]
+        return e, {"order": order, "points_used": int(region.size), "queries": queries}
