@@ -42,18 +42,32 @@ def fit_with_pose(rig: BlendshapeRig, target: LandmarkTarget, solve: Callable[[P
     """Solve the expression under a known pose, or alternate pose and expression.
 
     ``solve(camera) -> weights (B,)`` fits the expression for a posed camera.
-    With an unposed camera: pose from the neutral face's landmarks, then
+    With an unposed camera: pose from the neutral face's most stable landmarks
+    (:func:`stable_rows`), then
     ``alternations`` rounds of (expression, pose refined from the fitted face),
     and a final expression solve.
     """
     if target.camera.posed:
         return solve(target.camera), target.camera
     ids = target.vertex_ids
-    cam = estimate_pose(rig.neutral[ids], target.points2d, target.camera)
+    stable = stable_rows(rig, ids)
+    cam = estimate_pose(rig.neutral[ids[stable]], target.points2d[stable], target.camera)
     for _ in range(alternations):
         w = solve(cam)
         cam = estimate_pose(rig.evaluate(w, ids), target.points2d, target.camera, init=cam)
     return solve(cam), cam
+
+
+def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, minimum: int = 6) -> np.ndarray:
+    """Rows of ``ids`` whose vertices the expressions move least (at least ``minimum``, about ``fraction``).
+
+    The first pose is estimated from these only, so that an expression on the
+    target (an open jaw, raised brows) does not tilt it; the rig tells which
+    landmarks are stable (largest displacement over all its delta-blendshapes).
+    """
+    reach = np.linalg.norm(rig.deltas[:, ids], axis=2).max(axis=0)  # (L,)
+    k = min(len(ids), max(minimum, int(round(fraction * len(ids)))))
+    return np.sort(np.argsort(reach, kind="stable")[:k])
 
 
 def landmark_motion_basis(rig: BlendshapeRig, camera: PinholeCamera, ids: np.ndarray,

@@ -35,7 +35,10 @@ Targets
   KD-tree), then ``s_i = ESim(dB_i, P_i - F^t)``, ``e = ERSim(dB, P_i - F^t)``,
   ``r = 1 - ERSim(P_i - F^1, B~_i)``; after each selection the selected
   coefficients are refined on the new correspondences (non-negative least
-  squares), as the paper allows.
+  squares), as the paper allows. Because every candidate has its own
+  correspondences, the exclusion compares its index with and without the
+  candidate on those same correspondences (with one fixed target, as for
+  meshes and landmarks, that is exactly the previous selection's index).
 
 Options beyond the paper (off by default, so the published algorithm runs):
 ``clamp=True`` bounds every coefficient to ``[0, 1]`` (eq. 1's constraint), and
@@ -103,7 +106,8 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None):
         active = alive.any(axis=1)
         if not active.any():
             break
-        ei = np.maximum(proj * inv_diag, 0.0)  # eq. 18 for every candidate
+        # eq. 18 for every candidate; a projection at rounding level (the target already reached) counts as none
+        ei = np.where(proj * inv_norm > 1e-9 * np.sqrt(tt)[:, None], proj * inv_diag, 0.0)
         if upper is not None:
             ei = np.minimum(ei, upper)
         if exclusion and t > 0:
@@ -152,7 +156,7 @@ class SEMFitter:
     """
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
-                 region=None, max_points: int = 4000):
+                 region=None, max_points: int = 2000):
         for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
             if not isinstance(v, (bool, np.bool_)):
                 raise InputError(f"{name} must be true or false, got {v!r}")
@@ -269,7 +273,8 @@ class SEMFitter:
                 break
             resid = (L - cam.project(F, "landmark")).ravel()  # L - Pi(F^t)
             proj = M @ resid
-            ei = np.where(moves, np.maximum(proj / np.where(moves, nrm2, 1.0), 0.0), 0.0)  # eq. 21 (clamped, eq. 18)
+            level = 1e-9 * np.sqrt(tt) * np.sqrt(np.where(moves, nrm2, 1.0))  # rounding level of the projection
+            ei = np.where(moves & (proj > level), proj / np.where(moves, nrm2, 1.0), 0.0)  # eq. 21 (clamped, eq. 18)
             if upper is not None:
                 ei = np.minimum(ei, upper)
             if self.exclusion and t > 0 and tt > _TINY:
@@ -325,7 +330,7 @@ class SEMFitter:
         moves = nrm2 > _TINY
         # vertices a candidate actually moves (others keep their correspondence)
         mag = np.linalg.norm(D, axis=2)  # (B, m)
-        support = [np.flatnonzero(mag[b] > 1e-3 * mag[b].max()) if moves[b] else np.zeros(0, np.int64)
+        support = [np.flatnonzero(mag[b] > 1e-2 * mag[b].max()) if moves[b] else np.zeros(0, np.int64)
                    for b in range(B)]
 
         def closest(X):
@@ -335,7 +340,6 @@ class SEMFitter:
         F = F1.copy()
         P = closest(F)
         alive = moves.copy()
-        r_prev = 1.0
         order = []
         upper = self._upper
         queries = 0
@@ -346,6 +350,7 @@ class SEMFitter:
             s = np.full(B, -np.inf)
             ei = np.zeros(B)
             r = np.zeros(B)
+            r0 = np.zeros(B)
             Pi_store = {}
             resid0 = P - F
             for i in cand:
@@ -369,11 +374,13 @@ class SEMFitter:
                 Pi_store[i] = Pi
                 if self.exclusion and t > 0:
                     dT1 = Pi - F1  # P_i - F^1
-                    motion = (F - F1) + ei[i] * D[i]  # B~_i
                     tt1 = float((dT1 * dT1).sum())
-                    r[i] = 1.0 - float((dT1 * motion).sum()) / tt1 if tt1 > _TINY else 0.0  # eq. 25
+                    if tt1 > _TINY:
+                        now = float((dT1 * (F - F1)).sum())  # the motion selected so far, B~ without the candidate
+                        r[i] = 1.0 - (now + ei[i] * float((dT1 * D[i]).sum())) / tt1  # eq. 25
+                        r0[i] = 1.0 - now / tt1  # the index before adding it, on the same correspondences
             if self.exclusion and t > 0:
-                drop = cand[np.abs(r[cand]) > abs(r_prev)]
+                drop = cand[np.abs(r[cand]) > np.abs(r0[cand])]
                 alive[drop] = False
                 s[drop] = -np.inf
                 if not alive.any():
@@ -391,9 +398,6 @@ class SEMFitter:
                 else:
                     e[sel] = lsq_linear(A, (P - F1).ravel(), bounds=(0.0, upper)).x
             F = F1 + np.tensordot(e, D, axes=1)
-            dT1 = P - F1
-            tt1 = float((dT1 * dT1).sum())
-            r_prev = 1.0 - float((dT1 * (F - F1)).sum()) / tt1 if tt1 > _TINY else 0.0
             P = closest(F)
             queries += F.shape[0]
         return e, {"order": order, "points_used": int(region.size), "queries": queries}
