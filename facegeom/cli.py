@@ -356,6 +356,57 @@ def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, d
     ba.main(model, takes, specs, d_spec, sequences, seed, out, labels, frames, echo=click.echo, progress=not quiet)
 
 
+@bench.command("fit")
+@click.option("--cases", default=100, show_default=True, type=click.IntRange(1, 100000), help="Random targets.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True,
+              help="'all' (sem, sem-refit, l1reg, l2reg, pcaexp, pcadel, eos if installed) or ';'-separated specs.")
+@click.option("--experiments", default="landmarks,clouds,meshes,temporal", show_default=True,
+              help="Comma-separated subset of landmarks, clouds, meshes, temporal.")
+@click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0), help="Landmark noise (pixels).")
+@click.option("--cloud-cases", default=5, show_default=True, type=click.IntRange(1), help="Targets for point clouds.")
+@click.option("--samplings", default=10, show_default=True, type=click.IntRange(1), help="Samplings per cloud target.")
+@click.option("--points", default=30000, show_default=True, type=click.IntRange(100), help="Points per cloud.")
+@click.option("--take", "take_path", type=click.Path(), default=None,
+              help="Take for the temporal experiment (default: the first found via --takes / $FACEGEOM_TAKES).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
+@click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the take window.")
+@click.option("--frames", default=300, show_default=True, type=click.IntRange(3), help="Frames of the take window.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/fit", show_default=True)
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, take_path,
+              takes_path, start, frames, out, no_plot, quiet):
+    """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
+    from .bench import fit as bf
+    from .bench.common import parse_methods
+    from .errors import InputError
+
+    ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
+    bad = [x for x in ex if x not in bf.EXPERIMENTS]
+    if bad or not ex:
+        raise InputError(f"--experiments: unknown {bad[0] if bad else 'empty'!r}; choose from {', '.join(bf.EXPERIMENTS)}")
+    specs = parse_methods(methods, "fitters", bf.DEFAULT_METHODS)
+    model = obj.face_model()
+    take = None
+    if "temporal" in ex:
+        from .data import default_takes_path, locate_takes
+        from .takes import find_takes, ict_weights, read_take
+
+        if take_path or takes_path or default_takes_path().is_dir():
+            path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+            W = ict_weights(read_take(path), model.expression_names)
+            if start + frames > W.shape[0]:
+                raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end",
+                                 path)
+            take = (f"{path.stem}@{start}", W[start:start + frames])
+        else:
+            click.echo("no takes found: skipping the temporal experiment", err=True)
+    bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
+            progress=not quiet, plot_it=not no_plot)
+
+
 @bench.command("scaling")
 @click.option("--levels", default="0,1,2", show_default=True,
               help="Subdivision levels of the face (0: 9,409 vertices, 1: ~37k, 2: ~150k).")

@@ -1,0 +1,377 @@
+"""The blendshape-fitting experiments of the SEM paper (Sec. V), on the real ICT rig.
+
+Targets (seeded): a random ICT identity (coefficients N(0, 1)) with a sparse
+random expression, 2 to 6 of the 53 shapes active with weights U(0.2, 1.0).
+The rig used for fitting is that identity's (the identity is known; the
+expression is fitted), as in the paper's expression-fitting experiments.
+
+- ``landmarks`` (Tables 1-3): the 68 landmarks projected by a pinhole camera
+  (focal 1000 px, 640 x 480, head turned by yaw U(-25, 25) and pitch
+  U(-15, 15) degrees) plus Gaussian pixel noise; the 23 fit landmarks
+  (:data:`facegeom.rig.FIT_LANDMARKS_23`) are given to the fitter **without the
+  pose** (every method estimates it); NE (eq. 31) on the 26 unused landmarks
+  against their clean projections, normalised by the true inner-eye-corner
+  distance, and on the 23 used ones against the noisy input; ERSim (appendix),
+  Corr / Corr(+) / Corr(-) (eq. 33, full-mesh inner products, cm^2); mean
+  vertex error over the face area (mm) and coefficient recovery.
+- ``clouds`` (Table 4): ~30,000 points sampled uniformly on the target's face
+  area plus Gaussian noise, ``samplings`` samplings per target; NE (eq. 32),
+  vertex error, Corr, recovery.
+- ``meshes``: the target mesh in correspondence; vertex error, ERSim, Corr,
+  recovery, and fits per second.
+- ``temporal`` (Sec. V-C): every frame of a real take window applied to one
+  identity, fitted independently from noisy landmarks; per key shape, how much
+  the coefficient jitters (RMS of its second difference over time, against the
+  truth's) and how well it follows the truth (Pearson correlation, mean
+  absolute error).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import fitmetrics as fm
+from ..errors import FacegeomError
+from ..io import atomic_path
+from ..rig import (EVAL_LANDMARKS_26, FIT_LANDMARKS_23, INNER_EYE_CORNERS, BlendshapeRig, LandmarkTarget, MeshTarget,
+                   PinholeCamera, PointCloudTarget, look_at_camera)
+from .common import MethodSpec, format_table, machine_note, write_csv
+
+FACE_AREA = 6706
+EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
+DEFAULT_METHODS = [
+    "sem",
+    "sem-refit=sem:refit=true,clamp=true",
+    "l1reg",
+    "l2reg",
+    "pcaexp",
+    "pcadel",
+    "eos",
+]
+KEY_SHAPES = ("jawOpen", "eyeBlink_L", "eyeBlink_R", "mouthSmile_L", "mouthSmile_R", "browInnerUp_L", "mouthFunnel")
+
+
+@dataclass
+class Case:
+    identity: np.ndarray
+    weights: np.ndarray
+    yaw: float
+    pitch: float
+
+
+def make_cases(model, count: int, seed: int, active=(2, 6)) -> list[Case]:
+    rng = np.random.default_rng([int(seed), 5150])
+    B = model.n_expressions
+    out = []
+    for _ in range(count):
+        ident = model.random_identity(rng)
+        w = np.zeros(B)
+        k = int(rng.integers(active[0], active[1] + 1))
+        w[rng.choice(B, k, replace=False)] = rng.uniform(0.2, 1.0, k)
+        out.append(Case(ident, w, float(rng.uniform(-25, 25)), float(rng.uniform(-15, 15))))
+    return out
+
+
+def available_specs(specs: list[MethodSpec], echo=print) -> list[MethodSpec]:
+    """The specs whose plugin can be built (an optional peer such as eos may be missing)."""
+    out = []
+    for s in specs:
+        try:
+            s.build("fitters")
+        except FacegeomError as exc:
+            echo(f"skipping {s.label}: {exc}")
+            continue
+        out.append(s)
+    return out
+
+
+def _progress(items, desc, progress):
+    try:
+        from tqdm import tqdm
+        return tqdm(items, desc=desc, unit="fit", disable=not progress)
+    except ImportError:  # pragma: no cover
+        return items
+
+
+def _common(rig, r, w_true, V_true):
+    corr = fm.correlation_metrics(rig, r.weights)
+    sup = fm.support_scores(r.weights, w_true, tol=1e-3)
+    return {"corr": corr.corr, "corr_pos": corr.corr_pos, "corr_neg": corr.corr_neg,
+            "vertex_mm": fm.mean_vertex_error_mm(r.vertices, V_true, np.arange(FACE_AREA)),
+            "n_active": int((np.abs(r.weights) > 1e-3).sum()), "precision": sup.precision, "recall": sup.recall,
+            "coef_mae": sup.mean_abs_error}
+
+
+def _fit(spec, rig, target):
+    m = spec.build("fitters")
+    t = time.perf_counter()
+    r = m.fit(rig, target)
+    return r, time.perf_counter() - t
+
+
+# --------------------------------------------------------------------------- landmarks
+def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
+    rng = np.random.default_rng([int(seed), 99])
+    lm = model.landmarks
+    fit_ids, eval_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
+    eye_ids = lm[list(INNER_EYE_CORNERS)]
+    rows = []
+    for ci, c in enumerate(_progress(cases, "landmarks", progress)):
+        rig = BlendshapeRig.from_face_model(model, c.identity)
+        V = rig.evaluate(c.weights)
+        cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
+        uv_fit = cam.project(V[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
+        uv_eval = cam.project(V[eval_ids])
+        io = fm.interocular_distance(*cam.project(V[eye_ids]))
+        target = LandmarkTarget(uv_fit, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
+        for spec in specs:
+            r, dt = _fit(spec, rig, target)
+            fcam = r.info.get("camera", cam)
+            row = {"case": ci, "method": spec.label, "time_ms": dt * 1e3,
+                   "ne_eval": fm.normalized_error(fcam.project(r.vertices[eval_ids]), uv_eval, io),
+                   "ne_fit": fm.normalized_error(fcam.project(r.vertices[fit_ids]), uv_fit, io),
+                   "ersim": fm.landmark_ersim(r.vertices, rig.neutral, LandmarkTarget(uv_fit, fit_ids, fcam))}
+            row.update(_common(rig, r, c.weights, V))
+            rows.append(row)
+    return rows
+
+
+# --------------------------------------------------------------------------- point clouds
+def face_area_triangles(model) -> np.ndarray:
+    T = model.triangles
+    return T[(T < FACE_AREA).all(axis=1)]
+
+
+def sample_surface(V, tris, count, rng) -> np.ndarray:
+    """``count`` points uniformly distributed (by area) on the triangles."""
+    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    k = rng.choice(len(tris), count, p=area / area.sum())
+    u = rng.random((count, 2))
+    flip = u.sum(axis=1) > 1
+    u[flip] = 1 - u[flip]
+    return a[k] + u[:, :1] * (b[k] - a[k]) + u[:, 1:] * (c[k] - a[k])
+
+
+def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, seed=0, progress=True):
+    rng = np.random.default_rng([int(seed), 4711])
+    tris = face_area_triangles(model)
+    eye_ids = model.landmarks[list(INNER_EYE_CORNERS)]
+    region = np.arange(FACE_AREA)
+    rows = []
+    work = [(ci, c, s) for ci, c in enumerate(cases) for s in range(samplings)]
+    for ci, c, s in _progress(work, "clouds", progress):
+        rig = BlendshapeRig.from_face_model(model, c.identity)
+        V = rig.evaluate(c.weights)
+        P = sample_surface(V, tris, points, rng) + rng.normal(size=(points, 3)) * noise_cm
+        target = PointCloudTarget(P)
+        for spec in specs:
+            m = spec.build("fitters")
+            if hasattr(m, "region"):
+                m.region = region
+            t = time.perf_counter()
+            try:
+                r = m.fit(rig, target)
+            except FacegeomError:  # a method that does not fit point clouds (eos: landmarks only)
+                continue
+            dt = time.perf_counter() - t
+            row = {"case": ci, "sampling": s, "method": spec.label, "time_ms": dt * 1e3,
+                   "ne": fm.pointcloud_normalized_error(r.vertices, target, eye_ids, region)}
+            row.update(_common(rig, r, c.weights, V))
+            rows.append(row)
+    return rows
+
+
+# --------------------------------------------------------------------------- meshes
+def run_meshes(model, cases, specs, seed=0, progress=True):
+    rows, throughput = [], []
+    rigs = {}
+    for ci, c in enumerate(_progress(cases, "meshes", progress)):
+        rig = BlendshapeRig.from_face_model(model, c.identity)
+        rigs[ci] = rig
+        V = rig.evaluate(c.weights)
+        for spec in specs:
+            try:
+                r, dt = _fit(spec, rig, MeshTarget(V))
+            except FacegeomError:
+                continue
+            row = {"case": ci, "method": spec.label, "time_ms": dt * 1e3,
+                   "ersim": fm.mesh_ersim(r.vertices, rig.neutral, V)}
+            row.update(_common(rig, r, c.weights, V))
+            rows.append(row)
+    # throughput on one rig: many targets at once where a method has a batched path
+    rig = rigs[0]
+    rng = np.random.default_rng([int(seed), 31])
+    W = np.where(rng.random((2000, rig.n_shapes)) < 0.08, rng.uniform(0.2, 1.0, (2000, rig.n_shapes)), 0.0)
+    T = rig.neutral[None] + np.tensordot(W, rig.deltas, 1)
+    for spec in specs:
+        m = spec.build("fitters")
+        try:
+            m.fit(rig, MeshTarget(T[0]))
+        except FacegeomError:
+            continue
+        if hasattr(m, "fit_meshes"):
+            m.fit_meshes(rig, T[:10])
+            t = time.perf_counter()
+            m.fit_meshes(rig, T)
+            n, dt, how = len(T), time.perf_counter() - t, "batched"
+        else:
+            n = 100
+            t = time.perf_counter()
+            for k in range(n):
+                m.fit(rig, MeshTarget(T[k]))
+            dt, how = time.perf_counter() - t, "one by one"
+        throughput.append({"method": spec.label, "fits_per_s": n / dt, "path": how})
+    return rows, throughput
+
+
+# --------------------------------------------------------------------------- temporal stability
+def run_temporal(model, weights, specs, seed=0, noise_px=0.5, progress=True, name="take"):
+    """Fit every frame of ``weights (T, B)`` (one identity, fixed camera, unknown pose) independently."""
+    rng = np.random.default_rng([int(seed), 2024])
+    rig = BlendshapeRig.from_face_model(model, model.random_identity(rng))
+    fit_ids = model.landmarks[list(FIT_LANDMARKS_23)]
+    cam = look_at_camera(rig.neutral, yaw=10, pitch=-5)
+    unposed = PinholeCamera(cam.focal, cam.cx, cam.cy)
+    T = weights.shape[0]
+    fitted = {s.label: np.zeros_like(weights) for s in specs}
+    for t in _progress(range(T), "temporal", progress):
+        V = rig.evaluate(weights[t])
+        uv = cam.project(V[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
+        for s in specs:
+            fitted[s.label][t] = s.build("fitters").fit(rig, LandmarkTarget(uv, fit_ids, unposed)).weights
+    rows = []
+    for s in specs:
+        for shape in KEY_SHAPES:
+            j = rig.shape_index(shape)
+            f, g = fitted[s.label][:, j], weights[:, j]
+            corr = float(np.corrcoef(f, g)[0, 1]) if f.std() > 0 and g.std() > 0 else float("nan")
+            rows.append({"take": name, "method": s.label, "shape": shape,
+                         "jitter": float(np.sqrt(np.mean(np.diff(f, 2) ** 2))),
+                         "truth_jitter": float(np.sqrt(np.mean(np.diff(g, 2) ** 2))),
+                         "pearson": corr, "mae": float(np.abs(f - g).mean())})
+    return rows, fitted
+
+
+# --------------------------------------------------------------------------- summaries
+def _mean(rows, method, key):
+    v = np.array([r[key] for r in rows if r["method"] == method], dtype=float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def _median(rows, method, key):
+    v = np.array([r[key] for r in rows if r["method"] == method], dtype=float)
+    return float(np.median(v)) if v.size else float("nan")
+
+
+def summarize(results: dict, specs) -> str:
+    parts = []
+    labels = [s.label for s in specs]
+    if "landmarks" in results:
+        rows = results["landmarks"]
+        header = ["method", "NE unused 26 (%)", "NE used 23 (%)", "ERSim", "Corr", "Corr(+)", "Corr(-)",
+                  "vertex (mm)", "active", "precision", "recall", "coef MAE", "time (ms)"]
+        parts.append("Landmarks (23 used, 26 unused; pose estimated)\n\n" + format_table(header, [
+            [m, 100 * _mean(rows, m, "ne_eval"), 100 * _mean(rows, m, "ne_fit"), _mean(rows, m, "ersim"),
+             _mean(rows, m, "corr"), _mean(rows, m, "corr_pos"), _mean(rows, m, "corr_neg"),
+             _mean(rows, m, "vertex_mm"), _mean(rows, m, "n_active"), _mean(rows, m, "precision"),
+             _mean(rows, m, "recall"), _mean(rows, m, "coef_mae"), _median(rows, m, "time_ms")]
+            for m in labels if any(r["method"] == m for r in rows)]))
+    if "clouds" in results:
+        rows = results["clouds"]
+        header = ["method", "NE (%)", "vertex (mm)", "Corr", "active", "precision", "recall", "coef MAE", "time (ms)"]
+        parts.append("Point clouds\n\n" + format_table(header, [
+            [m, 100 * _mean(rows, m, "ne"), _mean(rows, m, "vertex_mm"), _mean(rows, m, "corr"),
+             _mean(rows, m, "n_active"), _mean(rows, m, "precision"), _mean(rows, m, "recall"),
+             _mean(rows, m, "coef_mae"), _median(rows, m, "time_ms")]
+            for m in labels if any(r["method"] == m for r in rows)]))
+    if "meshes" in results:
+        rows, thr = results["meshes"]
+        tp = {t["method"]: t for t in thr}
+        header = ["method", "vertex (mm)", "ERSim", "Corr", "active", "precision", "recall", "coef MAE",
+                  "fits/s", "path"]
+        parts.append("Corresponding meshes\n\n" + format_table(header, [
+            [m, _mean(rows, m, "vertex_mm"), _mean(rows, m, "ersim"), _mean(rows, m, "corr"),
+             _mean(rows, m, "n_active"), _mean(rows, m, "precision"), _mean(rows, m, "recall"),
+             _mean(rows, m, "coef_mae"), tp.get(m, {}).get("fits_per_s", float("nan")), tp.get(m, {}).get("path", "-")]
+            for m in labels if any(r["method"] == m for r in rows)]))
+    if "temporal" in results:
+        rows = results["temporal"]
+        header = ["method", "jitter (RMS 2nd diff.)", "truth's jitter", "Pearson r", "MAE"]
+        parts.append("Temporal stability (key shapes: " + ", ".join(KEY_SHAPES) + ")\n\n" + format_table(header, [
+            [m, _mean(rows, m, "jitter"), _mean(rows, m, "truth_jitter"), _mean(rows, m, "pearson"),
+             _mean(rows, m, "mae")] for m in labels if any(r["method"] == m for r in rows)]))
+    return "\n\n".join(parts)
+
+
+def plot(results, specs, fitted, weights, path: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [s.label for s in specs]
+    fig, ax = plt.subplots(1, 3, figsize=(17, 4.6))
+    if "landmarks" in results:
+        rows = results["landmarks"]
+        ms = [m for m in labels if any(r["method"] == m for r in rows)]
+        ax[0].bar(ms, [100 * _mean(rows, m, "ne_eval") for m in ms])
+        ax[0].set(ylabel="NE on the 26 unused landmarks (%)", title="Landmarks: accuracy")
+        ax[1].bar(ms, [_mean(rows, m, "corr") for m in ms])
+        ax[1].set(ylabel="Corr (cm^2)", title="Landmarks: redundancy (eq. 33)")
+        for a in ax[:2]:
+            a.tick_params(axis="x", rotation=45)
+    if fitted is not None:  # one key shape (jawOpen) over the take, truth and every method
+        ax[2].plot(weights[:, 0], "k-", lw=2, label="truth")
+        for m, W in fitted.items():
+            ax[2].plot(W[:, 0], label=m)
+        ax[2].set(xlabel="frame", ylabel="coefficient", title="Temporal stability: jawOpen")
+        ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
+         take=None, echo=print, progress=True, plot_it=True):
+    specs = available_specs(specs, echo)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cases = make_cases(model, count, seed)
+    results, written, fitted, tw = {}, [], None, None
+    if "landmarks" in experiments:
+        results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)
+        written.append(write_csv(out / "fit-landmarks.csv", results["landmarks"]))
+    if "clouds" in experiments:
+        results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, samplings, points, seed=seed,
+                                       progress=progress)
+        written.append(write_csv(out / "fit-clouds.csv", results["clouds"]))
+    if "meshes" in experiments:
+        results["meshes"] = run_meshes(model, cases, specs, seed, progress)
+        written.append(write_csv(out / "fit-meshes.csv", results["meshes"][0]))
+    if "temporal" in experiments and take is not None:
+        name, W = take
+        tspecs = [s for s in specs if s.name in ("sem", "l1reg")]
+        results["temporal"], fitted = run_temporal(model, W, tspecs, seed, progress=progress, name=name)
+        j = model.expression_index("jawOpen")
+        tw = W[:, [j]]
+        fitted = {k: v[:, [j]] for k, v in fitted.items()}
+        written.append(write_csv(out / "fit-temporal.csv", results["temporal"]))
+    table = summarize(results, specs)
+    note = (f"{count} targets (seed {seed}), landmark noise {noise_px} px, {cloud_cases} x {samplings} point clouds of "
+            f"{points} points; {machine_note()}")
+    echo(table)
+    echo(note)
+    with atomic_path(out / "fit-summary.md") as tmp:
+        Path(tmp).write_text(table + "\n\n" + note + "\n")
+    written.append(out / "fit-summary.md")
+    if plot_it:
+        plot(results, specs, fitted, tw, out / "fit.png")
+        written.append(out / "fit.png")
+    echo("wrote " + ", ".join(str(p) for p in written))
+    return results, table
