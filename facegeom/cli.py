@@ -202,6 +202,83 @@ def retarget(source, labels, output, method, params, fill_gaps):
                f"{dt * 1e3:.1f} ms (largest deviation from a label {dev:.3g}) -> {output}")
 
 
+@cli.command()
+@click.argument("target", type=click.Path(dir_okay=False))
+@click.option("--kind", type=click.Choice(["auto", "mesh", "landmarks", "points"]), default="auto", show_default=True,
+              help="What TARGET is: a mesh in correspondence with the rig, a landmark CSV (vertex_id,u,v) or a point "
+                   "cloud (auto: .csv = landmarks, a mesh with the rig's vertex count = mesh, else points).")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs (neutral.obj + one per shape); "
+                   "default: the ICT generic face with its 53 expressions.")
+@click.option("-m", "--method", default="sem", show_default=True, help="A registered fitter (facegeom methods).")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Method parameter, repeatable.")
+@click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
+@click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
+@click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Coefficients by shape name (.json or .csv).")
+@click.option("--mesh-out", type=click.Path(dir_okay=False), default=None, help="Also write the fitted face mesh.")
+@click.pass_obj
+def fit(obj: _Context, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out):
+    """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
+    import numpy as np
+
+    from . import registry
+    from .errors import InputError
+    from .fitio import read_landmarks, read_point_cloud, write_weights
+    from .io import MESH_FORMATS, read_mesh, write_mesh
+    from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+
+    if rig_path is None:
+        rig = BlendshapeRig.from_face_model(obj.face_model())
+    else:
+        rp = Path(rig_path)
+        rig = BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
+    tp = Path(target)
+    if kind == "auto":
+        if tp.suffix.lower() == ".csv":
+            kind = "landmarks"
+        elif tp.suffix.lower() in MESH_FORMATS:
+            try:
+                V, _ = read_mesh(tp)
+                kind = "mesh" if V.shape[0] == rig.n_vertices else "points"
+            except InputError:  # no faces: a point cloud
+                kind = "points"
+        else:
+            kind = "points"
+    if kind == "landmarks":
+        if focal is None or cx is None or cy is None:
+            raise InputError("landmark targets need the camera: --focal, --cx and --cy (pixels)", tp)
+        ids, uv = read_landmarks(tp)
+        if ids.max() >= rig.n_vertices:
+            raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
+        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy))
+    elif kind == "mesh":
+        V, _ = read_mesh(tp)
+        if V.shape[0] != rig.n_vertices:
+            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use --kind points "
+                             f"for a scan without correspondence", tp)
+        tgt = MeshTarget(V)
+    else:
+        tgt = PointCloudTarget(read_point_cloud(tp))
+    fitter = registry.create("fitters", method, **_parse_params(params))
+    t = time.perf_counter()
+    r = fitter.fit(rig, tgt)
+    dt = time.perf_counter() - t
+    active = np.flatnonzero(np.abs(r.weights) > 1e-6)
+    info = {"method": method, "target": str(tp), "kind": kind, "time_s": dt}
+    cam = r.info.get("camera") if isinstance(r.info, dict) else None
+    if cam is not None:
+        info["pose"] = {"R": np.asarray(cam.R).tolist(), "t": np.asarray(cam.t).tolist()}
+    write_weights(output, rig.names, r.weights, info)
+    click.echo(f"{method}: {kind} target, {active.size} active shapes in {dt * 1e3:.1f} ms -> {output}")
+    for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
+        click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
+    if mesh_out:
+        write_mesh(mesh_out, r.vertices, rig.triangles)
+        click.echo(f"wrote {mesh_out}")
+
+
 @cli.group()
 def bench():
     """Benchmarks that reproduce the papers' experiments (seeded; CSV + plot + table)."""

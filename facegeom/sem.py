@@ -63,7 +63,7 @@ __all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
 _TINY = 1e-300
 
 
-def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None):
+def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim"):
     """SEM on motions known only through inner products, for ``K`` targets at once.
 
     Parameters
@@ -78,6 +78,13 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None):
         The one-step backtracking exclusion (eq. 19 and its condition).
     upper : float or None
         Upper bound of a coefficient (``None``: the paper, only ``e >= 0``).
+    select : {"esim", "gain"}
+        ``esim`` (the paper, eq. 17): the largest expressional similarity.
+        ``gain``: the largest decrease of the squared residual with the
+        candidate's (bounded) coefficient, ``2 e p - e^2 |dB|^2``; without an
+        upper bound it is ``ESim^2 |dT^t|^2``, the same choice, but with one a
+        candidate that would need a coefficient far above the bound (a shape
+        that barely moves the data) no longer wins on direction alone.
 
     Returns
     -------
@@ -116,7 +123,10 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None):
             active = alive.any(axis=1)
             if not active.any():
                 break
-        score = np.where(alive, proj * inv_norm, -np.inf)  # ESim up to the common factor 1/|dT^t|
+        if select == "gain":
+            score = np.where(alive & (ei > 0), 2.0 * ei * proj - ei * ei * diag, np.where(alive, 0.0, -np.inf))
+        else:
+            score = np.where(alive, proj * inv_norm, -np.inf)  # ESim up to the common factor 1/|dT^t|
         pick = np.argmax(score, axis=1)
         et = np.where(active, ei[rows, pick], 0.0)
         e[rows, pick] += et
@@ -146,6 +156,9 @@ class SEMFitter:
         Bound coefficients to ``[0, 1]`` (beyond the paper; off).
     refit : bool
         Finish with a bounded least-squares refit of the selected shapes (beyond the paper; off).
+    select : {"esim", "gain"}
+        Selection rule: the paper's largest ESim, or the largest decrease of the
+        residual with the bounded coefficient (see :func:`sem_gram`).
     alternations : int
         Pose/expression alternations for landmark targets with an unknown pose.
     region : array of vertex ids or None
@@ -153,10 +166,18 @@ class SEMFitter:
     max_points : int
         At most this many region vertices (an evenly strided subset) take part in
         point-cloud matching, for speed; ``0`` = all.
+    covered_only : bool
+        Point clouds: only region vertices that are the nearest neutral vertex of
+        at least one scan point take part, so parts the scan does not cover
+        (ears, neck, the back of a cropped head) do not pull the fit.
     """
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
-                 region=None, max_points: int = 2000):
+                 region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True):
+        self.covered_only = bool(covered_only)
+        if select not in ("esim", "gain"):
+            raise InputError(f"select must be 'esim' (the paper) or 'gain', got {select!r}")
+        self.select = select
         for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
             if not isinstance(v, (bool, np.bool_)):
                 raise InputError(f"{name} must be true or false, got {v!r}")
@@ -169,7 +190,8 @@ class SEMFitter:
         self.region = None if region is None else np.asarray(region, dtype=np.int64)
 
     def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points")}
+        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points",
+                                              "select", "covered_only")}
 
     def __repr__(self) -> str:
         return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
@@ -205,7 +227,7 @@ class SEMFitter:
             c = D.T @ (w * dT.ravel())
             G = D.T @ (w[:, None] * D)
             tt = float((w * dT.ravel() ** 2).sum())
-        e, order = sem_gram(c, G, tt, self.exclusion, self._upper)
+        e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
         if self.refit:
             e = self._refit_linear(rig.delta_matrix(), dT.ravel(), e, target.weights)
         return e, {"order": [int(i) for i in order if i >= 0]}
@@ -220,7 +242,7 @@ class SEMFitter:
         dT = (T - rig.neutral[None]).reshape(T.shape[0], -1)
         c = dT @ rig.delta_matrix()
         tt = np.einsum("ij,ij->i", dT, dT)
-        e, _ = sem_gram(c, rig.gram(), tt, self.exclusion, self._upper)
+        e, _ = sem_gram(c, rig.gram(), tt, self.exclusion, self._upper, self.select)
         if self.refit:
             e = np.stack([self._refit_linear(rig.delta_matrix(), d, ek, None) for d, ek in zip(dT, e)])
         return e
@@ -285,7 +307,10 @@ class SEMFitter:
                 alive[cand[np.abs(r) > abs(r_prev)]] = False
                 if not alive.any():
                     break
-            score = np.where(alive, proj / np.sqrt(np.where(moves, nrm2, 1.0)), -np.inf)  # eq. 20
+            if self.select == "gain":
+                score = np.where(alive, 2.0 * ei * proj - ei * ei * nrm2, -np.inf)
+            else:
+                score = np.where(alive, proj / np.sqrt(np.where(moves, nrm2, 1.0)), -np.inf)  # eq. 20
             i = int(np.argmax(score))
             e[i] += ei[i]
             F = F + ei[i] * deltas[i]
@@ -323,6 +348,11 @@ class SEMFitter:
         if self.max_points and region.size > self.max_points:
             region = region[np.linspace(0, region.size - 1, self.max_points).astype(np.int64)]
         tree = cKDTree(target.points)
+        if self.covered_only:  # vertices the scan does not cover take no part (ears, neck of a cropped scan)
+            nearest = cKDTree(rig.neutral[region]).query(target.points, workers=-1)[1]
+            region = region[np.unique(nearest)]
+            if region.size < 3:
+                raise InputError("the point cloud covers fewer than 3 rig vertices (align it to the rig first)")
         F1 = rig.neutral[region]  # (m, 3)
         D = rig.deltas[:, region]  # (B, m, 3)
         B = rig.n_shapes

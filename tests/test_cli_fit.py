@@ -1,0 +1,119 @@
+"""End-to-end: `facegeom fit` on the real ICT rig (mesh, landmarks, point cloud), its files and bad input."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from facegeom.errors import InputError
+from facegeom.fitio import read_landmarks, read_point_cloud, write_weights
+from facegeom.io import write_mesh
+from facegeom.rig import FIT_LANDMARKS_23, BlendshapeRig, look_at_camera
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "facegeom", *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def target(tmp_path_factory, face_model):
+    d = tmp_path_factory.mktemp("fit")
+    rig = BlendshapeRig.from_face_model(face_model)
+    w = np.zeros(rig.n_shapes)
+    w[rig.shape_index("jawOpen")] = 0.6
+    w[rig.shape_index("mouthSmile_L")] = 0.4
+    V = rig.evaluate(w)
+    write_mesh(d / "target.obj", V, rig.triangles)
+    ids = face_model.landmarks[list(FIT_LANDMARKS_23)]
+    cam = look_at_camera(V, yaw=10)
+    uv = cam.project(V[ids])
+    (d / "lm.csv").write_text("vertex_id,u,v\n" + "".join(f"{i},{float(a)!r},{float(b)!r}\n" for i, (a, b) in zip(ids, uv)))
+    np.save(d / "scan.npy", V[:6706])
+    return d, rig, w, V, cam
+
+
+def test_fit_mesh_target(target):
+    d, rig, w, V, cam = target
+    r = run("fit", str(d / "target.obj"), "-o", str(d / "w.json"), "--mesh-out", str(d / "fitted.ply"))
+    assert r.returncode == 0, r.stderr
+    got = json.load(open(d / "w.json"))["weights"]
+    assert set(got) == set(rig.names)
+    assert abs(got["jawOpen"] - 0.6) < 0.05 and abs(got["mouthSmile_L"] - 0.4) < 0.05
+    assert (d / "fitted.ply").stat().st_size > 0
+
+
+def test_fit_point_cloud_covering_part_of_the_rig(target):
+    d, rig, w, V, cam = target
+    r = run("fit", str(d / "scan.npy"), "-o", str(d / "w.csv"))
+    assert r.returncode == 0, r.stderr
+    rows = dict(line.split(",") for line in open(d / "w.csv").read().split()[1:])
+    assert abs(float(rows["jawOpen"]) - 0.6) < 0.05 and abs(float(rows["mouthSmile_L"]) - 0.4) < 0.05
+
+
+def test_fit_landmarks_with_camera(target):
+    d, rig, w, V, cam = target
+    r = run("fit", str(d / "lm.csv"), "--focal", str(cam.focal), "--cx", str(cam.cx), "--cy", str(cam.cy),
+            "-o", str(d / "wl.json"), "-p", "clamp=true")
+    assert r.returncode == 0, r.stderr
+    out = json.load(open(d / "wl.json"))
+    assert out["kind"] == "landmarks" and np.array(out["pose"]["R"]).shape == (3, 3)
+    assert max(out["weights"].values()) <= 1.0
+    assert abs(out["weights"]["jawOpen"] - 0.6) < 0.1  # the dominant shape is found from 23 landmarks
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["lm.csv", "-o", "x.json"], "need the camera"),
+    (["target.obj", "-o", "x.txt"], "unsupported coefficient format"),
+    (["target.obj", "-o", "x.json", "-m", "nope"], "no fitter named 'nope'"),
+    (["missing.obj", "-o", "x.json"], "file not found"),
+    (["target.obj", "-o", "x.json", "--kind", "landmarks", "--focal", "1", "--cx", "0", "--cy", "0"], "vertex_id,u,v"),
+])
+def test_fit_bad_input(target, args, problem):
+    d = target[0]
+    args = [str(d / a) if a.endswith((".csv", ".obj", ".json", ".txt")) else a for a in args]
+    r = run("fit", *args)
+    assert r.returncode == 2 and problem in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (d / "x.json").exists()
+
+
+def test_landmark_file_errors(tmp_path):
+    f = tmp_path / "l.csv"
+    f.write_text("vertex_id,u,v\n1,2,3\n1,4,5\n")
+    with pytest.raises(InputError, match="repeated"):
+        read_landmarks(f)
+    f.write_text("vertex_id,u,v\n1,nan,3\n")
+    with pytest.raises(InputError, match="NaN"):
+        read_landmarks(f)
+    f.write_text("id,x\n")
+    with pytest.raises(InputError, match="header"):
+        read_landmarks(f)
+
+
+def test_point_cloud_files(tmp_path):
+    import pymeshlab
+
+    P = np.random.default_rng(0).normal(size=(50, 3))
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=P))
+    ms.save_current_mesh(str(tmp_path / "p.ply"), binary=True)
+    np.testing.assert_allclose(read_point_cloud(tmp_path / "p.ply"), P, atol=1e-6)
+    (tmp_path / "t.ply").write_bytes((tmp_path / "p.ply").read_bytes()[:120])
+    with pytest.raises(InputError, match="malformed point cloud"):
+        read_point_cloud(tmp_path / "t.ply")
+    np.save(tmp_path / "e.npy", np.zeros((0, 3)))
+    with pytest.raises(InputError, match="no point"):
+        read_point_cloud(tmp_path / "e.npy")
+    Q = P.copy()
+    Q[3, 1] = np.nan
+    np.save(tmp_path / "n.npy", Q)
+    with pytest.raises(InputError, match="point 3 is NaN"):
+        read_point_cloud(tmp_path / "n.npy")
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(InputError, match="empty file"):
+        read_point_cloud(tmp_path / "empty.ply")
+
+
+def test_write_weights_checks(tmp_path):
+    with pytest.raises(InputError, match="2 weights for 3 names"):
+        write_weights(tmp_path / "w.json", ["a", "b", "c"], [1, 2])
