@@ -63,7 +63,7 @@ __all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
 _TINY = 1e-300
 
 
-def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim"):
+def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim", min_gain=None):
     """SEM on motions known only through inner products, for ``K`` targets at once.
 
     Parameters
@@ -85,6 +85,9 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, selec
         upper bound it is ``ESim^2 |dT^t|^2``, the same choice, but with one a
         candidate that would need a coefficient far above the bound (a shape
         that barely moves the data) no longer wins on direction alone.
+    min_gain : (K,) or scalar or None
+        Stop a target's selection when the chosen candidate would decrease its
+        squared residual by less than this (see ``SEMFitter(stop="ric")``).
 
     Returns
     -------
@@ -128,6 +131,12 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, selec
         else:
             score = np.where(alive, proj * inv_norm, -np.inf)  # ESim up to the common factor 1/|dT^t|
         pick = np.argmax(score, axis=1)
+        if min_gain is not None:
+            ep = ei[rows, pick]
+            gain = 2.0 * ep * proj[rows, pick] - ep * ep * diag[pick]
+            stop = active & (gain < min_gain)
+            alive[stop] = False
+            active = active & ~stop
         et = np.where(active, ei[rows, pick], 0.0)
         e[rows, pick] += et
         proj -= et[:, None] * G[pick]
@@ -166,6 +175,14 @@ class SEMFitter:
     max_points : int
         At most this many region vertices (an evenly strided subset) take part in
         point-cloud matching, for speed; ``0`` = all.
+    stop : {"none", "ric"}
+        ``none`` (the paper): select until no candidate remains. ``ric``: a
+        first full pass estimates the noise ``sigma^2`` from its residual
+        (per degree of freedom); a second pass stops when a selection would
+        decrease the squared residual by less than ``2 ln(B) sigma^2`` -- the
+        risk-inflation threshold of variable selection (Foster & George, 1994),
+        about what the best of ``B`` pure-noise directions gains. Meshes and
+        landmarks (point clouds: not applied).
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -173,7 +190,11 @@ class SEMFitter:
     """
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
-                 region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True):
+                 region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
+                 stop: str = "none"):
+        if stop not in ("none", "ric"):
+            raise InputError(f"stop must be 'none' (the paper) or 'ric', got {stop!r}")
+        self.stop = stop
         self.covered_only = bool(covered_only)
         if select not in ("esim", "gain"):
             raise InputError(f"select must be 'esim' (the paper) or 'gain', got {select!r}")
@@ -191,7 +212,7 @@ class SEMFitter:
 
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points",
-                                              "select", "covered_only")}
+                                              "select", "covered_only", "stop")}
 
     def __repr__(self) -> str:
         return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
@@ -228,6 +249,10 @@ class SEMFitter:
             G = D.T @ (w[:, None] * D)
             tt = float((w * dT.ravel() ** 2).sum())
         e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
+        if self.stop == "ric":
+            resid = max(tt - 2.0 * e @ c + e @ G @ e, 0.0)
+            e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select,
+                                self._ric_threshold(rig, resid, dT.size, e))
         if self.refit:
             e = self._refit_linear(rig.delta_matrix(), dT.ravel(), e, target.weights)
         return e, {"order": [int(i) for i in order if i >= 0]}
@@ -242,7 +267,12 @@ class SEMFitter:
         dT = (T - rig.neutral[None]).reshape(T.shape[0], -1)
         c = dT @ rig.delta_matrix()
         tt = np.einsum("ij,ij->i", dT, dT)
-        e, _ = sem_gram(c, rig.gram(), tt, self.exclusion, self._upper, self.select)
+        G = rig.gram()
+        e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
+        if self.stop == "ric":
+            resid = np.maximum(tt - 2.0 * np.einsum("kb,kb->k", e, c) + np.einsum("kb,bc,kc->k", e, G, e), 0.0)
+            e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select,
+                            self._ric_threshold(rig, resid, dT.shape[1], e))
         if self.refit:
             e = np.stack([self._refit_linear(rig.delta_matrix(), d, ek, None) for d, ek in zip(dT, e)])
         return e
@@ -259,6 +289,13 @@ class SEMFitter:
         out[sel] = lsq_linear(As, b, bounds=(0.0, 1.0 if self.clamp else np.inf)).x
         return out
 
+    @staticmethod
+    def _ric_threshold(rig, resid2, n_values, e):
+        """``2 ln(B) sigma^2`` with ``sigma^2`` = residual / degrees of freedom of a first, full pass."""
+        k = int((np.asarray(e) > 0).sum(axis=-1).max()) if np.ndim(e) == 1 else (np.asarray(e) > 0).sum(axis=-1)
+        sigma2 = np.asarray(resid2) / np.maximum(n_values - k, 1)
+        return 2.0 * np.log(rig.n_shapes) * sigma2
+
     # ------------------------------------------------------------------ landmarks
     def _fit_landmarks(self, rig, target: LandmarkTarget):
         ids = target.vertex_ids
@@ -267,13 +304,16 @@ class SEMFitter:
 
         def solve(cam: PinholeCamera) -> np.ndarray:
             e, order = self._sem_landmarks(rig, ids, L, cam)
+            if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
+                resid = float(((cam.project(rig.evaluate(e, ids), "landmark") - L) ** 2).sum())
+                e, order = self._sem_landmarks(rig, ids, L, cam, self._ric_threshold(rig, resid, L.size, e))
             orders.append(order)
             return e
 
         e, cam = fit_with_pose(rig, target, solve, self.alternations)
         return e, {"order": orders[-1], "camera": cam, "pose_estimated": not target.camera.posed}
 
-    def _sem_landmarks(self, rig, ids, L, cam):
+    def _sem_landmarks(self, rig, ids, L, cam, min_gain=None):
         """Eqs. 20-22 with the exact projection of the current face."""
         M = landmark_motion_basis(rig, cam, ids)  # (B, 2L): Pi(B_i) - Pi(B_1)
         nrm2 = np.einsum("ij,ij->i", M, M)
@@ -312,6 +352,8 @@ class SEMFitter:
             else:
                 score = np.where(alive, proj / np.sqrt(np.where(moves, nrm2, 1.0)), -np.inf)  # eq. 20
             i = int(np.argmax(score))
+            if min_gain is not None and 2.0 * ei[i] * proj[i] - ei[i] ** 2 * nrm2[i] < min_gain:
+                break
             e[i] += ei[i]
             F = F + ei[i] * deltas[i]
             if tt > _TINY:
