@@ -117,3 +117,22 @@ def test_point_cloud_files(tmp_path):
 def test_write_weights_checks(tmp_path):
     with pytest.raises(InputError, match="2 weights for 3 names"):
         write_weights(tmp_path / "w.json", ["a", "b", "c"], [1, 2])
+
+
+def test_bench_fit_small(tmp_path, face_model):
+    import csv
+
+    out = tmp_path / "bf"
+    r = run("bench", "fit", "--cases", "3", "--cloud-cases", "1", "--samplings", "1", "--points", "5000",
+            "--experiments", "landmarks,clouds,meshes", "--methods", "sem;sem-ric=sem:clamp=true,stop=ric",
+            "--quiet", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(out / "fit-landmarks.csv")))
+    assert len(rows) == 3 * 2
+    for x in rows:  # fitted faces project close to the unused landmarks (NE is a fraction of the eye distance)
+        assert 0 <= float(x["ne_eval"]) < 0.2
+    mesh = list(csv.DictReader(open(out / "fit-meshes.csv")))
+    assert all(float(x["vertex_mm"]) < 2.0 for x in mesh)
+    assert "Point clouds" in (out / "fit-summary.md").read_text()
+    r = run("bench", "fit", "--experiments", "landmarks,bogus")
+    assert r.returncode == 2 and "bogus" in r.stderr
