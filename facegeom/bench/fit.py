@@ -105,6 +105,16 @@ def _common(rig, r, w_true, V_true):
             "coef_mae": sup.mean_abs_error}
 
 
+def _projector(r, cam):
+    """How a landmark fit sees the face: its estimated pinhole camera, or a peer's affine camera (eos)."""
+    if "camera" in r.info:
+        return r.info["camera"].project
+    if "affine_camera" in r.info:
+        A = np.asarray(r.info["affine_camera"], dtype=np.float64)
+        return lambda X: np.c_[X, np.ones(len(X))] @ A[:2].T
+    return cam.project
+
+
 def _fit(spec, rig, target):
     m = spec.build("fitters")
     t = time.perf_counter()
@@ -129,11 +139,11 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
         target = LandmarkTarget(uv_fit, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
         for spec in specs:
             r, dt = _fit(spec, rig, target)
-            fcam = r.info.get("camera", cam)
+            proj = _projector(r, cam)
             row = {"case": ci, "method": spec.label, "time_ms": dt * 1e3,
-                   "ne_eval": fm.normalized_error(fcam.project(r.vertices[eval_ids]), uv_eval, io),
-                   "ne_fit": fm.normalized_error(fcam.project(r.vertices[fit_ids]), uv_fit, io),
-                   "ersim": fm.landmark_ersim(r.vertices, rig.neutral, LandmarkTarget(uv_fit, fit_ids, fcam))}
+                   "ne_eval": fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io),
+                   "ne_fit": fm.normalized_error(proj(r.vertices[fit_ids]), uv_fit, io),
+                   "ersim": fm.motion_ersim(uv_fit, proj(r.vertices[fit_ids]), proj(rig.neutral[fit_ids]))}
             row.update(_common(rig, r, c.weights, V))
             rows.append(row)
     return rows
