@@ -18,10 +18,10 @@ import numpy as np
 
 from .errors import InputError
 from .interfaces import FitResult
-from .pose import estimate_pose
+from .pose import estimate_pose, estimate_poses
 from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
 
-__all__ = ["check_fit_inputs", "fit_with_pose", "result", "landmark_motion_basis"]
+__all__ = ["check_fit_inputs", "fit_with_pose", "fit_with_poses", "result"]
 
 TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
 
@@ -58,6 +58,24 @@ def fit_with_pose(rig: BlendshapeRig, target: LandmarkTarget, solve: Callable[[P
     return solve(cam), cam
 
 
+def fit_with_poses(rig: BlendshapeRig, ids: np.ndarray, points2d: np.ndarray, intrinsics, solve,
+                   alternations: int = 3):
+    """:func:`fit_with_pose` for ``K`` unposed targets sharing the landmark vertices ``ids``, batched.
+
+    ``points2d (K, n, 2)``; ``intrinsics = (focal, cx, cy)``, each ``(K,)``;
+    ``solve(R (K,3,3), t (K,3)) -> weights (K, B)``. Returns ``(weights, R, t)``.
+    """
+    K = points2d.shape[0]
+    stable = stable_rows(rig, ids)
+    P0 = np.broadcast_to(rig.neutral[ids[stable]], (K, stable.size, 3))
+    R, t = estimate_poses(P0, points2d[:, stable], *intrinsics)
+    base, deltas = rig.neutral[ids], rig.deltas[:, ids]
+    for _ in range(alternations):
+        w = solve(R, t)
+        R, t = estimate_poses(base[None] + np.tensordot(w, deltas, 1), points2d, *intrinsics, R0=R, t0=t)
+    return solve(R, t), R, t
+
+
 def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, minimum: int = 6) -> np.ndarray:
     """Rows of ``ids`` whose vertices the expressions move least (at least ``minimum``, about ``fraction``).
 
@@ -68,19 +86,6 @@ def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, mini
     reach = np.linalg.norm(rig.deltas[:, ids], axis=2).max(axis=0)  # (L,)
     k = min(len(ids), max(minimum, int(round(fraction * len(ids)))))
     return np.sort(np.argsort(reach, kind="stable")[:k])
-
-
-def landmark_motion_basis(rig: BlendshapeRig, camera: PinholeCamera, ids: np.ndarray,
-                          base: np.ndarray | None = None) -> np.ndarray:
-    """``Pi(base + dB_i) - Pi(base)`` at the landmark vertices for every shape -> ``(B, 2L)``.
-
-    With ``base=None`` it is the neutral face: the ``Pi(B_i) - Pi(B_1)`` of eqs. 20-22.
-    """
-    base_pts = (rig.neutral if base is None else base)[ids]
-    p0 = camera.project(base_pts, "landmark")
-    shapes = base_pts[None] + rig.deltas[:, ids]  # (B, L, 3)
-    pts = camera.project(shapes.reshape(-1, 3), "landmark").reshape(rig.n_shapes, len(ids), 2)
-    return (pts - p0[None]).reshape(rig.n_shapes, -1)
 
 
 def result(rig: BlendshapeRig, weights, **info) -> FitResult:

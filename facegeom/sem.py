@@ -54,11 +54,18 @@ from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .fitting import check_fit_inputs, fit_with_pose, landmark_motion_basis, result
+from .fitting import check_fit_inputs, fit_with_poses, result
+from .pose import project_many
 from .interfaces import FitResult
 from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
 
 __all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
+
+
+def _camera(intr, R, t, k) -> PinholeCamera:
+    """Camera ``k`` of a batch (intrinsics ``(f, cx, cy)`` arrays, poses ``R, t``)."""
+    U, _, Vt = np.linalg.svd(R[k])  # the nearest rotation, free of accumulated rounding
+    return PinholeCamera(intr[0][k], intr[1][k], intr[2][k], U @ Vt, t[k])
 
 _TINY = 1e-300
 
@@ -298,70 +305,156 @@ class SEMFitter:
 
     # ------------------------------------------------------------------ landmarks
     def _fit_landmarks(self, rig, target: LandmarkTarget):
-        ids = target.vertex_ids
-        L = target.points2d
-        orders = []
+        e, cams, orders = self._landmarks_batch(rig, [target])
+        return e[0], {"order": orders[0], "camera": cams[0], "pose_estimated": not target.camera.posed}
 
-        def solve(cam: PinholeCamera) -> np.ndarray:
-            e, order = self._sem_landmarks(rig, ids, L, cam)
+    def fit_landmarks(self, rig: BlendshapeRig, targets, chunk: int = 256) -> tuple[np.ndarray, list[PinholeCamera]]:
+        """Coefficients ``(K, B)`` and the (estimated) cameras for ``K`` landmark targets at once (fast path).
+
+        The same computation as :meth:`fit` on each target, vectorised over the
+        targets: targets sharing a set of landmark vertices are fitted together
+        (their cameras may differ; unknown poses are estimated in one batched
+        Levenberg-Marquardt, :func:`facegeom.pose.estimate_poses`).
+        """
+        targets = list(targets)
+        for k, tg in enumerate(targets):
+            if not isinstance(tg, LandmarkTarget):
+                raise InputError(f"target {k} is a {type(tg).__name__}, not a LandmarkTarget")
+            tg.check(rig)
+        E = np.zeros((len(targets), rig.n_shapes))
+        cams: list = [None] * len(targets)
+        groups: dict = {}
+        for k, tg in enumerate(targets):
+            groups.setdefault((tg.vertex_ids.tobytes(), tg.camera.posed), []).append(k)
+        # chunks keep the (K, B, n, 3) work arrays in cache
+        for rows in (g[c0:c0 + chunk] for g in groups.values() for c0 in range(0, len(g), chunk)):
+            e, cs, _ = self._landmarks_batch(rig, [targets[k] for k in rows])
+            E[rows] = e
+            for k, c in zip(rows, cs):
+                cams[k] = c
+        return E, cams
+
+    def _landmarks_batch(self, rig, targets):
+        """Targets sharing vertex ids and posed-ness -> (e (K, B), cameras, selection orders)."""
+        ids = targets[0].vertex_ids
+        L = np.stack([tg.points2d for tg in targets])  # (K, n, 2)
+        intr = [np.array([getattr(tg.camera, a) for tg in targets]) for a in ("focal", "cx", "cy")]
+        orders = [None] * len(targets)
+
+        def solve(R, t):
+            e, order = self._sem_landmarks(rig, ids, L, R, t, *intr)
             if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
-                resid = float(((cam.project(rig.evaluate(e, ids), "landmark") - L) ** 2).sum())
-                e, order = self._sem_landmarks(rig, ids, L, cam, self._ric_threshold(rig, resid, L.size, e))
-            orders.append(order)
+                F = rig.neutral[ids][None] + np.tensordot(e, rig.deltas[:, ids], 1)
+                resid = ((project_many(F, R, t, *intr) - L) ** 2).sum(axis=(1, 2))
+                e, order = self._sem_landmarks(rig, ids, L, R, t, *intr, self._ric_threshold(rig, resid, L[0].size, e))
+            if self.refit:
+                e = np.stack([self._refit_landmarks(rig, ids, L[k], _camera(intr, R, t, k), e[k])
+                              for k in range(len(e))])
+            orders[:] = order
             return e
 
-        e, cam = fit_with_pose(rig, target, solve, self.alternations)
-        return e, {"order": orders[-1], "camera": cam, "pose_estimated": not target.camera.posed}
+        if targets[0].camera.posed:
+            R = np.stack([tg.camera.R for tg in targets])
+            t = np.stack([tg.camera.t for tg in targets])
+            e = solve(R, t)
+            cams = [tg.camera for tg in targets]
+        else:
+            e, R, t = fit_with_poses(rig, ids, L, intr, solve, self.alternations)
+            cams = [_camera(intr, R, t, k) for k in range(len(targets))]
+        return e, cams, [[int(i) for i in o if i >= 0] for o in orders]
 
-    def _sem_landmarks(self, rig, ids, L, cam, min_gain=None):
-        """Eqs. 20-22 with the exact projection of the current face."""
-        M = landmark_motion_basis(rig, cam, ids)  # (B, 2L): Pi(B_i) - Pi(B_1)
-        nrm2 = np.einsum("ij,ij->i", M, M)
-        moves = nrm2 > _TINY
-        base = rig.neutral[ids]
-        p1 = cam.project(base, "landmark")
-        dT = (L - p1).ravel()  # L - Pi(F^1)
-        tt = float(dT @ dT)
-        deltas = rig.deltas[:, ids]  # (B, L, 3)
+    def _sem_landmarks(self, rig, ids, L, R, t, f, cx, cy, min_gain=None):
+        """Eqs. 20-22 with the exact projection of the current face, for ``K`` targets at once.
+
+        ``L (K, n, 2)`` landmarks of the vertices ``ids``; camera ``k`` is
+        ``(R[k], t[k], f[k], cx[k], cy[k])``. Returns ``e (K, B)`` and the
+        selection orders ``(K, B)`` (-1 after the last). The work is done in
+        camera space (the rotated deltas are computed once), and the exclusion
+        test projects only the (target, candidate) pairs still alive.
+        """
+        K, n = L.shape[:2]
         B = rig.n_shapes
-        e = np.zeros(B)
-        F = base.copy()
+        deltas = rig.deltas[:, ids]  # (B, n, 3)
+        fc, cxc, cyc = f[:, None], cx[:, None], cy[:, None]
+
+        def uv(pc, rows):
+            """Pixels of camera-space points ``pc (k, ..., n, 3)`` of targets ``rows`` -> u, v ``(k, ..., n)``."""
+            d = -pc[..., 2]
+            if not np.all(d > 0):
+                raise InputError("a fitted landmark went behind the camera (the expression moves it past the camera)")
+            sh = (rows.size,) + (1,) * (pc.ndim - 2)
+            return (cxc[rows].reshape(sh) + fc[rows].reshape(sh) * pc[..., 0] / d,
+                    cyc[rows].reshape(sh) - fc[rows].reshape(sh) * pc[..., 1] / d)
+
+        allk = np.arange(K)
+        P1 = rig.neutral[ids] @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (K, n, 3) camera space
+        if not np.all(P1[..., 2] < 0):
+            k = int(np.argwhere(~(P1[..., 2] < 0))[0, 0])
+            raise InputError(f"a landmark is behind the camera{f' (target {k})' if K > 1 else ''}")
+        RD = np.einsum("kij,bnj->kbni", R, deltas)  # rotated deltas (K, B, n, 3)
+        u1, v1 = uv(P1, allk)  # Pi(F^1)
+        uB, vB = uv(P1[:, None] + RD, allk)
+        Mu, Mv = uB - u1[:, None], vB - v1[:, None]  # Pi(B_i) - Pi(B_1): (K, B, n)
+        nrm2 = np.einsum("kbn,kbn->kb", Mu, Mu) + np.einsum("kbn,kbn->kb", Mv, Mv)
+        moves = nrm2 > _TINY
+        safe2 = np.where(moves, nrm2, 1.0)
+        dTu, dTv = L[..., 0] - u1, L[..., 1] - v1  # L - Pi(F^1)
+        tt = np.einsum("kn,kn->k", dTu, dTu) + np.einsum("kn,kn->k", dTv, dTv)
+        has_t = tt > _TINY
+        inv_tt = np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0)
+        min_gain = None if min_gain is None else np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (K,))
+        e = np.zeros((K, B))
+        order = np.full((K, B), -1, dtype=np.int64)
+        PF = P1.copy()  # the current face F^t, camera space
         alive = moves.copy()
-        r_prev = 1.0
-        order = []
+        r_prev = np.ones(K)
         upper = self._upper
-        for t in range(B):
-            if not alive.any():
+        act = np.flatnonzero(alive.any(axis=1))  # targets still selecting
+        for step in range(B):
+            if act.size == 0:
                 break
-            resid = (L - cam.project(F, "landmark")).ravel()  # L - Pi(F^t)
-            proj = M @ resid
-            level = 1e-9 * np.sqrt(tt) * np.sqrt(np.where(moves, nrm2, 1.0))  # rounding level of the projection
-            ei = np.where(moves & (proj > level), proj / np.where(moves, nrm2, 1.0), 0.0)  # eq. 21 (clamped, eq. 18)
+            uF, vF = uv(PF[act], act)
+            proj = (np.einsum("kbn,kn->kb", Mu[act], L[act, :, 0] - uF)
+                    + np.einsum("kbn,kn->kb", Mv[act], L[act, :, 1] - vF))  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            # eq. 21 (clamped, eq. 18); a projection at rounding level counts as none
+            level = 1e-9 * np.sqrt(tt[act])[:, None] * np.sqrt(safe2[act])
+            ei = np.where(moves[act] & (proj > level), proj / safe2[act], 0.0)
             if upper is not None:
                 ei = np.minimum(ei, upper)
-            if self.exclusion and t > 0 and tt > _TINY:
-                cand = np.flatnonzero(alive)
-                moved = F[None] + ei[cand, None, None] * deltas[cand]  # F^t + e_i dB_i
-                proj_moved = cam.project(moved.reshape(-1, 3), "landmark").reshape(cand.size, -1) - p1.ravel()
-                r = 1.0 - proj_moved @ dT / tt  # eq. 22
-                alive[cand[np.abs(r) > abs(r_prev)]] = False
-                if not alive.any():
-                    break
+            al = alive[act]
+            if self.exclusion and step > 0:
+                kk, bb = np.nonzero(al & has_t[act][:, None])
+                if kk.size:
+                    g = act[kk]
+                    moved = PF[g] + ei[kk, bb][:, None, None] * RD[g, bb]  # F^t + e_i dB_i
+                    um, vm = uv(moved, g)
+                    r = 1.0 - (np.einsum("pn,pn->p", um - u1[g], dTu[g])
+                               + np.einsum("pn,pn->p", vm - v1[g], dTv[g])) * inv_tt[g]  # eq. 22
+                    # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
+                    worse = np.abs(r) - np.abs(r_prev[g]) > 1e-11
+                    al[kk[worse], bb[worse]] = False
+            go = al.any(axis=1)
             if self.select == "gain":
-                score = np.where(alive, 2.0 * ei * proj - ei * ei * nrm2, -np.inf)
+                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2[act], -np.inf)
             else:
-                score = np.where(alive, proj / np.sqrt(np.where(moves, nrm2, 1.0)), -np.inf)  # eq. 20
-            i = int(np.argmax(score))
-            if min_gain is not None and 2.0 * ei[i] * proj[i] - ei[i] ** 2 * nrm2[i] < min_gain:
-                break
-            e[i] += ei[i]
-            F = F + ei[i] * deltas[i]
-            if tt > _TINY:
-                r_prev = 1.0 - float((cam.project(F, "landmark") - p1).ravel() @ dT) / tt
-            order.append(i)
-            alive[i] = False
-        if self.refit:
-            e = self._refit_landmarks(rig, ids, L, cam, e)
+                score = np.where(al, proj / np.sqrt(safe2[act]), -np.inf)  # eq. 20
+            pick = np.argmax(score, axis=1)
+            rows = np.arange(act.size)
+            ep = ei[rows, pick]
+            if min_gain is not None:
+                go &= ~(2.0 * ep * proj[rows, pick] - ep * ep * nrm2[act, pick] < min_gain[act])
+            al[rows, pick] = False
+            alive[act] = al
+            g = act[go]
+            pg = pick[go]
+            e[g, pg] += ep[go]
+            PF[g] += ep[go][:, None, None] * RD[g, pg]
+            ug, vg = uv(PF[g], g)
+            r_prev[g] = np.where(has_t[g], 1.0 - (np.einsum("kn,kn->k", ug - u1[g], dTu[g])
+                                                  + np.einsum("kn,kn->k", vg - v1[g], dTv[g])) * inv_tt[g], r_prev[g])
+            order[g, step] = pg
+            alive[act[~go]] = False
+            act = g[alive[g].any(axis=1)]
         return e, order
 
     def _refit_landmarks(self, rig, ids, L, cam, e):

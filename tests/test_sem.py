@@ -124,6 +124,43 @@ def test_landmarks_unknown_pose(landmark_case):
     assert px < 1.0  # and the landmarks are matched to a pixel
 
 
+def test_landmarks_batched_equals_single(face_model, landmark_case):
+    """fit_landmarks (vectorised over targets, mixed known / unknown poses) gives fit()'s result per target."""
+    rig, _, _, ids, _ = landmark_case
+    rng = np.random.default_rng(5)
+    targets = []
+    for k in range(6):
+        w = np.where(rng.random(rig.n_shapes) < 0.08, rng.uniform(0.3, 1.0, rig.n_shapes), 0.0)
+        V = rig.evaluate(w)
+        cam = look_at_camera(V, yaw=rng.uniform(-20, 20), pitch=rng.uniform(-10, 10))
+        uv = cam.project(V[ids]) + rng.normal(size=(ids.size, 2))
+        targets.append(LandmarkTarget(uv, ids, cam if k % 2 else PinholeCamera(cam.focal, cam.cx, cam.cy)))
+    for fitter in (SEMFitter(), SEMFitter(clamp=True, stop="ric")):
+        E, cams = fitter.fit_landmarks(rig, targets, chunk=2)
+        for k, tg in enumerate(targets):
+            r = fitter.fit(rig, tg)
+            np.testing.assert_allclose(E[k], r.weights, atol=1e-6)
+            np.testing.assert_allclose(cams[k].t, r.info["camera"].t, atol=1e-6)
+    with pytest.raises(InputError, match="target 1 is a MeshTarget"):
+        SEMFitter().fit_landmarks(rig, [targets[0], MeshTarget(rig.neutral)])
+
+
+def test_zero_coefficient_candidate_is_not_excluded_by_rounding(landmark_case):
+    """A candidate with e_i = 0 leaves eq. 22's index unchanged, so it must stay a candidate whatever the rounding.
+
+    Two copies of jawOpen's delta: after the first is selected at the true weight, the copy's coefficient is 0;
+    with an exact-tie comparison it could be dropped or kept depending on the last bit of the projection.
+    The selection must be identical when the rig's shapes are permuted (different rounding paths).
+    """
+    rig, _, V, ids, cam = landmark_case
+    r1 = SEMFitter().fit(rig, LandmarkTarget(cam.project(V[ids]), ids, cam))
+    perm = np.random.default_rng(0).permutation(rig.n_shapes)
+    rig_p = BlendshapeRig(rig.neutral, rig.deltas[perm], [rig.names[i] for i in perm], rig.triangles,
+                          rig.landmark_ids)
+    r2 = SEMFitter().fit(rig_p, LandmarkTarget(cam.project(V[ids]), ids, cam))
+    np.testing.assert_allclose(r2.weights, r1.weights[perm], atol=1e-9)
+
+
 def test_point_cloud_single_shape(face_model):
     rig = BlendshapeRig.from_face_model(face_model)
     w = np.zeros(rig.n_shapes)
