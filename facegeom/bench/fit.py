@@ -44,7 +44,7 @@ FACE_AREA = 6706
 EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
 DEFAULT_METHODS = [
     "sem",
-    "sem-refit=sem:refit=true,clamp=true",
+    "sem+=sem:clamp=true,stop=ric",
     "l1reg",
     "l2reg",
     "pcaexp",
@@ -146,6 +146,47 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
                    "ersim": fm.motion_ersim(uv_fit, proj(r.vertices[fit_ids]), proj(rig.neutral[fit_ids]))}
             row.update(_common(rig, r, c.weights, V))
             rows.append(row)
+    return rows
+
+
+def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10):
+    """Landmark fits per second on one rig: known pose and estimated pose.
+
+    A method with a batched path (``fit_landmarks``) fits ``count`` targets at
+    once; others are timed one by one on ``one_by_one`` targets.
+    """
+    rng = np.random.default_rng([int(seed), 57])
+    cases = make_cases(model, count, int(seed) + 1000)
+    rig = BlendshapeRig.from_face_model(model, cases[0].identity)
+    ids = model.landmarks[list(FIT_LANDMARKS_23)]
+    posed, unposed = [], []
+    for c in cases:
+        V = rig.evaluate(c.weights)
+        cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
+        uv = cam.project(V[ids]) + rng.normal(size=(ids.size, 2)) * noise_px
+        posed.append(LandmarkTarget(uv, ids, cam))
+        unposed.append(LandmarkTarget(uv, ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
+    rows = []
+    for spec in specs:
+        m = spec.build("fitters")
+        row = {"method": spec.label}
+        for key, targets in (("known_pose", posed), ("estimated_pose", unposed)):
+            try:
+                m.fit(rig, targets[0])
+            except FacegeomError:
+                row[key] = float("nan")
+                continue
+            if hasattr(m, "fit_landmarks"):
+                t = time.perf_counter()
+                m.fit_landmarks(rig, targets)
+                n, row["path"] = len(targets), "batched"
+            else:
+                n, row["path"] = min(one_by_one, len(targets)), "one by one"
+                t = time.perf_counter()
+                for tg in targets[:n]:
+                    m.fit(rig, tg)
+            row[key] = n / (time.perf_counter() - t)
+        rows.append(row)
     return rows
 
 
@@ -291,6 +332,12 @@ def summarize(results: dict, specs) -> str:
              _mean(rows, m, "vertex_mm"), _mean(rows, m, "n_active"), _mean(rows, m, "precision"),
              _mean(rows, m, "recall"), _mean(rows, m, "coef_mae"), _median(rows, m, "time_ms")]
             for m in labels if any(r["method"] == m for r in rows)]))
+    if "landmark_speed" in results:
+        rows = results["landmark_speed"]
+        header = ["method", "fits/s, known pose", "fits/s, pose estimated", "path"]
+        parts.append("Landmark throughput (one rig, 23 landmarks)\n\n" + format_table(header, [
+            [r["method"], r.get("known_pose", float("nan")), r.get("estimated_pose", float("nan")), r.get("path", "-")]
+            for r in rows]))
     if "clouds" in results:
         rows = results["clouds"]
         header = ["method", "NE (%)", "vertex (mm)", "Corr", "active", "precision", "recall", "coef MAE", "time (ms)"]
@@ -357,6 +404,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)
         written.append(write_csv(out / "fit-landmarks.csv", results["landmarks"]))
+        results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px)
+        written.append(write_csv(out / "fit-landmark-speed.csv", results["landmark_speed"]))
     if "clouds" in experiments:
         results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, samplings, points, seed=seed,
                                        progress=progress)
