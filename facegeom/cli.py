@@ -437,7 +437,7 @@ def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, d
 @click.option("--cases", default=100, show_default=True, type=click.IntRange(1, 100000), help="Random targets.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--methods", default="all", show_default=True,
-              help="'all' (sem, sem-refit, l1reg, l2reg, pcaexp, pcadel, eos if installed) or ';'-separated specs.")
+              help="'all' (sem, sem+ = sem:clamp=true,stop=ric, l1reg, l2reg, pcaexp, pcadel, eos if installed) or ';'-separated specs.")
 @click.option("--experiments", default="landmarks,clouds,meshes,temporal", show_default=True,
               help="Comma-separated subset of landmarks, clouds, meshes, temporal.")
 @click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0), help="Landmark noise (pixels).")
@@ -573,7 +573,7 @@ def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, r
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/demo", show_default=True)
 @click.pass_context
 def demo(ctx, cases, out):
-    """The main job: face driving and expression retargeting compared on a few real faces, with tables."""
+    """The main job: face driving, expression retargeting and blendshape fitting compared on a few real faces."""
     ctx.invoke(info)
     click.echo("")
     ctx.invoke(bench_drive, cases=cases, seed=0, methods="all", layout_name="ict80", layout_seed=0, out=out,
@@ -585,6 +585,11 @@ def demo(ctx, cases, out):
     ctx.invoke(bench_retarget, sequences=cases, frames=100, seed=0, methods="copy;rbf;tangent", labels="10,20",
                takes_path=None, synthetic_only=not have_takes, layout_name="ict80", layout_seed=0,
                out=str(Path(out) / "retarget"), no_plot=False, quiet=False)
+    click.echo("")
+    ctx.invoke(bench_fit, cases=cases, seed=0, methods="sem;sem+=sem:clamp=true,stop=ric;l1reg;pcadel",
+               experiments="landmarks,meshes", noise_px=1.0, cloud_cases=1, samplings=1, points=30000,
+               take_path=None, takes_path=None, start=0, frames=300, out=str(Path(out) / "fit"), no_plot=False,
+               quiet=False)
 
 
 def main(argv=None):
@@ -606,3 +611,7 @@ def main(argv=None):
     except KeyboardInterrupt:
         click.echo("facegeom: interrupted", err=True)
         sys.exit(130)
+
+
+from .cli_cleanup import register as _register_cleanup  # noqa: E402
+_register_cleanup(cli)

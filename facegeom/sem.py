@@ -269,19 +269,25 @@ class SEMFitter:
         T = np.asarray(targets, dtype=np.float64)
         if T.ndim != 3 or T.shape[1:] != (rig.n_vertices, 3):
             raise InputError(f"targets must have shape (K, {rig.n_vertices}, 3), got {T.shape}")
-        if not np.all(np.isfinite(T)):
-            raise InputError("targets contain NaN or inf")
-        dT = (T - rig.neutral[None]).reshape(T.shape[0], -1)
-        c = dT @ rig.delta_matrix()
-        tt = np.einsum("ij,ij->i", dT, dT)
+        K = T.shape[0]
+        D = rig.delta_matrix()
+        n_flat = rig.neutral.reshape(-1)
+        c = T.reshape(K, -1) @ D - (n_flat @ D)[None]  # one GEMM for every dT . dB_i
+        tt = np.empty(K)
+        for k0 in range(0, K, 256):  # |dT|^2 in cache-sized chunks (no (K, 3n) temporary)
+            d = T[k0:k0 + 256].reshape(-1, n_flat.size) - n_flat
+            tt[k0:k0 + 256] = np.einsum("ij,ij->i", d, d)
+        if not (np.all(np.isfinite(tt)) and np.all(np.isfinite(c))):  # a NaN or inf anywhere in a target shows here
+            bad = int(np.flatnonzero(~(np.isfinite(tt) & np.isfinite(c).all(axis=1)))[0])
+            raise InputError(f"target {bad} contains NaN or inf")
         G = rig.gram()
         e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
         if self.stop == "ric":
             resid = np.maximum(tt - 2.0 * np.einsum("kb,kb->k", e, c) + np.einsum("kb,bc,kc->k", e, G, e), 0.0)
             e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select,
-                            self._ric_threshold(rig, resid, dT.shape[1], e))
+                            self._ric_threshold(rig, resid, n_flat.size, e))
         if self.refit:
-            e = np.stack([self._refit_linear(rig.delta_matrix(), d, ek, None) for d, ek in zip(dT, e)])
+            e = np.stack([self._refit_linear(D, (T[k] - rig.neutral).ravel(), e[k], None) for k in range(K)])
         return e
 
     def _refit_linear(self, A, b, e, weights=None):

@@ -264,10 +264,11 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
             m.fit(rig, MeshTarget(T[0]))
         except FacegeomError:
             continue
-        if hasattr(m, "fit_meshes"):
-            m.fit_meshes(rig, T[:10])
+        many = getattr(m, "fit_meshes", None) or getattr(m, "fit_many", None)  # a batched path
+        if many is not None:
+            many(rig, T[:10])
             t = time.perf_counter()
-            m.fit_meshes(rig, T)
+            many(rig, T)
             n, dt, how = len(T), time.perf_counter() - t, "batched"
         else:
             n = 100
