@@ -16,7 +16,10 @@ Starting from the neutral face ``F^1 = B_1``, each iteration ``t``
 
 until no candidate remains. ``ESim`` and ``ERSim`` are eqs. 9 and 10
 (:mod:`facegeom.fitmetrics`). The first iteration has no previous index and
-excludes nothing; the index of the empty selection is ``1``.
+excludes nothing; the index of the empty selection is ``1``. (On landmarks a
+target stops as soon as no remaining candidate has a positive coefficient: the
+selections left would all add ``0`` and change nothing, so the coefficients are
+those of the full run; only the reported order omits those zero selections.)
 
 Targets
 -------
@@ -439,7 +442,9 @@ class SEMFitter:
                     # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
                     worse = np.abs(r) - np.abs(r_prev[g]) > 1e-11
                     al[kk[worse], bb[worse]] = False
-            go = al.any(axis=1)
+            # once no alive candidate has a positive coefficient, every later selection adds 0 and leaves the
+            # face, the residual and the index unchanged: the coefficients are final, stop this target here
+            go = (al & (ei > 0)).any(axis=1)
             if self.select == "gain":
                 score = np.where(al, 2.0 * ei * proj - ei * ei * safe2[act], -np.inf)
             else:
