@@ -275,11 +275,18 @@ class SEMFitter:
         K = T.shape[0]
         D = rig.delta_matrix()
         n_flat = rig.neutral.reshape(-1)
-        c = T.reshape(K, -1) @ D - (n_flat @ D)[None]  # one GEMM for every dT . dB_i
-        tt = np.empty(K)
-        for k0 in range(0, K, 256):  # |dT|^2 in cache-sized chunks (no (K, 3n) temporary)
-            d = T[k0:k0 + 256].reshape(-1, n_flat.size) - n_flat
-            tt[k0:k0 + 256] = np.einsum("ij,ij->i", d, d)
+        Tf = T.reshape(K, -1)
+        # one GEMM gives every T . dB_i and T . n; |dT|^2 = |T|^2 - 2 T . n + |n|^2 (no (K, 3n) temporary;
+        # the cancellation costs ~1e-16 |T|^2, far below any motion worth fitting)
+        cn = Tf @ np.c_[D, n_flat]
+        c = cn[:, :-1] - (n_flat @ D)[None]
+        t2 = np.einsum("ij,ij->i", Tf, Tf)
+        tt = np.maximum(t2 - 2.0 * cn[:, -1] + n_flat @ n_flat, 0.0)
+        near = np.flatnonzero(tt <= 1e-10 * t2)  # (almost) the neutral itself: recompute exactly
+        if near.size:
+            d = Tf[near] - n_flat
+            tt[near] = np.einsum("ij,ij->i", d, d)
+            c[near] = d @ D
         if not (np.all(np.isfinite(tt)) and np.all(np.isfinite(c))):  # a NaN or inf anywhere in a target shows here
             bad = int(np.flatnonzero(~(np.isfinite(tt) & np.isfinite(c).all(axis=1)))[0])
             raise InputError(f"target {bad} contains NaN or inf")

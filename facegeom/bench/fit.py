@@ -423,8 +423,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         fitted = {k: v[:, [j]] for k, v in fitted.items()}
         written.append(write_csv(out / "fit-temporal.csv", results["temporal"]))
     table = summarize(results, specs)
-    note = (f"{count} targets (seed {seed}), landmark noise {noise_px} px, {cloud_cases} x {samplings} point clouds of "
-            f"{points} points; {machine_note()}")
+    clouds = f", {cloud_cases} x {samplings} point clouds of {points} points" if "clouds" in results else ""
+    note = f"{count} targets (seed {seed}), landmark noise {noise_px} px{clouds}; {machine_note()}"
     echo(table)
     echo(note)
     with atomic_path(out / "fit-summary.md") as tmp:
