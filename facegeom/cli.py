@@ -590,6 +590,26 @@ def demo(ctx, cases, out):
                experiments="landmarks,meshes", noise_px=1.0, cloud_cases=1, samplings=1, points=30000,
                take_path=None, takes_path=None, start=0, frames=300, out=str(Path(out) / "fit"), no_plot=False,
                quiet=False)
+    click.echo("")
+    _demo_viewer(obj_model=ctx.obj.face_model(), path=Path(out) / "view-drive.png")
+
+
+def _demo_viewer(obj_model, path: Path) -> None:
+    """The demo's last step: the face-driving comparison as a PNG; the viewer itself when a display is present."""
+    try:
+        from viewer.drive import DriveView
+    except ImportError as exc:  # polyscope missing: the tables above are the demo's result
+        click.echo(f"viewer skipped ({exc})")
+        return
+    view = DriveView(obj_model, "rbf;laplacian;biharmonic;tangent", seed=0, expression="happiness", intensity=0.9,
+                     layout_name="ict80", layout_seed=0, bench_case=None)
+    try:
+        view.run(screenshot=str(path), echo=click.echo, show=True)
+    except FacegeomError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - no OpenGL/EGL on this machine: say so, keep the tables
+        click.echo(f"viewer screenshot skipped: could not render headless here ({type(exc).__name__}: {exc}); "
+                   "see the README's viewer section for the system packages EGL needs")
 
 
 def main(argv=None):
@@ -615,3 +635,6 @@ def main(argv=None):
 
 from .cli_cleanup import register as _register_cleanup  # noqa: E402
 _register_cleanup(cli)
+
+from .cli_view import register as _register_view  # noqa: E402
+_register_view(cli)

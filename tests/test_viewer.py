@@ -1,0 +1,250 @@
+"""The polyscope viewer, rendered headless (EGL on Mesa's software renderer; no display, no GPU).
+
+Polyscope is started once for this module; every test resets the scene. Widgets are
+driven through :class:`viewer.app.Widgets` (a queued value is reported by the
+widget exactly as a user's change), and ``polyscope.frame_tick()`` runs the
+panel callback, so marker nudges, dragging, parameter changes and playback go
+through the same code as in the window.
+"""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ps = pytest.importorskip("polyscope")
+
+from facegeom.errors import InputError  # noqa: E402
+from viewer.app import NO_DISPLAY, check_display, display_available  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def headless():
+    from viewer.app import init_polyscope
+
+    try:
+        backend = init_polyscope(headless=True)
+    except Exception as exc:  # noqa: BLE001
+        pytest.skip(f"headless rendering unavailable here (polyscope could not start EGL): {exc}")
+    if backend == "openGL_mock":
+        pytest.skip("only polyscope's mock backend is available: images would be black")
+    yield backend
+    ps.clear_user_callback()
+    ps.remove_all_structures()
+
+
+@pytest.fixture
+def scene(headless):
+    ps.remove_all_structures()
+    yield
+    ps.clear_user_callback()
+    ps.remove_all_structures()
+
+
+def read_png(path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def assert_not_blank(img):
+    img = np.asarray(img, dtype=np.float64)[..., :3]
+    assert img.std() > 10.0, "the image is blank"
+    assert (np.abs(img - 255).sum(axis=-1) > 30).mean() > 0.03, "almost nothing is drawn"
+
+
+def changed(a, b, cols=None) -> int:
+    """Pixels that differ visibly between two renders (in the column range ``cols`` if given)."""
+    d = np.abs(a.astype(int) - b.astype(int)).sum(axis=-1) > 30
+    if cols is not None:
+        d = d[:, max(int(cols[0]), 0):int(cols[1])]
+    return int(d.sum())
+
+
+def columns(view, name, V) -> tuple[float, float]:
+    """Screen x range of the copy ``name`` of a face ``V``."""
+    lo = view.world_to_screen([V[:, 0].min() + view.shifts[name][0], V[:, 1].mean(), V[:, 2].max()])
+    hi = view.world_to_screen([V[:, 0].max() + view.shifts[name][0], V[:, 1].mean(), V[:, 2].max()])
+    return lo[0], hi[0]
+
+
+# --------------------------------------------------------------------------- no display
+
+
+def test_display_detection(monkeypatch):
+    assert not display_available({}, "linux")
+    assert display_available({"DISPLAY": ":0"}, "linux")
+    assert display_available({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
+    assert display_available({}, "darwin")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    with pytest.raises(InputError, match="--screenshot PATH"):
+        check_display(None)
+    check_display("out.png")  # headless with a screenshot is fine
+    monkeypatch.setenv("DISPLAY", ":0")
+    check_display(None)
+
+
+@pytest.mark.parametrize("sub", ["drive", "retarget", "animate", "fit"])
+def test_cli_without_display_says_how_to_run_headless(sub):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([sys.executable, "-m", "facegeom", "view", sub], capture_output=True, text=True, env=env,
+                       timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"facegeom: error: {NO_DISPLAY}"
+    assert "Traceback" not in r.stderr and r.stdout == ""
+
+
+def test_cli_screenshot(tmp_path, face_model):
+    out = tmp_path / "drive.png"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["FACEGEOM_DATA"] = face_model.path
+    r = subprocess.run([sys.executable, "-m", "facegeom", "view", "drive", "--methods", "rbf", "--marker", "57",
+                        "--nudge", "0,-8,0", "--size", "900x500", "--screenshot", str(out)],
+                       capture_output=True, text=True, env=env, timeout=120)
+    if r.returncode != 0 and "could not start a renderer" in r.stderr:
+        pytest.skip(f"headless rendering unavailable: {r.stderr.strip()}")
+    assert r.returncode == 0, r.stderr
+    assert f"wrote {out}" in r.stdout
+    img = read_png(out)
+    assert img.shape == (500, 900, 3)
+    assert_not_blank(img)
+
+
+# --------------------------------------------------------------------------- drive
+
+
+def test_drive_view_nudge_drag_and_parameters(scene, face_model, tmp_path):
+    from viewer.drive import DriveView
+
+    v = DriveView(face_model, "rbf;tangent", seed=1, expression="jaw-open")
+    v.setup_scene(1200, 700, headless=True)
+    assert_not_blank(read_png(v.screenshot(tmp_path / "drive.png")))
+    before = v.image()
+    err_before = {m: v.errors(m)["mean_mm"] for m in v.selected}
+    for _ in range(2):
+        ps.frame_tick()
+    assert v.ticks >= 2
+
+    # nudge marker 57 (lower lip) 8 mm down through the panel's sliders
+    v.ui.set("marker", 57)
+    v.ui.set("dy (mm)", -8.0)
+    ps.frame_tick()
+    assert v.marker == 57
+    np.testing.assert_allclose(v.offsets[57], [0.0, -0.8, 0.0])
+    assert np.count_nonzero(v.offsets) == 1
+    for m in v.selected:
+        assert v.deform_ms[m] > 0
+        assert v.errors(m)["mean_mm"] != pytest.approx(err_before[m])
+        assert np.allclose(v.results[m][v.case.handles[57]], v.positions()[57], atol=1e-6)
+    after = v.image()
+    X, T = v.case.source, v.case.target
+    for m in v.selected:  # every method's face (geometry and error colours) changed...
+        assert changed(before, after, columns(v, m, X)) > 200, m
+    assert changed(before, after, columns(v, "target", T)) == 0  # ...the truth did not
+    assert changed(before, after, columns(v, "source", X)) == 0
+
+    # drag marker 10 on the tangent face 25 px to the right: same set_offset path
+    s = v.world_to_screen(v.positions()[10] + v.shifts["tangent"])
+    assert v.begin_drag(s)
+    assert v.marker == 10
+    v.drag_to(s + [25.0, 0.0])
+    v.end_drag()
+    off = v.offsets[10]
+    assert off[0] > 0.5 and abs(off[1]) < 0.1 * off[0]
+    assert np.allclose(v.results["rbf"][v.case.handles[10]], v.positions()[10], atol=1e-6)
+    assert not v.begin_drag((3.0, 3.0))  # empty background: nothing picked
+
+    # a parameter (tangent d) refits tangent only; switching a method on fits it
+    rbf_fit, tangent_before = v.deformers["rbf"], v.results["tangent"].copy()
+    v.ui.set("tangent d", 1)
+    ps.frame_tick()
+    assert v.tangent_d == 1 and v.deformers["tangent"].d == 1 and v.deformers["rbf"] is rbf_fit
+    assert not np.allclose(v.results["tangent"], tangent_before)
+    v.ui.set("biharmonic", True)
+    ps.frame_tick()
+    assert v.selected == ["rbf", "tangent", "biharmonic"] and ps.has_surface_mesh("biharmonic")
+    assert np.allclose(v.results["biharmonic"][v.case.handles], v.positions(), atol=1e-6)
+    v.ui.set("reset all", True)
+    ps.frame_tick()
+    assert not v.offsets.any()
+
+
+# --------------------------------------------------------------------------- playback
+
+
+def test_retarget_view_playback(scene, face_model, tmp_path):
+    from viewer.playback import RetargetView, load_sequence
+
+    seq = load_sequence(face_model, synthetic=True, frames=40, seed=3)
+    v = RetargetView(face_model, seq, "copy;tangent", labels=5)
+    assert set(v.frame_err) == {"copy", "tangent"}
+    assert all(e.shape == (40,) and np.isfinite(e).all() for e in v.frame_err.values())
+    v.setup_scene(1200, 700, headless=True)
+    assert_not_blank(read_png(v.screenshot(tmp_path / "retarget.png")))
+    first = v.image()
+    assert v.frame == 0  # a screenshot does not advance playback
+
+    v.ui.set("play", True)
+    ps.frame_tick()
+    assert v.playing and v.frame == 1
+    for _ in range(3):
+        ps.frame_tick()
+    assert v.frame == 4
+    v.ui.set("pause", True)
+    ps.frame_tick()
+    assert not v.playing and v.frame == 4
+    peak = int(np.argmax(np.linalg.norm(seq.source - seq.source[0], axis=2).mean(axis=1)))
+    v.ui.set("frame", peak)
+    ps.frame_tick()
+    assert v.frame == peak
+    assert changed(first, v.image(), columns(v, "actor", v.actor[peak])) > 200
+    v.set_frame(0)
+    assert changed(first, v.image()) == 0
+
+
+def test_animate_view(scene, face_model, tmp_path):
+    from viewer.playback import AnimateView, load_sequence
+
+    seq = load_sequence(face_model, synthetic=True, frames=30, seed=4)
+    v = AnimateView(face_model, seq, "copy;tangent", "rbf", labels=5)
+    assert v.faces["tangent"].shape == (30, face_model.n_vertices, 3)
+    assert np.isfinite(v.frame_err["tangent"]).all()
+    v.setup_scene(1200, 700, headless=True)
+    assert_not_blank(read_png(v.screenshot(tmp_path / "animate.png")))
+    first = v.image()
+    peak = int(np.argmax(np.linalg.norm(seq.source - seq.source[0], axis=2).mean(axis=1)))
+    v.ui.set(">", True)
+    ps.frame_tick()
+    assert v.frame == 1
+    v.ui.set("frame", peak)
+    ps.frame_tick()
+    assert v.frame == peak
+    after = v.image()
+    assert changed(first, after, columns(v, "tangent", v.truth[peak])) > 200
+    assert changed(first, after, columns(v, "character", v.truth[peak])) > 200
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def test_fit_view(scene, face_model, tmp_path):
+    from viewer.fit import FitView
+
+    v = FitView(face_model, "sem;l1reg;pcadel", case=2, kind="mesh")
+    assert set(v.results) == {"sem", "l1reg", "pcadel"}
+    for r in v.results.values():
+        assert r.weights.shape == (face_model.n_expressions,)
+    v.setup_scene(1200, 700, headless=True)
+    assert_not_blank(read_png(v.screenshot(tmp_path / "fit.png")))
+    for _ in range(2):  # the panel (histograms, named bars) draws without error
+        ps.frame_tick()
+    before = v.image()
+    v.ui.set("colour max (mm)", 0.2)
+    ps.frame_tick()
+    assert v.vmax == pytest.approx(0.2)
+    assert changed(before, v.image(), columns(v, "pcadel", v.case.truth)) > 200
+    with pytest.raises(InputError, match="correspondence"):
+        FitView(face_model, "sem", mesh=face_model.neutral[:100])

@@ -1,0 +1,278 @@
+"""``facegeom view fit``: a target beside every fitter's fitted face, with each method's coefficients.
+
+The target is one of ``facegeom bench fit``'s random expressions
+(:func:`facegeom.bench.fit.make_cases`: a random identity, 2-6 active shapes)
+given to the fitters as 23 noisy 2-D landmarks seen by an unposed camera (the
+``landmarks`` experiment) or as the whole mesh in correspondence (``mesh``), or
+a mesh file in correspondence with the generic ICT rig. Row: the true face (with
+the landmark vertices) | one fitted face per method, coloured by the distance to
+the true face (mm). The panel shows every method's coefficients as a histogram
+over the blendshapes and its largest coefficients by name, against the truth.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from facegeom import registry
+from facegeom.bench import fit as bench_fit
+from facegeom.bench.common import MethodSpec, parse_methods
+from facegeom.errors import FacegeomError, InputError
+from facegeom.rig import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
+
+from .app import MARKER_COLOR, NARROW_FACE, BaseView, error_mm, nice_ceiling, row_offsets
+
+__all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]
+
+DEFAULT_METHODS = "sem;l1reg;pcadel"
+KINDS = ["landmarks", "mesh"]
+TOP = 5  # largest coefficients listed by name per method
+
+
+@dataclass
+class FitCase:
+    description: str
+    rig: BlendshapeRig
+    truth: np.ndarray  # (n, 3) the true face
+    weights: np.ndarray | None  # (B,) the true coefficients, if known
+    target: object  # LandmarkTarget | MeshTarget
+    landmark_ids: np.ndarray | None
+
+
+def make_fit_case(model, case: int = 0, seed: int = 0, kind: str = "landmarks", noise_px: float = 1.0,
+                  mesh=None) -> FitCase:
+    """Case ``case`` of ``facegeom bench fit --seed seed`` as a landmark or mesh target; or ``mesh`` (n, 3)."""
+    if mesh is not None:
+        rig = BlendshapeRig.from_face_model(model)
+        V = np.asarray(mesh, dtype=np.float64)
+        if V.shape != (rig.n_vertices, 3):
+            raise InputError(f"the target mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}: it must be "
+                             f"in correspondence with the ICT face")
+        return FitCase("a mesh target on the generic ICT rig", rig, V, None, MeshTarget(V), None)
+    if kind not in KINDS:
+        raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(KINDS)}")
+    if case < 0:
+        raise InputError(f"--case must be >= 0, got {case}")
+    if not np.isfinite(noise_px) or noise_px < 0:
+        raise InputError(f"--noise-px must be a non-negative number, got {noise_px}")
+    c = bench_fit.make_cases(model, case + 1, seed)[case]
+    rig = BlendshapeRig.from_face_model(model, c.identity)
+    V = rig.evaluate(c.weights)
+    active = ", ".join(f"{rig.names[i]} {c.weights[i]:.2f}" for i in np.flatnonzero(c.weights))
+    desc = f"bench fit case {case} (seed {seed}): {active}"
+    if kind == "mesh":
+        return FitCase(desc + "; the mesh in correspondence", rig, V, c.weights, MeshTarget(V), None)
+    ids = model.landmarks[list(FIT_LANDMARKS_23)]
+    cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
+    rng = np.random.default_rng([int(seed), 99, int(case)])
+    uv = cam.project(V[ids]) + rng.normal(size=(ids.size, 2)) * noise_px
+    target = LandmarkTarget(uv, ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
+    desc += f"; {ids.size} landmarks, yaw {c.yaw:.0f} pitch {c.pitch:.0f} deg, noise {noise_px:g} px, pose unknown"
+    return FitCase(desc, rig, V, c.weights, target, ids)
+
+
+class FitView(BaseView):
+    """True face | one fitted face per fitter, with coefficient charts.
+
+    Parameters
+    ----------
+    model : FaceModel
+    methods : str or list of MethodSpec
+        Fitter specs (``;``-separated, as for ``facegeom bench fit``).
+    case, seed, kind, noise_px, mesh
+        The target (see :func:`make_fit_case`).
+    """
+
+    title = "facegeom view fit"
+    panel_width = 460
+
+    def __init__(self, model, methods=DEFAULT_METHODS, case: int = 0, seed: int = 0, kind: str = "landmarks",
+                 noise_px: float = 1.0, mesh=None):
+        super().__init__()
+        self.model = model
+        specs = (parse_methods(methods, "fitters", bench_fit.DEFAULT_METHODS) if isinstance(methods, str)
+                 else list(methods))
+        if not specs:
+            raise InputError("no fitter given, e.g. --methods sem")
+        self.specs: dict[str, MethodSpec] = {s.label: s for s in specs}
+        for name in registry.available("fitters"):
+            self.specs.setdefault(name, MethodSpec(name, name, {}))
+        self.selected = [s.label for s in specs]
+        self.case_args = dict(case=int(case), seed=int(seed), kind=kind, noise_px=float(noise_px), mesh=mesh)
+        self.results: dict[str, object] = {}
+        self.time_ms: dict[str, float] = {}
+        self.failed: dict[str, str] = {}
+        self._built = False
+        self.load_case()
+
+    # ------------------------------------------------------------------ model side
+    def load_case(self, **changes) -> None:
+        self.case_args.update(changes)
+        self.case = make_fit_case(self.model, **self.case_args)
+        self.results.clear()
+        self.failed.clear()
+        for label in self.selected:
+            self.fit_method(label)
+        errs = [np.percentile(error_mm(r.vertices, self.case.truth)[:NARROW_FACE], 99) for r in self.results.values()]
+        self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
+        self.rebuild()
+
+    def fit_method(self, label: str) -> None:
+        self.failed.pop(label, None)
+        try:
+            f = self.specs[label].build("fitters")
+            t = time.perf_counter()
+            self.results[label] = f.fit(self.case.rig, self.case.target)
+            self.time_ms[label] = (time.perf_counter() - t) * 1e3
+        except FacegeomError as exc:
+            self.failed[label] = str(exc)
+            self.results.pop(label, None)
+
+    def set_methods(self, labels: list[str]) -> None:
+        unknown = [x for x in labels if x not in self.specs]
+        if unknown:
+            raise InputError(f"no fitter {unknown[0]!r}; available: {', '.join(self.specs)}")
+        self.selected = list(labels)
+        for label in labels:
+            if label not in self.results:  # new ones, and failed ones again
+                self.fit_method(label)
+        self.rebuild()
+
+    def shown(self) -> list[str]:
+        return [x for x in self.selected if x in self.results]
+
+    # ------------------------------------------------------------------ scene
+    def copies(self) -> list[str]:
+        return ["truth", *self.shown()]
+
+    def rebuild(self) -> None:
+        import polyscope as ps
+
+        if not ps.is_initialized() or not self._built:
+            return
+        ps.remove_all_structures()
+        self.build()
+        self.frame_camera()
+
+    def build(self) -> None:
+        self._built = True
+        c, F = self.case, self.model.triangles
+        names = self.copies()
+        self.shifts = dict(zip(names, row_offsets(c.truth, len(names))))
+        r = 0.011 * float(np.ptp(c.truth[:, 0]))
+        m = self.mesh("truth", c.truth, F, self.shifts["truth"])
+        self.error_colors(m, np.zeros(c.truth.shape[0]), self.vmax)
+        for label in self.shown():
+            V = self.results[label].vertices
+            m = self.mesh(label, V, F, self.shifts[label])
+            self.error_colors(m, error_mm(V, c.truth), self.vmax)
+        if c.landmark_ids is not None:
+            for name in names:
+                V = c.truth if name == "truth" else self.results[name].vertices
+                pc = self.points(f"{name} landmarks", V[c.landmark_ids], self.shifts[name], color=MARKER_COLOR)
+                pc.set_radius(r, relative=False)
+
+    def refresh_colors(self) -> None:
+        import polyscope as ps
+
+        if not ps.is_initialized() or not self._built:
+            return
+        for label in self.shown():
+            self.error_colors(ps.get_surface_mesh(label), error_mm(self.results[label].vertices, self.case.truth),
+                              self.vmax)
+
+    # ------------------------------------------------------------------ panel
+    def histogram(self, label: str, weights: np.ndarray) -> None:
+        """Every coefficient, one bar per blendshape (in rig order)."""
+        import polyscope.imgui as psim
+
+        w = np.asarray(weights, dtype=np.float64)
+        lo, hi = min(0.0, float(w.min())), max(1.0, float(w.max()))
+        psim.PlotHistogram(f"##{label} coefficients", w.astype(np.float32),
+                           overlay_text=f"{label}: {int((np.abs(w) > 1e-3).sum())} active of {w.size}",
+                           scale_min=lo, scale_max=hi, graph_size=(self.panel_width - 30.0, 42.0))
+
+    def named_rows(self) -> list[int]:
+        """Shapes listed by name: the true ones, then each method's largest ``TOP`` coefficients."""
+        rows = [] if self.case.weights is None else [int(i) for i in np.flatnonzero(self.case.weights)]
+        for label in self.shown():
+            w = self.results[label].weights
+            rows += [int(i) for i in np.argsort(-np.abs(w))[:TOP] if abs(w[i]) > 1e-3 and i not in rows]
+        return rows
+
+    def coefficient_table(self) -> None:
+        """Named coefficients as progress bars: one row per shape, one column per method (truth first)."""
+        import polyscope.imgui as psim
+
+        names, cols = self.case.rig.names, []
+        if self.case.weights is not None:
+            cols.append(("truth", self.case.weights))
+        cols += [(label, self.results[label].weights) for label in self.shown()]
+        if not cols or not psim.BeginTable("coefficients", len(cols) + 1, psim.ImGuiTableFlags_RowBg):
+            return
+        psim.TableSetupColumn("shape")
+        for label, _ in cols:
+            psim.TableSetupColumn(label)
+        psim.TableHeadersRow()
+        for i in self.named_rows():
+            psim.TableNextRow()
+            psim.TableNextColumn()
+            psim.TextUnformatted(names[i])
+            for _, w in cols:
+                psim.TableNextColumn()
+                psim.ProgressBar(float(np.clip(abs(w[i]), 0.0, 1.0)), (-1.0, 0.0), f"{w[i]:+.2f}" if w[i] else "0")
+        psim.EndTable()
+
+    def panel(self) -> None:
+        import polyscope.imgui as psim
+
+        ui, c = self.ui, self.case
+        psim.TextWrapped(c.description)
+        psim.TextWrapped("left to right: " + " | ".join(self.copies()))
+        psim.TextUnformatted("colour: distance to the true face (mm)")
+        ch, v = ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
+        if ch:
+            self.vmax = float(v)
+            self.refresh_colors()
+        psim.Separator()
+        for label in self.selected:
+            if label in self.failed:
+                psim.TextColored((1.0, 0.3, 0.3, 1.0), f"{label}: failed: {self.failed[label]}")
+                continue
+            r = self.results[label]
+            e = error_mm(r.vertices, c.truth)[:NARROW_FACE].mean()
+            psim.TextUnformatted(f"{label}: {self.time_ms[label]:.0f} ms, mean vertex error {e:.2f} mm")
+        psim.TextUnformatted("coefficients by blendshape (rig order)")
+        if c.weights is not None:
+            self.histogram("truth", c.weights)
+        for label in self.shown():
+            self.histogram(label, self.results[label].weights)
+        self.coefficient_table()
+        psim.Separator()
+        if self.case_args["mesh"] is None and psim.CollapsingHeader("Target", psim.ImGuiTreeNodeFlags_DefaultOpen):
+            a, changes = self.case_args, {}
+            ch, v = ui.input_int("case", a["case"])
+            if ch:
+                changes["case"] = max(0, int(v))
+            ch, v = ui.input_int("seed", a["seed"])
+            if ch:
+                changes["seed"] = int(v)
+            ch, v = ui.combo("target kind", a["kind"], KINDS)
+            if ch:
+                changes["kind"] = v
+            if a["kind"] == "landmarks":
+                ch, v = ui.slider_float("noise (px)", a["noise_px"], 0.0, 5.0, "%.1f")
+                if ch:
+                    changes["noise_px"] = float(v)
+            if changes:
+                self.load_case(**changes)
+        if psim.CollapsingHeader("Methods", psim.ImGuiTreeNodeFlags_DefaultOpen):
+            chosen = list(self.selected)
+            for label in self.specs:
+                ch, on = ui.checkbox(label, label in self.selected)
+                if ch:
+                    chosen = [x for x in self.specs if (x in chosen or x == label) and (on or x != label)]
+            if chosen != self.selected and chosen:
+                self.set_methods(chosen)

@@ -1,0 +1,118 @@
+"""Regenerate the viewer's README images, one PNG per view, headless.
+
+Usage::
+
+    python -m viewer.make_images --out docs/images [--only drive,fit] [--size 1600x900]
+
+Writes ``view-drive.png``, ``view-retarget.png``, ``view-animate.png`` and
+``view-fit.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
+fixed, seeded settings). Needs the face data (``--data`` or ``$FACEGEOM_DATA``)
+and, for retarget/animate, the ARKit takes (``--takes`` or ``$FACEGEOM_TAKES``;
+a synthetic take otherwise). Renders with EGL: no display or GPU needed.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from facegeom.errors import FacegeomError
+
+VIEWS = ("drive", "retarget", "animate", "fit")
+
+# fixed settings of the README scenes
+DRIVE = dict(methods="rbf;laplacian;biharmonic;tangent", seed=0, expression="happiness", intensity=0.9)
+TAKE = dict(take="alex_rom_3.csv", frames=120, seed=0, labels=10)  # the window around its most intense frame
+RETARGET_METHODS = "copy;rbf;tangent"
+ANIMATE = dict(retargeters="copy;tangent", deformer="tangent")
+FIT = dict(methods="sem;l1reg;pcadel", case=0, seed=0, kind="landmarks", noise_px=1.0)
+
+
+def _sequence(model, takes):
+    """The README's take window: around the take's most intense frame; a synthetic take without takes."""
+    import numpy as np
+
+    from facegeom.data import locate_takes
+    from facegeom.takes import find_takes, ict_weights, read_take
+    from viewer.playback import load_sequence
+
+    n = TAKE["frames"]
+    try:
+        folder = locate_takes(takes)
+        path = folder / TAKE["take"] if folder.is_dir() else folder
+        if not path.is_file():
+            path = find_takes(folder)[0]
+        W = ict_weights(read_take(path), model.expression_names)
+        start = int(np.clip(int(np.argmax(W.sum(axis=1))) - n // 2, 0, max(W.shape[0] - n, 0)))
+        return load_sequence(model, path, None, start, min(n, W.shape[0]), TAKE["seed"])
+    except FacegeomError as exc:
+        print(f"no take ({exc}); using a synthetic one", file=sys.stderr)
+        return load_sequence(model, frames=n, seed=TAKE["seed"], synthetic=True)
+
+
+def _peak(seq) -> int:
+    """The frame where the character's markers are farthest from rest."""
+    import numpy as np
+
+    return int(np.argmax(np.linalg.norm(seq.target - seq.target_rest, axis=2).mean(axis=1)))
+
+
+def build(name: str, model, takes=None):
+    """The view ``name`` with the README's settings."""
+    if name == "drive":
+        from viewer.drive import DriveView
+
+        return DriveView(model, **DRIVE)
+    if name == "retarget":
+        from viewer.playback import RetargetView
+
+        seq = _sequence(model, takes)
+        return RetargetView(model, seq, RETARGET_METHODS, TAKE["labels"], frame=_peak(seq))
+    if name == "animate":
+        from viewer.playback import AnimateView
+
+        seq = _sequence(model, takes)
+        return AnimateView(model, seq, labels=TAKE["labels"], frame=_peak(seq), **ANIMATE)
+    if name == "fit":
+        from viewer.fit import FitView
+
+        return FitView(model, **FIT)
+    raise ValueError(f"unknown view {name!r}; choose from {', '.join(VIEWS)}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m viewer.make_images", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default="docs/images", help="output folder (default: docs/images)")
+    ap.add_argument("--only", default=",".join(VIEWS), help=f"comma-separated subset of {', '.join(VIEWS)}")
+    ap.add_argument("--size", default="1600x900", help="image size WxH (default: 1600x900)")
+    ap.add_argument("--data", default=None, help="face data bundle (default: $FACEGEOM_DATA)")
+    ap.add_argument("--takes", default=None, help="folder of ARKit takes (default: $FACEGEOM_TAKES)")
+    args = ap.parse_args(argv)
+    try:
+        from facegeom.data import load_face_model
+        from viewer.app import init_polyscope, parse_size
+
+        names = [x.strip() for x in args.only.split(",") if x.strip()]
+        bad = [x for x in names if x not in VIEWS]
+        if bad or not names:
+            what = repr(bad[0]) if bad else "(empty)"
+            raise FacegeomError(f"--only: unknown view {what}; choose from {', '.join(VIEWS)}")
+        w, h = parse_size(args.size)
+        model = load_face_model(args.data)
+        init_polyscope(headless=True)
+        out = Path(args.out)
+        for name in names:
+            t = time.perf_counter()
+            view = build(name, model, args.takes)
+            view.setup_scene(w, h, headless=True)
+            path = view.screenshot(out / f"view-{name}.png")
+            print(f"wrote {path} ({time.perf_counter() - t:.1f} s)")
+    except FacegeomError as exc:
+        print(f"make_images: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
