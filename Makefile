@@ -5,7 +5,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.facegeom-installed
 
-.PHONY: demo test install bench clean
+.PHONY: demo test install bench images clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# the viewer's README images (renders of the ICT face data: generated here, never committed)
+images: $(STAMP)
+	$(BIN)/python -m viewer.make_images --out docs/images
 
 clean:
 	rm -rf $(VENV) build *.egg-info
