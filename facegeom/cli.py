@@ -156,42 +156,10 @@ def retarget(source, labels, output, method, params, fill_gaps):
     import numpy as np
 
     from . import registry
-    from .errors import InputError
-    from .markerseq import fill_gaps as fill, read_marker_sequence, write_marker_sequence
+    from .markerseq import read_retarget_inputs, write_marker_sequence
 
-    src = read_marker_sequence(source)
+    src, P, lab, _ = read_retarget_inputs(source, labels, fill_gaps, echo=click.echo)
     T = src.n_frames
-    if not np.array_equal(src.frames, np.arange(T)):
-        hole = int(np.setdiff1d(np.arange(int(src.frames[-1]) + 1), src.frames)[0])
-        raise InputError(f"source frames must run 0..T-1 without holes; frame {hole} is absent", source)
-    miss = src.missing()
-    if miss.any():
-        f, j = (int(x) for x in np.argwhere(miss)[0])
-        if not fill_gaps:
-            raise InputError(f"frame {f}: marker {src.names[j]!r} is lost (empty or NaN) in {int(miss.sum())} "
-                             f"marker samples; pass --fill-gaps to interpolate them over time", source)
-        try:
-            P, n = fill(src.positions)
-        except InputError as exc:
-            raise InputError(exc.reason, source) from None
-        click.echo(f"filled {n} lost marker samples by interpolation over time")
-    else:
-        P = src.positions
-    lab = read_marker_sequence(labels)
-    if lab.n_markers != src.n_markers:
-        raise InputError(f"{lab.n_markers} markers per frame, but the source {source} has {src.n_markers}", labels)
-    lab = lab.reorder(src.names, "labels")
-    out_of_range = lab.frames[lab.frames >= T]
-    if out_of_range.size:
-        raise InputError(f"labelled frame {int(out_of_range[0])} is out of range: the source has frames 0..{T - 1}",
-                         labels)
-    if lab.n_frames < 2:
-        raise InputError(f"at least two labelled frames are needed, got {lab.n_frames}", labels)
-    lmiss = lab.missing()
-    if lmiss.any():
-        i, j = (int(x) for x in np.argwhere(lmiss)[0])
-        raise InputError(f"labelled frame {int(lab.frames[i])}: marker {lab.names[j]!r} is empty or NaN; "
-                         f"known character frames must be complete", labels)
     r = registry.create("retargeters", method, **_parse_params(params))
     t = time.perf_counter()
     Y = r.fit(P, lab.frames, lab.positions).transform()
@@ -224,43 +192,12 @@ def fit(obj: _Context, target, kind, rig_path, method, params, focal, cx, cy, ou
     import numpy as np
 
     from . import registry
-    from .errors import InputError
-    from .fitio import read_landmarks, read_point_cloud, write_weights
-    from .io import MESH_FORMATS, read_mesh, write_mesh
-    from .rig import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+    from .fitio import load_rig, read_fit_target, write_weights
+    from .io import write_mesh
 
-    if rig_path is None:
-        rig = BlendshapeRig.from_face_model(obj.face_model())
-    else:
-        rp = Path(rig_path)
-        rig = BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
+    rig = load_rig(rig_path, obj.face_model)
     tp = Path(target)
-    if kind == "auto":
-        if tp.suffix.lower() == ".csv":
-            kind = "landmarks"
-        elif tp.suffix.lower() in MESH_FORMATS:
-            try:
-                V, _ = read_mesh(tp)
-                kind = "mesh" if V.shape[0] == rig.n_vertices else "points"
-            except InputError:  # no faces: a point cloud
-                kind = "points"
-        else:
-            kind = "points"
-    if kind == "landmarks":
-        if focal is None or cx is None or cy is None:
-            raise InputError("landmark targets need the camera: --focal, --cx and --cy (pixels)", tp)
-        ids, uv = read_landmarks(tp)
-        if ids.max() >= rig.n_vertices:
-            raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
-        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy))
-    elif kind == "mesh":
-        V, _ = read_mesh(tp)
-        if V.shape[0] != rig.n_vertices:
-            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use --kind points "
-                             f"for a scan without correspondence", tp)
-        tgt = MeshTarget(V)
-    else:
-        tgt = PointCloudTarget(read_point_cloud(tp))
+    kind, tgt = read_fit_target(tp, rig, kind, focal, cx, cy)
     fitter = registry.create("fitters", method, **_parse_params(params))
     t = time.perf_counter()
     r = fitter.fit(rig, tgt)
@@ -505,6 +442,51 @@ def bench_scaling(obj: _Context, levels, methods):
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
 
 
+def animate_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter, deformer):
+    """``facegeom animate`` on one take -> ``(Animation, Sequence, marker ids)``.
+
+    The window ``start .. start + frames - 1`` of the Live Link Face take at
+    ``path`` plays on a synthetic actor (``seed``) with the 80 ``ict80`` markers,
+    is retargeted (``retargeter()`` builds the retargeter) from ``labels`` known
+    frames of the character of ``seed``, and drives that character's neutral
+    (``deformer()`` builds the deformer); errors over the face area (6706
+    vertices).
+    """
+    from . import sequences as sq
+    from .animate import animate as run_animation
+    from .errors import InputError
+    from .markers import layout
+    from .takes import ict_weights, read_take
+
+    path = Path(path)
+    take = read_take(path)
+    W = ict_weights(take, model.expression_names)
+    if start + frames > W.shape[0]:
+        raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end", path)
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    ids = layout(model, "ict80")
+    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
+                           f"{path.stem}@{start}")
+    anim = run_animation(model, seq, retargeter(), deformer(), labels, region=6706)
+    return anim, seq, ids
+
+
+def write_animation_npz(out, anim, ids) -> Path:
+    """Write an animation as ``facegeom animate`` does (compressed npz, float32 vertices), atomically."""
+    import numpy as np
+
+    from .io import atomic_path
+
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
+                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
+                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
+    return out
+
+
 @cli.command()
 @click.option("--take", "take_path", type=click.Path(), default=None,
               help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")
@@ -520,31 +502,17 @@ def bench_scaling(obj: _Context, levels, methods):
 @click.pass_obj
 def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
-    import numpy as np
-
-    from . import sequences as sq
-    from .animate import animate as run_animation
     from .bench.common import parse_method
     from .data import locate_takes
     from .errors import InputError
-    from .io import atomic_path, write_mesh
-    from .markers import layout
-    from .takes import find_takes, ict_weights, read_take
+    from .io import write_mesh
+    from .takes import find_takes
 
     model = obj.face_model()
     path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
-    take = read_take(path)
-    W = ict_weights(take, model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end", path)
-    if labels > frames:
-        raise InputError(f"--labels {labels} exceeds --frames {frames}")
-    ids = layout(model, "ict80")
-    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
-                           f"{path.stem}@{start}")
-    r_spec, d_spec = parse_method(retargeter), parse_method(deformer)
-    anim = run_animation(model, seq, r_spec.build("retargeters"), d_spec.build("deformers"), labels,
-                         region=6706)
+    anim, seq, ids = animate_take(model, path, start, frames, labels, seed,
+                                  lambda: parse_method(retargeter).build("retargeters"),
+                                  lambda: parse_method(deformer).build("deformers"))
     click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
                f"{anim.times['retarget_s'] * 1e3:.1f} ms, deformer fit {anim.times['deformer_fit_s']:.2f} s, "
                f"{frames} frames driven in {anim.times['drive_s']:.3f} s")
@@ -554,11 +522,7 @@ def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, r
     out = Path(output)
     if out.suffix.lower() != ".npz":
         raise InputError("the output must be a .npz file", out)
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
-                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
-                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
+    write_animation_npz(out, anim, ids)
     click.echo(f"wrote {out}")
     if obj_dir:
         d = Path(obj_dir)
@@ -638,3 +602,6 @@ _register_cleanup(cli)
 
 from .cli_view import register as _register_view  # noqa: E402
 _register_view(cli)
+
+from .cli_batch import register as _register_batch  # noqa: E402
+_register_batch(cli)

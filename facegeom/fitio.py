@@ -21,9 +21,11 @@ from .errors import InputError
 from .io import atomic_path
 from .utils import quiet_native
 
-__all__ = ["read_landmarks", "read_point_cloud", "write_weights", "CLOUD_FORMATS"]
+__all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "load_rig", "read_fit_target",
+           "CLOUD_FORMATS", "TARGET_KINDS"]
 
 CLOUD_FORMATS = (".ply", ".obj", ".xyz", ".off", ".npy")
+TARGET_KINDS = ("auto", "mesh", "landmarks", "points")
 
 
 def _exists(path: Path, what: str) -> None:
@@ -124,3 +126,101 @@ def write_weights(path: str | os.PathLike, names, weights, info: dict | None = N
                 for n, x in zip(names, w):
                     cw.writerow([n, repr(float(x))])
     return path
+
+
+def read_weights(path: str | os.PathLike, names) -> np.ndarray:
+    """Read coefficients written by :func:`write_weights` (``.json`` or ``.csv``) in the order of ``names``.
+
+    Shapes the file does not name are 0; a name the rig does not have is an error.
+    """
+    path = Path(path)
+    _exists(path, "coefficient")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".json":
+            data = json.loads(path.read_text(encoding="utf-8-sig"))
+            got = data.get("weights") if isinstance(data, dict) else None
+            if not isinstance(got, dict):
+                raise InputError("no 'weights' object (expected {\"weights\": {name: value}})", path)
+        elif suffix == ".csv":
+            rows = [r for r in csv.reader(_io.StringIO(path.read_text(encoding="utf-8-sig"))) if r]
+            if not rows or [c.strip().lower() for c in rows[0]] != ["shape", "weight"]:
+                raise InputError("expected the header shape,weight", path)
+            got = {}
+            for line_no, r in enumerate(rows[1:], start=2):
+                if len(r) != 2:
+                    raise InputError(f"line {line_no}: expected 2 values, got {len(r)}", path)
+                got[r[0].strip()] = r[1]
+        else:
+            raise InputError(f"unsupported coefficient format {suffix!r}; use .json or .csv", path)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read coefficients ({exc.__class__.__name__})", path) from None
+    names = list(names)
+    index = {n: i for i, n in enumerate(names)}
+    w = np.zeros(len(names))
+    for name, value in got.items():
+        if name not in index:
+            raise InputError(f"unknown shape {name!r} (the rig has {len(names)} shapes)", path)
+        try:
+            w[index[name]] = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"weight of {name!r} is not a number", path) from None
+    if not np.all(np.isfinite(w)):
+        raise InputError("a weight is NaN or inf", path)
+    return w
+
+
+def load_rig(rig_path=None, face_model=None):
+    """The rig of ``facegeom fit``: an ``.npz`` (``BlendshapeRig.save_npz``) or a folder of OBJs.
+
+    With ``rig_path=None``, the ICT generic face of ``face_model()`` (a callable
+    returning a :class:`~facegeom.data.FaceModel`) with its expressions.
+    """
+    from .rig import BlendshapeRig
+
+    if rig_path is None:
+        return BlendshapeRig.from_face_model(face_model())
+    rp = Path(rig_path)
+    return BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
+
+
+def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None, cx=None, cy=None):
+    """Read a fitting target for ``rig`` as ``facegeom fit`` does -> ``(kind, target)``.
+
+    ``kind`` ``auto``: ``.csv`` = landmarks (``vertex_id,u,v``), a mesh file with
+    the rig's vertex count = mesh, anything else = a point cloud. Landmarks need
+    the camera intrinsics ``focal, cx, cy`` (pixels).
+    """
+    from .io import MESH_FORMATS, read_mesh
+    from .rig import LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+
+    if kind not in TARGET_KINDS:
+        raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(TARGET_KINDS)}")
+    tp = Path(path)
+    if kind == "auto":
+        if tp.suffix.lower() == ".csv":
+            kind = "landmarks"
+        elif tp.suffix.lower() in MESH_FORMATS:
+            try:
+                V, _ = read_mesh(tp)
+                kind = "mesh" if V.shape[0] == rig.n_vertices else "points"
+            except InputError:  # no faces: a point cloud
+                kind = "points"
+        else:
+            kind = "points"
+    if kind == "landmarks":
+        if focal is None or cx is None or cy is None:
+            raise InputError("landmark targets need the camera: --focal, --cx and --cy (pixels)", tp)
+        ids, uv = read_landmarks(tp)
+        if ids.max() >= rig.n_vertices:
+            raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
+        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy))
+    elif kind == "mesh":
+        V, _ = read_mesh(tp)
+        if V.shape[0] != rig.n_vertices:
+            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use --kind points "
+                             f"for a scan without correspondence", tp)
+        tgt = MeshTarget(V)
+    else:
+        tgt = PointCloudTarget(read_point_cloud(tp))
+    return kind, tgt

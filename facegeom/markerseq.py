@@ -25,7 +25,8 @@ import numpy as np
 from .errors import InputError
 from .io import atomic_path
 
-__all__ = ["MarkerSequence", "SEQUENCE_HEADER", "read_marker_sequence", "write_marker_sequence", "fill_gaps"]
+__all__ = ["MarkerSequence", "SEQUENCE_HEADER", "read_marker_sequence", "write_marker_sequence", "fill_gaps",
+           "read_retarget_inputs"]
 
 SEQUENCE_HEADER = ("frame", "marker", "x", "y", "z")
 SEQUENCE_FORMATS = (".csv", ".npz")
@@ -215,6 +216,55 @@ def fill_gaps(positions: np.ndarray, max_gap: int | None = None) -> tuple[np.nda
         for c in range(3):
             P[~ok, j, c] = np.interp(t[~ok], t[ok], P[ok, j, c])
     return P, int(miss.sum())
+
+
+def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, fill: bool = False,
+                         echo=None) -> tuple[MarkerSequence, np.ndarray, MarkerSequence, int]:
+    """Read and check the two files of ``facegeom retarget`` -> ``(source, positions, labels, n_filled)``.
+
+    The source must hold the frames ``0..T-1``; its lost markers are an error
+    unless ``fill`` (then interpolated over time: ``positions`` is the
+    filled ``(T, p, 3)`` array, ``n_filled`` the number of filled samples,
+    announced through ``echo`` if given). The labels are reordered to the
+    source's marker names, index source frames, are complete, and number at
+    least two.
+    """
+    src = read_marker_sequence(source)
+    T = src.n_frames
+    if not np.array_equal(src.frames, np.arange(T)):
+        hole = int(np.setdiff1d(np.arange(int(src.frames[-1]) + 1), src.frames)[0])
+        raise InputError(f"source frames must run 0..T-1 without holes; frame {hole} is absent", source)
+    miss = src.missing()
+    n = 0
+    if miss.any():
+        f, j = (int(x) for x in np.argwhere(miss)[0])
+        if not fill:
+            raise InputError(f"frame {f}: marker {src.names[j]!r} is lost (empty or NaN) in {int(miss.sum())} "
+                             f"marker samples; pass --fill-gaps to interpolate them over time", source)
+        try:
+            P, n = fill_gaps(src.positions)
+        except InputError as exc:
+            raise InputError(exc.reason, source) from None
+        if echo is not None:
+            echo(f"filled {n} lost marker samples by interpolation over time")
+    else:
+        P = src.positions
+    lab = read_marker_sequence(labels)
+    if lab.n_markers != src.n_markers:
+        raise InputError(f"{lab.n_markers} markers per frame, but the source {source} has {src.n_markers}", labels)
+    lab = lab.reorder(src.names, "labels")
+    out_of_range = lab.frames[lab.frames >= T]
+    if out_of_range.size:
+        raise InputError(f"labelled frame {int(out_of_range[0])} is out of range: the source has frames 0..{T - 1}",
+                         labels)
+    if lab.n_frames < 2:
+        raise InputError(f"at least two labelled frames are needed, got {lab.n_frames}", labels)
+    lmiss = lab.missing()
+    if lmiss.any():
+        i, j = (int(x) for x in np.argwhere(lmiss)[0])
+        raise InputError(f"labelled frame {int(lab.frames[i])}: marker {lab.names[j]!r} is empty or NaN; "
+                         f"known character frames must be complete", labels)
+    return src, P, lab, n
 
 
 def write_marker_sequence(path: str | os.PathLike, positions, frames=None, names=None, extra: dict | None = None) -> Path:
