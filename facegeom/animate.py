@@ -32,16 +32,24 @@ class Animation:
 
 
 
-def drive_frames(deformer, markers: np.ndarray, progress=None) -> tuple[np.ndarray, float]:
-    """Drive a fitted deformer with every frame of ``markers (T, p, 3)``; returns ``(T, n, 3)`` and seconds."""
-    frames = range(markers.shape[0]) if progress is None else progress(range(markers.shape[0]))
+def drive_frames(deformer, markers: np.ndarray, progress=None, block: int = 32) -> tuple[np.ndarray, float]:
+    """Drive a fitted deformer with every frame of ``markers (T, p, 3)``; returns ``(T, n, 3)`` and seconds.
+
+    A deformer with ``deform_many`` (the tangent deformer) gets ``block`` frames
+    per call; any other is called frame by frame. ``progress`` wraps the
+    iterable of blocks (or frames).
+    """
+    T = markers.shape[0]
+    many = getattr(deformer, "deform_many", None)
+    step = block if many is not None else 1
+    starts = range(0, T, step)
     out = None
     t0 = time.perf_counter()
-    for t in frames:
-        v = deformer.deform(markers[t])
+    for s in (starts if progress is None else progress(starts)):
+        v = many(markers[s:s + step]) if many is not None else deformer.deform(markers[s])[None]
         if out is None:
-            out = np.empty((markers.shape[0],) + v.shape)
-        out[t] = v
+            out = np.empty((T,) + v.shape[1:])
+        out[s:s + v.shape[0]] = v
     return out, time.perf_counter() - t0
 
 

@@ -170,13 +170,14 @@ def test_corrupt_input_fails_its_own_row(client, landmarks, tmp_path):
 
 
 def _arm_kill(marker: str, index: int):
-    """On a worker: kill this process right after item ``index``'s outputs are written (once, via ``marker``)."""
+    """On a worker: kill this process right after item ``index``'s output is written (once, via ``marker``)."""
     import facegeom.batch as b
 
-    commit = b._commit
+    op = b._OPS["fit"]
+    write = op.write
 
-    def commit_then_die(op, state, spec, item, result):
-        metrics = commit(op, state, spec, item, result)
+    def write_then_die(state, spec, item, result):
+        metrics = write(state, spec, item, result)
         if item["index"] == index:
             try:
                 fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -188,7 +189,7 @@ def _arm_kill(marker: str, index: int):
             os.kill(os.getpid(), signal.SIGKILL)
         return metrics
 
-    b._commit = commit_then_die
+    op.write = write_then_die
     return os.getpid()
 
 

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from facegeom import geometry
 from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import NotFittedError
-from facegeom.tangent import TangentDeformer, TangentSolver, alignment_matrix, kabsch
+from facegeom.tangent import TangentDeformer, TangentSolver, alignment_matrix, kabsch, kabsch_many
 
 from .conftest import grid_mesh, two_grids
 
@@ -200,3 +200,41 @@ def test_kabsch_recovers_rotation():
     R2, t = kabsch(P, P @ R.T + [1, 2, 3])
     np.testing.assert_allclose(R2, R, atol=1e-12)
     np.testing.assert_allclose(t, [1, 2, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize("params", CONFIGS + [{"dense_map": False}])
+def test_deform_many_equals_deform_frame_by_frame(params):
+    from facegeom.animate import drive_frames
+
+    V, F, h = _mesh_and_handles()
+    rng = np.random.default_rng(1)
+    R = Rotation.from_rotvec(rng.normal(size=(7, 3))).as_matrix()
+    P = np.einsum("tij,mj->tmi", R, V[h]) + rng.normal(size=(7, 1, 3)) + rng.normal(scale=0.05, size=(7, len(h), 3))
+    dense = params.pop("dense_map", True) if "dense_map" in params else True
+    d = TangentDeformer(**params).fit(V, F, h)
+    if not dense:
+        d.solver_.map_ = None  # the factor's multi-right-hand-side solve instead of the dense map
+    one = np.stack([d.deform(p) for p in P])
+    np.testing.assert_allclose(d.deform_many(P), one, rtol=0, atol=1e-12)
+    Y, _ = drive_frames(d, P, block=3)  # blocks of 3, 3, 1 frames
+    np.testing.assert_allclose(Y, one, rtol=0, atol=1e-12)
+    with pytest.raises(InputError, match="shape"):
+        d.deform_many(P[:, :3])
+    bad = P.copy()
+    bad[2, 1, 0] = np.inf
+    with pytest.raises(InputError, match="NaN or inf"):
+        d.deform_many(bad)
+
+
+def test_kabsch_many_equals_kabsch_per_frame():
+    rng = np.random.default_rng(2)
+    P = rng.standard_normal((12, 3))
+    Q = np.stack([P @ Rotation.from_rotvec(r).as_matrix().T + t + rng.normal(scale=0.1, size=(12, 3))
+                  for r, t in zip(rng.normal(size=(5, 3)), rng.normal(size=(5, 3)))])
+    Q = np.concatenate([Q, -Q[:1]])  # a reflected frame: still a rotation, det +1
+    R, t = kabsch_many(P, Q)
+    for k in range(Q.shape[0]):
+        R1, t1 = kabsch(P, Q[k])
+        np.testing.assert_allclose(R[k], R1, atol=1e-12)
+        np.testing.assert_allclose(t[k], t1, atol=1e-12)
+        assert np.linalg.det(R[k]) == pytest.approx(1.0)
