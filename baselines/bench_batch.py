@@ -20,9 +20,9 @@ chunks, one after the other in this process -- the plain loop) and on a local
 Dask cluster of ``--workers`` processes x 1 thread. Those times are end to end:
 planning, the shared state built by each worker (rig and Gram matrix; the face
 model and the fitted deformer), the writes and the summary. The drive job then
-runs once more each way into other folders: the shared state is cached (per
-process, by job), so that second run measures the steady state of a session
-that drives many takes with one rig. The plain loop runs with one
+runs ``--repeats`` (5) more times each way, alternating, into other folders:
+the shared state is cached (per process, by job), so those runs measure the
+steady state of a session that drives many takes with one rig (medians). The plain loop runs with one
 BLAS thread as the workers do (``OPENBLAS_NUM_THREADS=1`` is set before numpy is
 imported, unless ``--blas-threads`` says otherwise): a single process that
 leaves BLAS multi-threaded is *slower* on this face's small products (the
@@ -153,7 +153,8 @@ def _noop(x):
     return x
 
 
-def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int, work: Path, echo=print) -> dict:
+def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int, work: Path, echo=print,
+          repeats: int = 5) -> dict:
     from distributed import Client
 
     from facegeom.batch import job_from_dict, local_cluster
@@ -184,9 +185,6 @@ def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int,
     out["drive_inline_s"] = dt
     out["drive_item_seconds_inline"] = sum(r["time_s"] for r in res.rows)
     echo(f"drive, plain loop (one process): {dt:.1f} s = {frames / dt:.0f} frames/s (incl. the deformer fit)")
-    dt, res = _timed_job(job(drive_job, "drive-inline-warm"), inline=True)
-    out["drive_inline_warm_s"] = dt
-    echo(f"drive again, plain loop, deformer already fitted: {dt:.1f} s = {frames / dt:.0f} frames/s")
 
     t = time.perf_counter()
     cluster = local_cluster(workers)  # as `facegeom batch` makes it
@@ -207,10 +205,17 @@ def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int,
         out["drive_item_seconds_dask"] = sum(r["time_s"] for r in res.rows)
         echo(f"drive, Dask {workers} workers: {dt:.1f} s = {frames / dt:.0f} frames/s ({res.tasks} tasks); "
              f"speed-up {out['drive_inline_s'] / dt:.2f}x")
-        dt, res = _timed_job(job(drive_job, "drive-dask-warm"), client=client)
-        out["drive_dask_warm_s"] = dt
-        echo(f"drive again, Dask, deformer already fitted on each worker: {dt:.1f} s = {frames / dt:.0f} frames/s; "
-             f"speed-up {out['drive_inline_warm_s'] / dt:.2f}x")
+        # steady state: the deformer is fitted (in this process and on each worker); runs alternate, medians
+        warm = {"inline": [], "dask": []}
+        for r in range(repeats):
+            warm["inline"].append(_timed_job(job(drive_job, f"drive-inline-warm{r}"), inline=True)[0])
+            warm["dask"].append(_timed_job(job(drive_job, f"drive-dask-warm{r}"), client=client)[0])
+        out["drive_inline_warm_s"] = float(np.median(warm["inline"]))
+        out["drive_dask_warm_s"] = float(np.median(warm["dask"]))
+        out["drive_warm_runs_s"] = warm
+        echo(f"drive again x{repeats}, deformer already fitted (medians): plain loop {out['drive_inline_warm_s']:.2f} s, "
+             f"Dask {out['drive_dask_warm_s']:.2f} s = {frames / out['drive_dask_warm_s']:.0f} frames/s; speed-up "
+             f"{out['drive_inline_warm_s'] / out['drive_dask_warm_s']:.2f}x")
         same = all(np.array_equal(np.load(work / "drive-inline" / f.name)["vertices"], np.load(f)["vertices"])
                    for f in sorted((work / "drive-dask").glob("*.npz")))
         out["drive_outputs_identical"] = bool(same)
@@ -236,6 +241,7 @@ def main(argv=None) -> int:
     ap.add_argument("--per-file", type=int, default=100, help="Frames per marker sequence file.")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--noop", type=int, default=1000)
+    ap.add_argument("--repeats", type=int, default=5, help="Warm drive runs each way (medians reported).")
     ap.add_argument("--blas-threads", default="1",
                     help="BLAS threads of this process (the plain loop): a number, or 'default' (leave it).")
     ap.add_argument("--work", default=None, help="Folder for the generated inputs and outputs (default: a temporary "
@@ -261,7 +267,7 @@ def main(argv=None) -> int:
         tmp = tempfile.mkdtemp(prefix="facegeom-bench-batch-")
         work = Path(tmp)
     try:
-        res = bench(model, a.fits, a.frames, a.per_file, a.workers, a.noop, work)
+        res = bench(model, a.fits, a.frames, a.per_file, a.workers, a.noop, work, repeats=a.repeats)
     finally:
         if tmp:
             shutil.rmtree(tmp, ignore_errors=True)
