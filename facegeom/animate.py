@@ -32,12 +32,14 @@ class Animation:
 
 
 
-def drive_frames(deformer, markers: np.ndarray, progress=None, block: int = 32) -> tuple[np.ndarray, float]:
+def drive_frames(deformer, markers: np.ndarray, progress=None, block: int = 32,
+                 dtype=np.float64) -> tuple[np.ndarray, float]:
     """Drive a fitted deformer with every frame of ``markers (T, p, 3)``; returns ``(T, n, 3)`` and seconds.
 
     A deformer with ``deform_many`` (the tangent deformer) gets ``block`` frames
     per call; any other is called frame by frame. ``progress`` wraps the
-    iterable of blocks (or frames).
+    iterable of blocks (or frames). ``dtype`` is the result's (float32 for a
+    mesh cache: rounded once, in the copy into the result).
     """
     T = markers.shape[0]
     many = getattr(deformer, "deform_many", None)
@@ -48,7 +50,7 @@ def drive_frames(deformer, markers: np.ndarray, progress=None, block: int = 32) 
     for s in (starts if progress is None else progress(starts)):
         v = many(markers[s:s + step]) if many is not None else deformer.deform(markers[s])[None]
         if out is None:
-            out = np.empty((T,) + v.shape[1:])
+            out = np.empty((T,) + v.shape[1:], dtype=dtype)
         out[s:s + v.shape[0]] = v
     return out, time.perf_counter() - t0
 

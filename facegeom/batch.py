@@ -775,7 +775,7 @@ class _Drive(_Op):
             P = P[:, [where[v] for v in ids.tolist()]]
         elif seq.n_markers != ids.size:
             raise InputError(f"{seq.n_markers} markers per frame, but the layout has {ids.size}", path)
-        Y, _ = drive_frames(state["deformer"], P)
+        Y, _ = drive_frames(state["deformer"], P, dtype=np.float32)  # written as float32, like animate
         return "sequence", Y, seq.frames
 
     def write(self, state, spec, item, result):
@@ -789,7 +789,7 @@ class _Drive(_Op):
         with atomic_path(out) as tmp:
             with open(tmp, "wb") as fh:
                 # float32 like `facegeom animate` (and mesh caches): ~1e-6 cm on a face, half the bytes to write
-                np.savez(fh, vertices=Y.astype(np.float32), faces=state["F"], frames=frames, marker_ids=state["ids"])
+                np.savez(fh, vertices=Y, faces=state["F"], frames=frames, marker_ids=state["ids"])
         return {"frames": int(Y.shape[0])}
 
     def evaluate(self, state, spec, item, result, truth):

@@ -468,7 +468,7 @@ class TangentDeformer:
         return Y
 
     def deform_many(self, handle_positions) -> np.ndarray:
-        """:meth:`deform` of every frame of ``handle_positions (T, k, 3)`` -> ``(T, n, 3)``.
+        """:meth:`deform` of every frame of ``handle_positions (T, k, 3)`` -> ``(T, n, 3)`` (a transposed view).
 
         One product with the precomputed marker-to-vertex map for all frames
         (or one multi-right-hand-side solve) instead of one per frame: the map is
@@ -487,14 +487,24 @@ class TangentDeformer:
         if self.align == "rigid":
             Rm, t = kabsch_many(X[H], P)
             P = np.matmul(P - t[:, None, :], Rm)  # R^T (p - t), per frame
+        else:
+            Rm, t = np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3))
         if self.field == "displacement":
             P = P - X[H]
-        # rows = the x, y, z coordinates of each frame: (3T, k) -> (3T, n), one product
-        Y = self.solver_.solve_rows(P.transpose(0, 2, 1).reshape(3 * T, k)).reshape(T, 3, X.shape[0])
-        if self.field == "displacement":
-            Y += X.T
-        if self.align == "rigid":
-            Y = np.matmul(Rm, Y)
-            Y += t[:, :, None]
-        Y = Y.transpose(0, 2, 1)
-        return np.ascontiguousarray(Y)
+        Zt = P.transpose(0, 2, 1)  # (T, 3, k): rows = the x, y, z label coordinates of each frame
+        M = self.solver_.map_
+        if M is None:  # no dense map: one multi-right-hand-side solve, then the rigid motion
+            Y = self.solver_.solve_rows(Zt.reshape(3 * T, k)).reshape(T, 3, X.shape[0])
+            if self.field == "displacement":
+                Y += X.T
+            Y = np.matmul(Rm, Y) + t[:, :, None]
+        else:
+            # Y_t^T = R_t Z_t^T map + R_t X^T + t_t 1^T = [R_t Z_t^T | R_t | t_t] @ [map; X^T; 1]: the rotation goes
+            # to the small (3, k) labels and the rest position and translation into the same product, so the
+            # (3T, n) result is written once instead of being passed over four more times
+            if getattr(self, "_map_aug", None) is None or self._map_aug.shape[1] != M.shape[1]:
+                rest = X.T if self.field == "displacement" else np.zeros_like(X.T)
+                self._map_aug = np.ascontiguousarray(np.vstack([M, rest, np.ones((1, X.shape[0]))]))
+            C = np.concatenate([np.matmul(Rm, Zt), Rm, t[:, :, None]], axis=2)  # (T, 3, k + 4)
+            Y = (C.reshape(3 * T, k + 4) @ self._map_aug).reshape(T, 3, X.shape[0])
+        return Y.transpose(0, 2, 1)  # a view: the caller's copy (e.g. into a float32 cache) is the only pass
