@@ -570,6 +570,7 @@ def _demo_batch(model, folder: Path, count: int = 128) -> None:
 
     from .batch import job_from_dict, run_job
 
+    folder = Path(folder).resolve()
     shutil.rmtree(folder, ignore_errors=True)  # generated here, fitted again on every demo
     click.echo(f"batch: {count} landmark files (random expressions, random head pose, 1 px noise) fitted by SEM "
                f"on a local Dask cluster")
