@@ -1207,8 +1207,11 @@ def local_cluster(n_workers: int | None = None):
     from distributed import LocalCluster
 
     with dask.config.set(LOCAL_CLUSTER_CONFIG):
+        # no dashboard; the scheduler's small HTTP server (health checks) on a free port, not on 8787, which
+        # another Dask session may hold (Dask would warn and move)
         return LocalCluster(n_workers=n_workers or default_workers(), threads_per_worker=1, processes=True,
-                            host="127.0.0.1", dashboard_address=None)
+                            host="127.0.0.1", dashboard_address=None,
+                            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
 
 
 @contextlib.contextmanager
@@ -1333,6 +1336,9 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
                     os.unlink(o)
         with contextlib.suppress(FileNotFoundError):
             os.unlink(summary)
+    stale = _remove_stale_temporaries(items)
+    if stale:
+        say(f"removed {stale} temporary file{'s' if stale > 1 else ''} left by an interrupted earlier run")
     previous = _read_summary(summary)
     rows: dict[int, dict] = {}
     chunks = []
@@ -1368,6 +1374,36 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
         _write_summary(summary, out_rows)
     return BatchResult(out_rows, summary, time.perf_counter() - t_start, engine or "nothing to do", chunk,
                        len(chunks))
+
+
+def _remove_stale_temporaries(items: list[dict]) -> int:
+    """Delete the temporary files of this job's outputs (``.STEM.*.tmp.EXT``, see :func:`facegeom.io.atomic_path`).
+
+    A process killed while writing leaves its temporary file behind (the output
+    itself is never half-written). Run before any task starts, so none is in use
+    by this job.
+    """
+    wanted: dict[str, dict[str, set]] = {}  # folder -> ".STEM." -> {".tmp.EXT"}
+    for it in items:
+        for o in it["outputs"]:
+            folder, name = os.path.split(o)
+            stem, ext = os.path.splitext(name)
+            wanted.setdefault(folder, {}).setdefault(f".{stem}.", set()).add(f".tmp{ext}")
+    removed = 0
+    for folder, prefixes in wanted.items():
+        try:
+            names = [n for n in os.listdir(folder) if n.startswith(".") and ".tmp" in n]
+        except OSError:
+            continue
+        for n in names:
+            # the stem may hold dots ("g1.map"): try every prefix ending at a dot
+            hit = any(n[:k + 1] in prefixes and any(n.endswith(x) for x in prefixes[n[:k + 1]])
+                      for k in range(1, len(n)) if n[k] == ".")
+            if hit:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(os.path.join(folder, n))
+                    removed += 1
+    return removed
 
 
 def _run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retries: int, progress: bool) -> None:

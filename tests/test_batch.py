@@ -32,7 +32,8 @@ from .conftest import grid_mesh
 def client():
     distributed = pytest.importorskip("distributed")
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                       dashboard_address=None)
+                                       dashboard_address=None,
+                                       scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
     c = distributed.Client(cluster)
     yield c
     c.close()
@@ -232,7 +233,14 @@ def test_resume_recomputes_only_what_is_missing(client, landmarks, tmp_path):
     for g in gone:
         (out / g).unlink()
     before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("t*.json")}
+    # a writer killed mid-write leaves its temporary file: removed on resume; files of others stay
+    (out / ".t00003.k2j_x9.tmp.json").write_text("{\"weig")
+    (out / ".t00044.zz.tmp.json").write_text("")
+    (out / ".notes.tmp.json").write_text("mine")
     again = fb.run_job(fit_job(landmarks, out), client=client, progress=False)
+    assert not (out / ".t00003.k2j_x9.tmp.json").exists() and not (out / ".t00044.zz.tmp.json").exists()
+    assert (out / ".notes.tmp.json").read_text() == "mine"
+    (out / ".notes.tmp.json").unlink()
     assert again.counts == {"ok": 3, "failed": 0, "skipped": 45, "not run": 0}
     assert again.tasks == 3  # one per chunk holding a missing output, each with that item only
     assert sorted(r["output"] for r in again.rows if r["status"] == "ok") == gone
