@@ -88,7 +88,6 @@ from __future__ import annotations
 
 import time
 from numbers import Integral, Real
-from typing import Sequence
 
 import numpy as np
 from scipy.optimize import minimize

@@ -291,15 +291,11 @@ def _measure(op, state, spec: dict, done: list) -> None:
     if not with_truth:
         return
     t0 = time.perf_counter()
+    pairs = [(it, res) for it, res, _, _ in with_truth]
     try:
-        found = op.evaluate_many(state, spec, [(it, res) for it, res, _, _ in with_truth])
-    except Exception:  # noqa: BLE001 - find the bad truth file item by item
-        found = []
-        for it, res, _, _ in with_truth:
-            try:
-                found.append(op.evaluate(state, spec, it, res, it["truth"]))
-            except Exception as exc:  # noqa: BLE001
-                found.append(exc)
+        found = op.evaluate_many(state, spec, pairs)
+    except Exception:  # noqa: BLE001 - the batched form broke: item by item, to find the bad truth file
+        found = _Op.evaluate_many(op, state, spec, pairs)
     share = (time.perf_counter() - t0) / len(with_truth)
     for (it, _, metrics, seconds), m in zip(with_truth, found):
         if isinstance(m, BaseException):

@@ -1014,18 +1014,10 @@ def read_vertex_csv(path: str | os.PathLike, n_vertices: int) -> VertexCSV:
     (:func:`facegeom.io.read_markers`, :func:`facegeom.fitio.read_landmarks`);
     ids must be distinct and in ``[0, n_vertices)``.
     """
-    from .io import MARKER_HEADER, read_markers
+    from .io import MARKER_HEADER, read_csv_rows, read_markers
 
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", path)
-    if path.is_dir():
-        raise InputError("is a folder, not a marker file", path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
-    raw = list(csv.reader(_io.StringIO(text)))
+    raw = read_csv_rows(path, "marker")
     numbered = [(i + 1, r) for i, r in enumerate(raw) if any(c.strip() for c in r)]
     if not numbered:
         raise InputError("empty marker file (expected a header with a vertex_id column)", path)

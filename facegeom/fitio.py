@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path
+from .io import atomic_path, read_csv_rows
 from .utils import quiet_native
 
 __all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "load_rig", "read_fit_target",
@@ -41,11 +41,7 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read ``vertex_id,u,v`` rows -> ``ids (L,)``, ``uv (L, 2)``; ids distinct, values finite."""
     path = Path(path)
     _exists(path, "landmark")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
-    rows = [r for r in csv.reader(_io.StringIO(text)) if any(c.strip() for c in r)]
+    rows = [r for r in read_csv_rows(path, "landmark") if any(c.strip() for c in r)]
     if not rows or tuple(c.strip().lower() for c in rows[0]) != ("vertex_id", "u", "v"):
         raise InputError("expected the header vertex_id,u,v", path)
     ids, uv = [], []

@@ -137,6 +137,23 @@ def write_mesh(path: str | os.PathLike, V, F) -> Path:
     return path
 
 
+def read_csv_rows(path: Path, what: str) -> list[list[str]]:
+    """Every row of the text CSV ``path`` (blank rows included, so indices are line numbers - 1).
+
+    One-line errors naming ``path``: missing, a folder (``what`` names the
+    expected kind of file), not decodable as UTF-8 text.
+    """
+    if not path.exists():
+        raise InputError("file not found", path)
+    if path.is_dir():
+        raise InputError(f"is a folder, not a {what} file", path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+    return list(csv.reader(_io.StringIO(text)))
+
+
 def read_markers(path: str | os.PathLike, n_vertices: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read a marker CSV with the header ``vertex_id,x,y,z``.
 
@@ -152,15 +169,7 @@ def read_markers(path: str | os.PathLike, n_vertices: int | None = None) -> tupl
     positions : (k, 3) float64, finite
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", path)
-    if path.is_dir():
-        raise InputError("is a folder, not a marker file", path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
-    rows = [r for r in csv.reader(_io.StringIO(text)) if any(c.strip() for c in r)]
+    rows = [r for r in read_csv_rows(path, "marker") if any(c.strip() for c in r)]
     if not rows:
         raise InputError("empty marker file (expected the header vertex_id,x,y,z)", path)
     header = tuple(c.strip().lower() for c in rows[0])

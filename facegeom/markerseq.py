@@ -15,7 +15,6 @@ holds the known target frames: its ``frame`` values are indices into the source.
 from __future__ import annotations
 
 import csv
-import io as _io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path
+from .io import atomic_path, read_csv_rows
 
 __all__ = ["MarkerSequence", "SEQUENCE_HEADER", "read_marker_sequence", "write_marker_sequence", "fill_gaps",
            "read_retarget_inputs"]
@@ -81,11 +80,7 @@ def _check_path(path: Path) -> None:
 
 
 def _read_csv(path: Path) -> MarkerSequence:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
-    rows = [r for r in csv.reader(_io.StringIO(text)) if any(c.strip() for c in r)]
+    rows = [r for r in read_csv_rows(path, "marker sequence") if any(c.strip() for c in r)]
     if not rows:
         raise InputError("no rows (expected the header frame,marker,x,y,z)", path)
     header = tuple(c.strip().lower() for c in rows[0])

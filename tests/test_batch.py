@@ -209,7 +209,7 @@ def test_worker_killed_mid_job_is_survived(client, landmarks, tmp_path, face_mod
         assert (st.st_ino, st.st_mtime_ns) == (info["ino"], info["mtime_ns"])  # written exactly once
         assert all((tmp_path / "out" / f"t{k:05d}.json").is_file() for k in range(48))  # nothing lost
         assert no_temp_files(tmp_path / "out")
-        ref = fb.run_job(fit_job(landmarks, tmp_path / "inline"), inline=True, progress=False)
+        fb.run_job(fit_job(landmarks, tmp_path / "inline"), inline=True, progress=False)
         for k in range(48):  # the retried chunk fitted fewer targets together: equal to rounding
             a = read_weights(tmp_path / "out" / f"t{k:05d}.json", face_model.expression_names)
             b = read_weights(tmp_path / "inline" / f"t{k:05d}.json", face_model.expression_names)

@@ -179,6 +179,7 @@ class BaseView:
         self.frozen = False  # True while taking a screenshot: no playback advance
         self.messages: list[str] = []
         self._bounds = None
+        self._built = False  # set by build(): the structures are registered
 
     # ------------------------------------------------------------------ structures
     def _grow_bounds(self, P: np.ndarray) -> None:
@@ -210,6 +211,16 @@ class BaseView:
 
     def build(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
+
+    def rebuild(self) -> None:
+        """Register every structure again (after a case or selection change), if polyscope is running."""
+        import polyscope as ps
+
+        if not ps.is_initialized() or not self._built:
+            return
+        ps.remove_all_structures()
+        self.build()
+        self.frame_camera()
 
     # ------------------------------------------------------------------ panel
     def panel(self) -> None:  # pragma: no cover - overridden

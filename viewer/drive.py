@@ -233,16 +233,6 @@ class DriveView(BaseView):
     def copies(self) -> list[str]:
         return ["source", *[x for x in self.selected], "target"]
 
-    def rebuild(self) -> None:
-        """Register every structure again (after a case or selection change), if polyscope is running."""
-        import polyscope as ps
-
-        if not ps.is_initialized() or not self._built:
-            return
-        ps.remove_all_structures()
-        self.build()
-        self.frame_camera()
-
     def build(self) -> None:
         self._built = True
         c, F = self.case, self.model.triangles

@@ -147,15 +147,6 @@ class FitView(BaseView):
     def copies(self) -> list[str]:
         return ["truth", *self.shown()]
 
-    def rebuild(self) -> None:
-        import polyscope as ps
-
-        if not ps.is_initialized() or not self._built:
-            return
-        ps.remove_all_structures()
-        self.build()
-        self.frame_camera()
-
     def build(self) -> None:
         self._built = True
         c, F = self.case, self.model.triangles

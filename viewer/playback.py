@@ -121,15 +121,6 @@ class PlaybackView(BaseView):
                        scale_min=0.0, scale_max=max(top, 1e-6), graph_size=(self.panel_width - 30.0, height))
         psim.ProgressBar(t / max(self.n_frames - 1, 1), (self.panel_width - 30.0, 4.0), "")
 
-    def rebuild(self) -> None:
-        import polyscope as ps
-
-        if not ps.is_initialized() or not self._built:
-            return
-        ps.remove_all_structures()
-        self.build()
-        self.frame_camera()
-
     def _radius(self, V) -> float:
         return 0.011 * float(np.ptp(np.asarray(V)[:, 0]))
 
