@@ -1,7 +1,6 @@
 """Input checks shared by the baseline deformers."""
 from __future__ import annotations
 
-
 from facegeom.errors import SolveError
 from facegeom.geometry import adjacency, unlabelled_components
 from facegeom.interfaces import as_faces, as_handles, as_vertices

@@ -26,7 +26,7 @@ call.  ``compact=False`` passes the whole rig (for checking).
 Differences from our own fitters (what a comparison must keep in mind):
 
 - the camera is eos's **affine** (scaled orthographic) one, estimated from the
-  landmarks; the target's :class:`~facegeom.rig.PinholeCamera` (pose and focal
+  landmarks; the target's :class:`~facegeom.model.camera.PinholeCamera` (pose and focal
   length) is ignored, and perspective effects of the synthetic targets are
   model error for eos;
 - the weights are ``>= 0`` but **unbounded** above (eos's NNLS); nothing
@@ -41,9 +41,9 @@ import time
 import numpy as np
 
 from facegeom.errors import InputError, SolveError
-from facegeom.fitting import check_fit_inputs, result
 from facegeom.interfaces import FitResult
-from facegeom.rig import BlendshapeRig, LandmarkTarget
+from facegeom.methods.fitting import check_fit_inputs, result
+from facegeom.model import BlendshapeRig, LandmarkTarget
 
 __all__ = ["EosFitter"]
 
@@ -123,7 +123,7 @@ class EosFitter:
 
     # ------------------------------------------------------------------ fit
     def fit(self, rig: BlendshapeRig, target) -> FitResult:
-        """Fit ``rig``'s expression to a :class:`~facegeom.rig.LandmarkTarget` -> :class:`FitResult`.
+        """Fit ``rig``'s expression to a :class:`~facegeom.model.targets.LandmarkTarget` -> :class:`FitResult`.
 
         ``info``: ``iterations`` (camera / expression rounds run after the first),
         ``time_s``, ``affine_camera`` (the final 3x4 model -> pixel matrix of eos),

@@ -14,12 +14,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from baselines._common import fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
 from facegeom.geometry import adjacency, cotangent_laplacian
 from facegeom.interfaces import as_positions, check_fitted
-from facegeom.tangent import TangentSolver
-
-from ._common import fit_inputs, require_handle_per_component
+from facegeom.methods.tangent import TangentSolver
 
 
 def normalized_laplacian(V, F, weights: str) -> sp.csr_matrix:

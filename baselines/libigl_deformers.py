@@ -4,10 +4,9 @@ from __future__ import annotations
 import igl
 import numpy as np
 
+from baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
 from facegeom.interfaces import as_positions, check_fitted
-
-from ._common import apply_displacement_map, fit_inputs, require_handle_per_component
 
 ENERGIES = {
     "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,

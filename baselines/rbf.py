@@ -4,10 +4,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
+from baselines._common import apply_displacement_map, fit_inputs
 from facegeom.errors import InputError
 from facegeom.interfaces import as_positions, check_fitted
-
-from ._common import apply_displacement_map, fit_inputs
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
            "inverse_quadratic", "gaussian")

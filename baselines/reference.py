@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from baselines._common import fit_inputs
 from facegeom.interfaces import as_positions, check_fitted
-
-from ._common import fit_inputs
 
 
 class MarkersOnly:

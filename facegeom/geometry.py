@@ -13,8 +13,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from .errors import InputError
-from .interfaces import as_faces, as_vertices
+from facegeom.errors import InputError
+from facegeom.interfaces import as_faces, as_vertices
 
 __all__ = [
     "adjacency",

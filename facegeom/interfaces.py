@@ -18,7 +18,7 @@ from typing import Any, Protocol, Self, runtime_checkable
 
 import numpy as np
 
-from .errors import InputError
+from facegeom.errors import InputError
 
 __all__ = [
     "Deformer",

@@ -12,8 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import SolveError
-from .utils import quiet_native
+from facegeom.errors import SolveError
+from facegeom.native import quiet_native
 
 __all__ = ["SPDSolver", "factorize_spd"]
 

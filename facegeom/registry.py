@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from importlib.metadata import entry_points
 
-from .errors import InputError
+from facegeom.errors import InputError
 
 KINDS = ("deformers", "retargeters", "fitters")
 

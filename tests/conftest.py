@@ -9,7 +9,7 @@ from facegeom.errors import DataNotFoundError
 
 @pytest.fixture(scope="session")
 def face_model():
-    from facegeom.data import load_face_model
+    from facegeom.model import load_face_model
 
     try:
         return load_face_model()

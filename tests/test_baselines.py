@@ -1,7 +1,8 @@
 """Baseline deformers on small synthetic meshes."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from baselines.laplacian import LaplacianDeformer

@@ -18,12 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baselines.bench_batch import CX, CY, FOCAL, make_landmark_inputs
-from facegeom import batch as fb
+from facegeom.bench.batch import CX, CY, FOCAL, make_landmark_inputs
 from facegeom.errors import InputError
-from facegeom.fitio import read_weights
-from facegeom.io import read_mesh, write_markers, write_mesh
-from facegeom.markerseq import read_marker_sequence, write_marker_sequence
+from facegeom.io import read_marker_sequence, read_mesh, read_weights, write_marker_sequence, write_markers, write_mesh
+from facegeom.pipelines import batch as fb
 
 from .conftest import grid_mesh
 
@@ -108,14 +106,13 @@ def test_fit_on_cluster_equals_in_process_bit_for_bit(client, landmarks, tmp_pat
     assert text[0].startswith("input,output,status,message,time_s,worker") and len(text) == 49
     # the rig (with its Gram matrix) and the fitter were built once per worker, not per task
     key = fb._plan(fit_job(landmarks, tmp_path / "x"))[0]["key"]
-    builds = client.run(lambda: dict(__import__("facegeom.batch").batch._BUILDS))
+    builds = client.run(lambda: dict(__import__("facegeom.pipelines.batch").pipelines.batch._BUILDS))
     assert sorted(b.get(key) for b in builds.values()) == [1, 1]
 
 
 @pytest.fixture(scope="module")
 def drive_inputs(tmp_path_factory, face_model):
-    from facegeom.expressions import random_sparse_expression
-    from facegeom.markers import layout
+    from facegeom.model import layout, random_sparse_expression
 
     d = tmp_path_factory.mktemp("drive")
     (d / "in").mkdir()
@@ -172,7 +169,7 @@ def test_corrupt_input_fails_its_own_row(client, landmarks, tmp_path):
 
 def _arm_kill(marker: str, index: int):
     """On a worker: kill this process right after item ``index``'s output is written (once, via ``marker``)."""
-    import facegeom.batch as b
+    import facegeom.pipelines.batch as b
 
     op = b._OPS["fit"]
     write = op.write
@@ -274,7 +271,7 @@ def test_shared_state_that_cannot_be_built_fails_the_chunks(landmarks, tmp_path,
 
 
 def test_retarget_animate_clean_on_cluster(client, tmp_path, face_model):
-    from facegeom.data import default_takes_path
+    from facegeom.model import default_takes_path
 
     from .test_cli_retarget import _pair
 
@@ -389,7 +386,7 @@ def test_cli_batch_on_a_scheduler(client, landmarks, tmp_path):
 
 
 def test_demo_batch_step_with_a_relative_folder(tmp_path, monkeypatch, face_model, capsys):
-    from facegeom.cli import _demo_batch
+    from facegeom.cli.main import _demo_batch
 
     monkeypatch.chdir(tmp_path)
     _demo_batch(face_model, Path("bench-out/demo/batch"), count=6)

@@ -1,4 +1,4 @@
-"""Mesh clean-up (facegeom.cleanup, `facegeom clean|decimate|crop`) on a corpus of broken meshes.
+"""Mesh clean-up (facegeom.pipelines.cleanup, `facegeom clean|decimate|crop`) on a corpus of broken meshes.
 
 The corpus is built here from the real ICT face and from small grids: every
 broken mesh either comes out clean (edge-manifold, no duplicate vertices,
@@ -19,10 +19,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from facegeom import cleanup as C
-from facegeom.cli import main
+from facegeom.cli.main import main
 from facegeom.errors import InputError
 from facegeom.io import read_mesh, write_markers, write_mesh
+from facegeom.pipelines import cleanup as C
 
 from .conftest import grid_mesh, two_grids
 
@@ -88,7 +88,7 @@ def face(face_model):
 
 @pytest.fixture(scope="module")
 def marker_ids(face_model):
-    from facegeom.markers import ict80
+    from facegeom.model import ict80
 
     return ict80(face_model)
 

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from facegeom import markers
 from facegeom.io import read_mesh, write_markers, write_mesh
+from facegeom.model import layouts as markers
 
 
 def run(*args, cwd=None):
@@ -115,7 +115,7 @@ def test_bench_bad_method_spec():
 
 def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
     """End to end: 3 sequences (2 real-take windows if the takes exist, 1 synthetic), 2 label counts."""
-    from facegeom.data import default_takes_path
+    from facegeom.model import default_takes_path
 
     args = ["bench", "retarget", "--sequences", "3", "--frames", "40", "--labels", "4,10", "--quiet",
             "--methods", "copy;rbf;tangent", "--out", str(tmp_path / "rt")]
@@ -141,7 +141,7 @@ def test_bench_retarget_bad_takes_folder(tmp_path, face_model):
 
 def test_animate_end_to_end(tmp_path, face_model):
     """Real take -> actor markers -> retargeted -> character mesh per frame (npz + OBJ)."""
-    from facegeom.data import default_takes_path
+    from facegeom.model import default_takes_path
 
     if not default_takes_path().is_dir():
         pytest.skip("real takes not available")

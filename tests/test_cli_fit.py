@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from facegeom.errors import InputError
-from facegeom.fitio import read_landmarks, read_point_cloud, write_weights
-from facegeom.io import write_mesh
-from facegeom.rig import FIT_LANDMARKS_23, BlendshapeRig, look_at_camera
+from facegeom.io import read_landmarks, read_point_cloud, write_mesh, write_weights
+from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, look_at_camera
 
 
 def run(*args):

@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from facegeom.markerseq import read_marker_sequence, write_marker_sequence
-from facegeom.retarget import evenly_spread
+from facegeom.io import read_marker_sequence, write_marker_sequence
+from facegeom.methods.tangent_retarget import evenly_spread
 
 
 def run(*args):

@@ -4,8 +4,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facegeom import data as fd
 from facegeom.errors import DataNotFoundError, InputError
+from facegeom.model import face as fd
 
 ORIGINAL = fd.default_data_path() / "original"
 

@@ -9,8 +9,7 @@ eos = pytest.importorskip("eos")
 
 from baselines.eos_peer import EosFitter  # noqa: E402
 from facegeom.errors import InputError  # noqa: E402
-from facegeom.rig import (FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget,  # noqa: E402
-                          PointCloudTarget, look_at_camera)
+from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PointCloudTarget, look_at_camera
 
 
 def synthetic(face_model, seed, n_active=None, focal=1000.0):

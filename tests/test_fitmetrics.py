@@ -1,11 +1,11 @@
-"""Similarities and metrics of the SEM paper (facegeom.fitmetrics)."""
+"""Similarities and metrics of the SEM paper (facegeom.metrics)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from facegeom.errors import InputError
-from facegeom.fitmetrics import (
+from facegeom.metrics import (
     closest_point_rms,
     correlation_metrics,
     ersim,
@@ -24,7 +24,7 @@ from facegeom.fitmetrics import (
     rms_distance,
     support_scores,
 )
-from facegeom.rig import (
+from facegeom.model import (
     EVAL_LANDMARKS_26,
     INNER_EYE_CORNERS,
     INNER_LANDMARKS_49,

@@ -1,15 +1,23 @@
-"""The blendshape-fitting baselines of the SEM paper (baselines.fitting): L1Reg, L2Reg, PCAExp, PCADel."""
+"""The blendshape-fitting baselines of the SEM paper (baselines.fitters): L1Reg, L2Reg, PCAExp, PCADel."""
 import time
 
 import numpy as np
 import pytest
 
-from baselines.fitting import L1RegFitter, L2RegFitter, PCADelFitter, PCAExpFitter
+from baselines.fitters import L1RegFitter, L2RegFitter, PCADelFitter, PCAExpFitter
 from facegeom.errors import InputError
-from facegeom.fitmetrics import landmark_normalized_error
 from facegeom.interfaces import FitResult, Fitter
-from facegeom.rig import (INNER_EYE_CORNERS, INNER_LANDMARKS_49, BlendshapeRig, LandmarkTarget, MeshTarget,
-                          PinholeCamera, PointCloudTarget, look_at_camera)
+from facegeom.metrics import landmark_normalized_error
+from facegeom.model import (
+    INNER_EYE_CORNERS,
+    INNER_LANDMARKS_49,
+    BlendshapeRig,
+    LandmarkTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    look_at_camera,
+)
 
 from .conftest import grid_mesh
 

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from facegeom import markers
+from facegeom.constants import FACE_AREA
 from facegeom.errors import InputError
-from facegeom.expressions import KINDS, NAMED, named_expression, random_sparse_expression
+from facegeom.model import KINDS, NAMED, named_expression, random_sparse_expression
+from facegeom.model import layouts as markers
 
 from .conftest import grid_mesh
 
@@ -19,7 +20,7 @@ def test_ict80_layout(face_model):
     L = markers.ict80(face_model)
     assert L.shape == (80,) and len(np.unique(L)) == 80
     np.testing.assert_array_equal(L[:68], face_model.landmarks)
-    assert (L[68:] < markers.NARROW_FACE).all()
+    assert (L[68:] < FACE_AREA).all()
     np.testing.assert_array_equal(L, markers.ict80(face_model))  # deterministic
     # the extra 12 are spread: no two closer than 2 cm
     P = face_model.neutral[L[68:]]

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from facegeom.errors import InputError
-from facegeom.markerseq import fill_gaps, read_marker_sequence, write_marker_sequence
+from facegeom.io import fill_gaps, read_marker_sequence, write_marker_sequence
 
 
 def _seq(T=5, p=3, seed=0):

@@ -6,8 +6,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
-from facegeom.pose import estimate_pose, estimate_poses, project_many, reprojection_rms
-from facegeom.rig import PinholeCamera
+from facegeom.model import PinholeCamera, estimate_pose, estimate_poses, project_many, reprojection_rms
 
 
 def face_like_points(seed, n=23):

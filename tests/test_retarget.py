@@ -6,10 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from baselines.retarget import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
+from baselines.retargeters import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
 from facegeom import registry
 from facegeom.errors import InputError, SolveError
-from facegeom.retarget import TangentRetargeter, marker_affine_fit, temporal_windows
+from facegeom.methods.tangent_retarget import TangentRetargeter, marker_affine_fit, temporal_windows
 
 PAPER = dict(strategy="marker", window=2, d=1, field="position", smoothness=0.0, beta=None, source_smoothing=0)
 

@@ -1,4 +1,4 @@
-"""BlendshapeRig, targets, camera and landmark sets (facegeom.rig)."""
+"""BlendshapeRig, targets, camera and landmark sets (facegeom.model.rig)."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from facegeom.errors import InputError
 from facegeom.io import write_mesh
-from facegeom.rig import (
+from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
     INNER_EYE_CORNERS,

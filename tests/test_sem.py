@@ -6,9 +6,16 @@ from hypothesis import strategies as st
 
 from facegeom import registry
 from facegeom.errors import InputError
-from facegeom.rig import (FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera,
-                          PointCloudTarget, look_at_camera)
-from facegeom.sem import SEMFitter, sem_gram, sem_vectors
+from facegeom.methods.sem import SEMFitter, sem_gram, sem_vectors
+from facegeom.model import (
+    FIT_LANDMARKS_23,
+    BlendshapeRig,
+    LandmarkTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    look_at_camera,
+)
 
 
 def tiny_rig(B=5, n=30, seed=0, orthogonal=False):

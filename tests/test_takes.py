@@ -9,15 +9,7 @@ import numpy as np
 import pytest
 
 from facegeom.errors import InputError
-from facegeom.takes import (
-    ARKIT_NAMES,
-    ROTATION_NAMES,
-    arkit_to_ict_name,
-    find_takes,
-    ict_weights,
-    read_take,
-    timecode_fps,
-)
+from facegeom.io import ARKIT_NAMES, ROTATION_NAMES, arkit_to_ict_name, find_takes, ict_weights, read_take, timecode_fps
 
 HEADER = ["Timecode", "BlendShapeCount", *ARKIT_NAMES, *ROTATION_NAMES]
 

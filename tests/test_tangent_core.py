@@ -2,13 +2,14 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from facegeom import geometry
 from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import NotFittedError
-from facegeom.tangent import TangentDeformer, TangentSolver, alignment_matrix, kabsch, kabsch_many
+from facegeom.methods.tangent import TangentDeformer, TangentSolver, alignment_matrix, kabsch, kabsch_many
 
 from .conftest import grid_mesh, two_grids
 
@@ -204,7 +205,7 @@ def test_kabsch_recovers_rotation():
 
 @pytest.mark.parametrize("params", CONFIGS + [{"dense_map": False}])
 def test_deform_many_equals_deform_frame_by_frame(params):
-    from facegeom.animate import drive_frames
+    from facegeom.pipelines.animate import drive_frames
 
     V, F, h = _mesh_and_handles()
     rng = np.random.default_rng(1)

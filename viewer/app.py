@@ -20,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from facegeom.constants import CM_TO_MM
 from facegeom.errors import FacegeomError, InputError
 
-__all__ = ["CM_TO_MM", "NO_DISPLAY", "display_available", "check_display", "init_polyscope", "parse_size", "Widgets",
+__all__ = ["NO_DISPLAY", "display_available", "check_display", "init_polyscope", "parse_size", "Widgets",
            "BaseView", "error_mm", "row_offsets"]
 
-CM_TO_MM = 10.0
-NARROW_FACE = 6706  # the face area of the ICT mesh (vertices [0, 6706)), where the markers are
 CMAP = "viridis"
 FOV_DEG = 15.0
 MARKER_COLOR = (0.95, 0.35, 0.1)

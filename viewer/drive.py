@@ -6,8 +6,8 @@ one shared scale); markers are point clouds (on each method's face: the handle
 positions it is driven with, which the user moves).
 
 The case is built like ``facegeom bench drive`` builds one (a seeded identity,
-a named or random sparse expression from :mod:`facegeom.expressions`, a marker
-layout of :mod:`facegeom.markers`), or taken from the benchmark itself
+a named or random sparse expression from :mod:`facegeom.model.expressions`, a marker
+layout of :mod:`facegeom.model.layouts`), or taken from the benchmark itself
 (``bench_case``: row ``case`` of ``facegeom bench drive --seed``). Methods come
 from the registry (``facegeom.deformers`` entry points): each is fitted once on
 the source, and a marker edit only calls every method's factorized ``deform``.
@@ -24,12 +24,10 @@ import numpy as np
 from facegeom import registry
 from facegeom.bench import drive as bench_drive
 from facegeom.bench.common import MethodSpec, parse_methods
+from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
-from facegeom.expressions import KINDS, named_expression, random_sparse_expression
-from facegeom.markers import layout
-
-from .app import (CM_TO_MM, MARKER_COLOR, NARROW_FACE, SELECTED_COLOR, BaseView, error_mm, nice_ceiling,
-                  row_offsets)
+from facegeom.model import KINDS, layout, named_expression, random_sparse_expression
+from viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
 
@@ -143,7 +141,7 @@ class DriveView(BaseView):
         for label in self.selected:
             self.fit_method(label)
         self.update_deform(refresh=False)
-        errs = [np.percentile(error_mm(Y, self.case.target)[:NARROW_FACE], 99) for Y in self.results.values()]
+        errs = [np.percentile(error_mm(Y, self.case.target)[:FACE_AREA], 99) for Y in self.results.values()]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
         self.rebuild()
 

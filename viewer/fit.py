@@ -19,10 +19,10 @@ import numpy as np
 from facegeom import registry
 from facegeom.bench import fit as bench_fit
 from facegeom.bench.common import MethodSpec, parse_methods
+from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError, InputError
-from facegeom.rig import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
-
-from .app import MARKER_COLOR, NARROW_FACE, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
+from viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]
 
@@ -115,7 +115,7 @@ class FitView(BaseView):
         self.failed.clear()
         for label in self.selected:
             self.fit_method(label)
-        errs = [np.percentile(error_mm(r.vertices, self.case.truth)[:NARROW_FACE], 99) for r in self.results.values()]
+        errs = [np.percentile(error_mm(r.vertices, self.case.truth)[:FACE_AREA], 99) for r in self.results.values()]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
         self.rebuild()
 
@@ -233,7 +233,7 @@ class FitView(BaseView):
                 psim.TextColored((1.0, 0.3, 0.3, 1.0), f"{label}: failed: {self.failed[label]}")
                 continue
             r = self.results[label]
-            e = error_mm(r.vertices, c.truth)[:NARROW_FACE].mean()
+            e = error_mm(r.vertices, c.truth)[:FACE_AREA].mean()
             psim.TextUnformatted(f"{label}: {self.time_ms[label]:.0f} ms, mean vertex error {e:.2f} mm")
         psim.TextUnformatted("coefficients by blendshape (rig order)")
         if c.weights is not None:

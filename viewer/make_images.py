@@ -33,8 +33,8 @@ def _sequence(model, takes):
     """The README's take window: around the take's most intense frame; a synthetic take without takes."""
     import numpy as np
 
-    from facegeom.data import locate_takes
-    from facegeom.takes import find_takes, ict_weights, read_take
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import locate_takes
     from viewer.playback import load_sequence
 
     n = TAKE["frames"]
@@ -90,7 +90,7 @@ def main(argv=None) -> int:
     ap.add_argument("--takes", default=None, help="folder of ARKit takes (default: $FACEGEOM_TAKES)")
     args = ap.parse_args(argv)
     try:
-        from facegeom.data import load_face_model
+        from facegeom.model import load_face_model
         from viewer.app import init_polyscope, parse_size
 
         names = [x.strip() for x in args.only.split(",") if x.strip()]

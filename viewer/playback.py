@@ -1,6 +1,6 @@
 """``facegeom view retarget`` and ``facegeom view animate``: play a take on the actor beside the character.
 
-The sequence is built as ``facegeom animate`` builds it (:mod:`facegeom.sequences`):
+The sequence is built as ``facegeom animate`` builds it (:mod:`facegeom.model.performance`):
 a window of an ARKit take (or a synthetic take) performed by a seeded actor, and
 the same performance on a seeded character with its own style, so the
 character's true markers and faces are known.
@@ -21,16 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom import sequences as sq
-from facegeom.animate import drive_frames, face_error_mm
 from facegeom.bench import animate as bench_animate
 from facegeom.bench import retarget as bench_retarget
 from facegeom.bench.common import parse_method, parse_methods
+from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
-from facegeom.markers import layout
-from facegeom.retarget import evenly_spread
-
-from .app import CM_TO_MM, NARROW_FACE, TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.methods.tangent_retarget import evenly_spread
+from facegeom.model import layout
+from facegeom.model import performance as sq
+from facegeom.pipelines.animate import drive_frames, face_error_mm
+from viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView"]
 
@@ -40,8 +40,8 @@ TRUE_MARKER_COLOR = (0.15, 0.15, 0.15)
 def load_sequence(model, take=None, takes=None, start: int = 0, frames: int = 100, seed: int = 0,
                   synthetic: bool = False, layout_name: str = "ict80") -> sq.Sequence:
     """An actor/character sequence: a window of a take (default: the first take found) or a synthetic one."""
-    from facegeom.data import locate_takes
-    from facegeom.takes import find_takes, ict_weights, read_take
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import locate_takes
 
     if frames < 2:
         raise InputError(f"--frames must be at least 2, got {frames}")
@@ -136,7 +136,7 @@ class RetargetView(PlaybackView):
     Parameters
     ----------
     model : FaceModel
-    seq : facegeom.sequences.Sequence
+    seq : facegeom.model.performance.Sequence
     methods : str or list of MethodSpec
         Retargeter specs (``;``-separated, as for ``facegeom bench retarget``).
     labels : int
@@ -246,7 +246,7 @@ class AnimateView(PlaybackView):
     Parameters
     ----------
     model : FaceModel
-    seq : facegeom.sequences.Sequence
+    seq : facegeom.model.performance.Sequence
     retargeters : str or list of MethodSpec
         ``;``-separated retargeter specs.
     deformer : str or MethodSpec
@@ -293,10 +293,10 @@ class AnimateView(PlaybackView):
                 self.failed[s.label] = str(exc)
                 continue
             self.markers[s.label], self.faces[s.label] = M, V
-            self.frame_err[s.label] = face_error_mm(V, self.truth, NARROW_FACE)
+            self.frame_err[s.label] = face_error_mm(V, self.truth, FACE_AREA)
             self.marker_err[s.label] = np.linalg.norm(M - seq.target, axis=2).mean(axis=1) * CM_TO_MM
             self.times[s.label] = (ret_ms, drive_s * 1e3 / seq.n_frames)
-        errs = [np.percentile(error_mm(V[:, :NARROW_FACE], self.truth[:, :NARROW_FACE]), 99)
+        errs = [np.percentile(error_mm(V[:, :FACE_AREA], self.truth[:, :FACE_AREA]), 99)
                 for V in self.faces.values()]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
 

@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import sequences as sq
-from ..animate import drive_frames, face_error_mm
-from ..errors import SolveError
-from ..io import atomic_path
-from ..retarget import evenly_spread
-from .common import MethodSpec, format_table, machine_note, write_csv
-from .retarget import CM_TO_MM, build_sequences
+from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.retarget import build_sequences
+from facegeom.constants import CM_TO_MM, FACE_AREA
+from facegeom.errors import SolveError
+from facegeom.io import atomic_path
+from facegeom.methods.tangent_retarget import evenly_spread
+from facegeom.model import performance as sq
+from facegeom.pipelines.animate import drive_frames, face_error_mm
 
-FACE_AREA = 6706
 DEFAULT_RETARGETERS = ["copy", "rbf", "tangent"]
 
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io import atomic_path
-from .. import registry
+from facegeom import registry
+from facegeom.errors import InputError
+from facegeom.io import atomic_path
 
 __all__ = ["MethodSpec", "parse_method", "parse_methods", "median_time", "write_csv", "format_table",
            "machine_note"]

@@ -4,11 +4,11 @@ Protocol (seeded):
 
 - ``cases`` source/target pairs. Source = a random identity (coefficients
   ~ N(0, 1)), neutral. Target = the same identity with an expression: the
-  named expressions of :mod:`facegeom.expressions` (six basic emotions, jaw
+  named expressions of :mod:`facegeom.model.expressions` (six basic emotions, jaw
   open, pucker, blink, three asymmetric combinations), cycled, each at an
   intensity ~ U(0.7, 1.0), alternating with random sparse combinations
   (2-6 shapes, weights ~ U(0.3, 1)).
-- Markers: a layout of :mod:`facegeom.markers` (default ``ict80``); their
+- Markers: a layout of :mod:`facegeom.model.layouts` (default ``ict80``); their
   target positions are the labels.
 - Every method is fitted on the source with the marker ids, then deforms it
   from the labels. Errors against the true target: mean, RMS and max vertex
@@ -25,11 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..expressions import NAMED, named_expression, random_sparse_expression
-from ..markers import NARROW_FACE, layout
-from .common import MethodSpec, format_table, machine_note, median_time, write_csv
-
-CM_TO_MM = 10.0
+from facegeom.bench.common import MethodSpec, format_table, machine_note, median_time, write_csv
+from facegeom.constants import CM_TO_MM, FACE_AREA
+from facegeom.model import NAMED, layout, named_expression, random_sparse_expression
 
 DEFAULT_METHODS = [
     "markers-only",
@@ -70,7 +68,7 @@ def make_cases(model, count: int = 50, seed: int = 0) -> list[Case]:
 
 def errors_mm(Y: np.ndarray, T: np.ndarray) -> dict:
     d = np.linalg.norm(Y - T, axis=1) * CM_TO_MM
-    face = d[:NARROW_FACE]
+    face = d[:FACE_AREA]
     return {
         "mean_mm": float(face.mean()),
         "rms_mm": float(np.sqrt((face ** 2).mean())),
@@ -131,7 +129,7 @@ def plot(rows: list[dict], specs: list[MethodSpec], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from facegeom.io import atomic_path
 
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for s in specs:
@@ -163,7 +161,7 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         write_csv(out / "drive.csv", rows)
-        from ..io import atomic_path
+        from facegeom.io import atomic_path
 
         with atomic_path(out / "drive-summary.md") as tmp:
             tmp.write_text(table + "\n\n" + note + "\n")

@@ -8,7 +8,7 @@ expression is fitted), as in the paper's expression-fitting experiments.
 - ``landmarks`` (Tables 1-3): the 68 landmarks projected by a pinhole camera
   (focal 1000 px, 640 x 480, head turned by yaw U(-25, 25) and pitch
   U(-15, 15) degrees) plus Gaussian pixel noise; the 23 fit landmarks
-  (:data:`facegeom.rig.FIT_LANDMARKS_23`) are given to the fitter **without the
+  (:data:`facegeom.model.landmarks.FIT_LANDMARKS_23`) are given to the fitter **without the
   pose** (every method estimates it); NE (eq. 31) on the 26 unused landmarks
   against their clean projections, normalised by the true inner-eye-corner
   distance, and on the 23 used ones against the noisy input; ERSim (appendix),
@@ -33,14 +33,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fitmetrics as fm
-from ..errors import FacegeomError
-from ..io import atomic_path
-from ..rig import (EVAL_LANDMARKS_26, FIT_LANDMARKS_23, INNER_EYE_CORNERS, BlendshapeRig, LandmarkTarget, MeshTarget,
-                   PinholeCamera, PointCloudTarget, look_at_camera)
-from .common import MethodSpec, format_table, machine_note, write_csv
+from facegeom import metrics as fm
+from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.constants import FACE_AREA
+from facegeom.errors import FacegeomError
+from facegeom.io import atomic_path
+from facegeom.model import (
+    EVAL_LANDMARKS_26,
+    FIT_LANDMARKS_23,
+    INNER_EYE_CORNERS,
+    BlendshapeRig,
+    LandmarkTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    look_at_camera,
+)
 
-FACE_AREA = 6706
 EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
 DEFAULT_METHODS = [
     "sem",

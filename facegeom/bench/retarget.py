@@ -3,7 +3,7 @@
 Protocol (seeded):
 
 - ``sequences`` actor/character pairs of ``frames`` frames (default 50 x 100)
-  built by :mod:`facegeom.sequences`. Four in five are windows of the real
+  built by :mod:`facegeom.model.performance`. Four in five are windows of the real
   ARKit takes (the takes cycled, start frame uniform in each take); every fifth
   is a synthetic onset-apex-offset take. Sequence ``i`` has its own actor
   identity and its own character (identity, per-expression intensities, warp).
@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import sequences as sq
-from ..retarget import evenly_spread
-from ..errors import SolveError
-from ..markers import layout
-from .common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.constants import CM_TO_MM
+from facegeom.errors import SolveError
+from facegeom.methods.tangent_retarget import evenly_spread
+from facegeom.model import layout
+from facegeom.model import performance as sq
 
-CM_TO_MM = 10.0
 LABEL_COUNTS = (2, 3, 4, 6, 8, 10, 15, 20, 25, 30)
 REFERENCE_LABELS = 10
 
@@ -142,7 +142,7 @@ def plot(rows, frame_rows, specs, ref, path: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from facegeom.io import atomic_path
 
     fig, ax = plt.subplots(1, 3, figsize=(17, 4.6))
     counts = sorted({r["labels"] for r in rows})
@@ -185,7 +185,7 @@ def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed
     note = f"{len(seqs)} sequences, seed {seed}, layout {layout_name}; {machine_note()}"
     echo(table)
     echo(note)
-    from ..io import atomic_path
+    from facegeom.io import atomic_path
 
     with atomic_path(out / "retarget-summary.md") as tmp:
         Path(tmp).write_text(table + "\n\n" + note + "\n")

@@ -1,0 +1,167 @@
+"""Files of blendshape fitting: landmark CSVs, point clouds, fitted coefficients.
+
+- Landmarks: CSV with the header ``vertex_id,u,v`` (pixels; ``v`` grows
+  downwards, the convention of :class:`facegeom.model.camera.PinholeCamera`).
+- Point clouds: PLY / OBJ / XYZ / OFF read with pymeshlab (faces, if any, are
+  ignored), or ``.npy`` ``(N, 3)``.
+- Coefficients: JSON ``{"weights": {name: value}, ...}`` or CSV ``shape,weight``,
+  written atomically.
+"""
+from __future__ import annotations
+
+import csv
+import io as _io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.native import quiet_native
+
+__all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "CLOUD_FORMATS", "TARGET_KINDS"]
+
+CLOUD_FORMATS = (".ply", ".obj", ".xyz", ".off", ".npy")
+TARGET_KINDS = ("auto", "mesh", "landmarks", "points")
+
+
+def _exists(path: Path, what: str) -> None:
+    if not path.exists():
+        raise InputError("file not found", path)
+    if path.is_dir():
+        raise InputError(f"is a folder, not a {what} file", path)
+    if path.stat().st_size == 0:
+        raise InputError("empty file", path)
+
+
+def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``vertex_id,u,v`` rows -> ``ids (L,)``, ``uv (L, 2)``; ids distinct, values finite."""
+    path = Path(path)
+    _exists(path, "landmark")
+    rows = [r for r in read_csv_rows(path, "landmark") if any(c.strip() for c in r)]
+    if not rows or tuple(c.strip().lower() for c in rows[0]) != ("vertex_id", "u", "v"):
+        raise InputError("expected the header vertex_id,u,v", path)
+    ids, uv = [], []
+    for line_no, r in enumerate(rows[1:], start=2):
+        if len(r) != 3:
+            raise InputError(f"line {line_no}: expected 3 values, got {len(r)}", path)
+        try:
+            ids.append(int(r[0]))
+            q = [float(r[1]), float(r[2])]
+        except ValueError:
+            raise InputError(f"line {line_no}: not a number", path) from None
+        if not np.all(np.isfinite(q)):
+            raise InputError(f"line {line_no}: coordinate is NaN or inf", path)
+        uv.append(q)
+    if not ids:
+        raise InputError("no landmark rows after the header", path)
+    ids = np.array(ids, dtype=np.int64)
+    u, c = np.unique(ids, return_counts=True)
+    if (c > 1).any():
+        raise InputError(f"vertex_id {int(u[c > 1][0])} is repeated", path)
+    if (ids < 0).any():
+        raise InputError(f"vertex_id {int(ids[ids < 0][0])} is negative", path)
+    return ids, np.array(uv, dtype=np.float64)
+
+
+def read_point_cloud(path: str | os.PathLike) -> np.ndarray:
+    """Read a point cloud -> ``(N, 3)`` float64, N >= 1, finite."""
+    path = Path(path)
+    _exists(path, "point-cloud")
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_FORMATS:
+        raise InputError(f"unsupported point-cloud format {suffix!r}; use one of {', '.join(CLOUD_FORMATS)}", path)
+    if suffix == ".npy":
+        try:
+            P = np.load(path, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001
+            raise InputError(f"cannot read as .npy ({exc.__class__.__name__})", path) from None
+    else:
+        import pymeshlab
+
+        ms = pymeshlab.MeshSet()
+        try:
+            with quiet_native((1, 2)):
+                ms.load_new_mesh(str(path))
+        except pymeshlab.PyMeshLabException as exc:
+            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
+            raise InputError(f"malformed point cloud: {first}", path) from None
+        P = ms.current_mesh().vertex_matrix()
+    P = np.asarray(P, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise InputError(f"point cloud must have shape (N, 3), got {P.shape}", path)
+    if P.shape[0] == 0:
+        raise InputError("the point cloud has no point", path)
+    bad = ~np.isfinite(P).all(axis=1)
+    if bad.any():
+        raise InputError(f"point {int(np.flatnonzero(bad)[0])} is NaN or inf", path)
+    return P
+
+
+def write_weights(path: str | os.PathLike, names, weights, info: dict | None = None) -> Path:
+    """Write coefficients by name as ``.json`` (with ``info``) or ``.csv`` (``shape,weight``), atomically."""
+    path = Path(path)
+    w = np.asarray(weights, dtype=np.float64)
+    names = list(names)
+    if w.shape != (len(names),):
+        raise InputError(f"{w.size} weights for {len(names)} names", path)
+    suffix = path.suffix.lower()
+    if suffix not in (".json", ".csv"):
+        raise InputError(f"unsupported coefficient format {suffix!r}; use .json or .csv", path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="") as fh:
+            if suffix == ".json":
+                json.dump({"weights": {n: float(x) for n, x in zip(names, w)}, **(info or {})}, fh, indent=2)
+                fh.write("\n")
+            else:
+                cw = csv.writer(fh)
+                cw.writerow(["shape", "weight"])
+                for n, x in zip(names, w):
+                    cw.writerow([n, repr(float(x))])
+    return path
+
+
+def read_weights(path: str | os.PathLike, names) -> np.ndarray:
+    """Read coefficients written by :func:`write_weights` (``.json`` or ``.csv``) in the order of ``names``.
+
+    Shapes the file does not name are 0; a name the rig does not have is an error.
+    """
+    path = Path(path)
+    _exists(path, "coefficient")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".json":
+            data = json.loads(path.read_text(encoding="utf-8-sig"))
+            got = data.get("weights") if isinstance(data, dict) else None
+            if not isinstance(got, dict):
+                raise InputError("no 'weights' object (expected {\"weights\": {name: value}})", path)
+        elif suffix == ".csv":
+            rows = [r for r in csv.reader(_io.StringIO(path.read_text(encoding="utf-8-sig"))) if r]
+            if not rows or [c.strip().lower() for c in rows[0]] != ["shape", "weight"]:
+                raise InputError("expected the header shape,weight", path)
+            got = {}
+            for line_no, r in enumerate(rows[1:], start=2):
+                if len(r) != 2:
+                    raise InputError(f"line {line_no}: expected 2 values, got {len(r)}", path)
+                got[r[0].strip()] = r[1]
+        else:
+            raise InputError(f"unsupported coefficient format {suffix!r}; use .json or .csv", path)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read coefficients ({exc.__class__.__name__})", path) from None
+    names = list(names)
+    index = {n: i for i, n in enumerate(names)}
+    w = np.zeros(len(names))
+    for name, value in got.items():
+        if name not in index:
+            raise InputError(f"unknown shape {name!r} (the rig has {len(names)} shapes)", path)
+        try:
+            w[index[name]] = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"weight of {name!r} is not a number", path) from None
+    if not np.all(np.isfinite(w)):
+        raise InputError("a weight is NaN or inf", path)
+    return w
+
+

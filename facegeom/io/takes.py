@@ -1,0 +1,493 @@
+"""Real facial performances: Live Link Face CSV takes of ARKit blendshape weights.
+
+File format
+-----------
+Apple's Live Link Face app exports one CSV per take. The header is::
+
+    Timecode,BlendShapeCount,EyeBlinkLeft,...,TongueOut,HeadYaw,...,RightEyeRoll
+
+i.e. the timecode, the number of shapes (61 on a good row), the 52 ARKit
+blendshape weights in PascalCase (:data:`ARKIT_NAMES`, in this order in the
+app's files, though the reader finds the columns by name), then 9 head and eye
+rotations (``HeadYaw, HeadPitch, HeadRoll, LeftEyeYaw, LeftEyePitch,
+LeftEyeRoll, RightEyeYaw, RightEyePitch, RightEyeRoll``), which this module
+does not keep.
+
+Timecode
+--------
+``HH:MM:SS:FF.fff`` where ``FF.fff`` is a fractional frame number. In the
+recordings seen so far the frame base is **60 fps** (``FF`` runs 00..59) while
+rows come about every 2 frames (~30 rows per second), so reading ``FF`` as a
+30 fps frame would make the time jump backwards at every second boundary. The
+frame base is therefore inferred per file (:func:`timecode_fps`): the smallest
+common rate (24, 25, 30, 48, 50, 60, 120) above the largest ``FF`` seen,
+defaulting to 30 when the file shows no frame number of 30 or more (too short
+to tell). ``Take.times`` are seconds from the take's first row; a passage
+through midnight is unwrapped.
+
+Lost tracking
+-------------
+When the face is lost the app writes rows that hold only ``timecode,0``
+(``BlendShapeCount`` 0, no weights). They are counted in
+:attr:`Take.lost_rows` and, by ``policy``:
+
+``"interpolate"`` (default)
+    Keep the rows (and their timecodes) and fill every weight linearly in time
+    between the neighbouring good rows; lost rows before the first or after
+    the last good row hold that row's values.
+``"drop"``
+    Remove the rows; ``times`` then has gaps.
+
+Any other row whose column count differs from the header's is an error.
+
+Values
+------
+Weights are stored exactly as read, including the small excursions outside
+[0, 1] that the tracker produces (eye-look shapes reach about 1.08);
+:func:`ict_weights` clips on request.
+
+Mapping to the ICT face model
+-----------------------------
+ICT names are camelCase with ``_L``/``_R``: ``EyeBlinkLeft`` -> ``eyeBlink_L``,
+``JawOpen`` -> ``jawOpen``. ``MouthLeft``, ``MouthRight``, ``JawLeft`` and
+``JawRight`` are shapes of their own (``mouthLeft``...), not sided variants.
+ARKit's single ``BrowInnerUp`` and ``CheekPuff`` drive both ICT sides;
+``TongueOut`` has no ICT counterpart. "Left" is the performer's left in both.
+"""
+from __future__ import annotations
+
+import csv
+import operator
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from facegeom.errors import InputError
+
+__all__ = [
+    "ARKIT_NAMES",
+    "ROTATION_NAMES",
+    "POLICIES",
+    "Take",
+    "read_take",
+    "timecode_fps",
+    "arkit_to_ict_name",
+    "ict_weights",
+    "find_takes",
+]
+
+#: The 52 ARKit blendshape names in the order Live Link Face writes them.
+ARKIT_NAMES: tuple[str, ...] = (
+    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft",
+    "EyeSquintLeft", "EyeWideLeft",
+    "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
+    "EyeSquintRight", "EyeWideRight",
+    "JawForward", "JawRight", "JawLeft", "JawOpen",
+    "MouthClose", "MouthFunnel", "MouthPucker", "MouthRight", "MouthLeft",
+    "MouthSmileLeft", "MouthSmileRight", "MouthFrownLeft", "MouthFrownRight",
+    "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft", "MouthStretchRight",
+    "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
+    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight",
+    "MouthUpperUpLeft", "MouthUpperUpRight",
+    "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
+    "CheekPuff", "CheekSquintLeft", "CheekSquintRight",
+    "NoseSneerLeft", "NoseSneerRight",
+    "TongueOut",
+)
+
+#: The 9 rotation columns that follow the weights (read past, not kept).
+ROTATION_NAMES: tuple[str, ...] = (
+    "HeadYaw", "HeadPitch", "HeadRoll",
+    "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll",
+    "RightEyeYaw", "RightEyePitch", "RightEyeRoll",
+)
+
+#: Accepted values of ``read_take(policy=...)``.
+POLICIES: tuple[str, ...] = ("interpolate", "drop")
+
+_ARKIT_SET = frozenset(ARKIT_NAMES)
+_OWN_DIRECTION = frozenset({"MouthLeft", "MouthRight", "JawLeft", "JawRight"})
+_BOTH_SIDES = frozenset({"BrowInnerUp", "CheekPuff"})
+_NO_ICT = frozenset({"TongueOut"})
+_FRAME_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+_DEFAULT_FPS = 30.0
+_DAY = 86400.0
+
+
+@dataclass
+class Take:
+    """One recorded performance.
+
+    Attributes
+    ----------
+    path : str
+        The CSV file read.
+    names : tuple of str
+        The 52 ARKit weight names, in :data:`ARKIT_NAMES` order (the order of
+        the columns of ``weights``, whatever the file's column order).
+    weights : numpy.ndarray
+        ``(T, 52)`` float64 weights as read (not clipped); interpolated on lost
+        rows under ``policy="interpolate"``.
+    times : numpy.ndarray
+        ``(T,)`` float64 seconds from the take's first row (``times[0] == 0``).
+    lost_rows : int
+        Number of lost-tracking rows found in the file (whatever the policy).
+    policy : str
+        ``"interpolate"`` or ``"drop"``: what was done with the lost rows.
+    timecode_fps : float
+        Frame base used to read the timecode's frame field (see
+        :func:`timecode_fps`).
+    """
+
+    path: str
+    names: tuple[str, ...]
+    weights: np.ndarray
+    times: np.ndarray
+    lost_rows: int
+    policy: str
+    timecode_fps: float = _DEFAULT_FPS
+
+    @property
+    def n_frames(self) -> int:
+        """Number of rows kept (``T``)."""
+        return int(self.weights.shape[0])
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
+    """Read a Live Link Face CSV take.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.csv`` file.
+    policy : {"interpolate", "drop"}
+        What to do with lost-tracking rows (``timecode,0``): fill them linearly
+        in time from the neighbouring good rows, or remove them.
+
+    Returns
+    -------
+    Take
+        Weights ``(T, 52)`` in :data:`ARKIT_NAMES` order, times in seconds from
+        the first kept row, and the count of lost rows.
+
+    Raises
+    ------
+    InputError
+        Naming the file: a bad ``policy``; a missing, unreadable or empty file;
+        a header without ``Timecode`` or lacking ARKit weight columns (named);
+        a row with the wrong number of columns that is not a lost-tracking row,
+        a bad timecode or a non-numeric weight (row and column named); no good
+        row at all.
+    """
+    if policy not in POLICIES:
+        raise InputError(f"policy must be one of {', '.join(repr(p) for p in POLICIES)}, got {policy!r}", path)
+    p = Path(path)
+    if not p.exists():
+        raise InputError("take file not found", path)
+    if not p.is_file():
+        raise InputError("not a file (expected a Live Link Face .csv take)", path)
+    try:
+        with open(p, newline="", encoding="utf-8-sig") as fh:
+            header, columns, good, lost = _scan(fh, path)
+    except OSError as exc:
+        raise InputError(f"cannot read the take: {exc.strerror or exc}", path) from None
+    except UnicodeDecodeError:
+        raise InputError("cannot read the take: not UTF-8 text", path) from None
+    except csv.Error as exc:
+        raise InputError(f"cannot read the take: malformed CSV ({exc})", path) from None
+
+    n_rows = len(good[0]) + len(lost)
+    if n_rows == 0:
+        raise InputError("the take has a header but no data rows", path)
+    if not good[0]:
+        raise InputError(f"nothing usable: all {len(lost)} data rows are lost-tracking rows", path)
+
+    good_lines, good_tc, good_cells = good
+    W = _to_float(good_cells, good_lines, columns, header, path)
+
+    # Timecodes of all rows (good and lost), in file order.
+    lines = np.asarray(good_lines + [ln for ln, _ in lost], dtype=np.int64)
+    tcs = good_tc + [tc for _, tc in lost]
+    order = np.argsort(lines, kind="stable")
+    lines = lines[order]
+    tcs = [tcs[i] for i in order]
+    frame_secs, frames = _parse_timecodes(tcs, lines, path)
+    fps = timecode_fps(frames)
+    t = frame_secs + frames / fps
+    t = _unwrap_midnight(t)
+
+    is_good = np.zeros(n_rows, dtype=bool)
+    is_good[: len(good_lines)] = True
+    is_good = is_good[order]
+
+    if policy == "drop" or not lost:
+        weights, times = W, t[is_good]
+    else:
+        weights = _interpolate(W, t, is_good)
+        times = t
+    return Take(
+        path=str(p),
+        names=ARKIT_NAMES,
+        weights=weights,
+        times=times - times[0],
+        lost_rows=len(lost),
+        policy=policy,
+        timecode_fps=fps,
+    )
+
+
+def _scan(fh, path):
+    """Split the file into header, good rows (raw cells) and lost rows."""
+    reader = csv.reader(fh)
+    header = None
+    for raw in reader:
+        if any(c.strip() for c in raw):
+            header = [c.strip() for c in raw]
+            break
+    if header is None:
+        raise InputError("the take file is empty", path)
+    while header and header[-1] == "":  # tolerate a trailing comma
+        header.pop()
+    width = len(header)
+    if "Timecode" not in header:
+        raise InputError(
+            "not a Live Link Face take: the header has no 'Timecode' column "
+            f"(it starts with {', '.join(header[:3])!r})", path)
+    missing = [n for n in ARKIT_NAMES if n not in header]
+    if missing:
+        raise InputError(
+            f"the header lacks {len(missing)} ARKit weight column(s): {', '.join(missing)}", path)
+    dup = sorted({n for n in header if n and header.count(n) > 1})
+    if dup:
+        raise InputError(f"the header repeats column(s): {', '.join(dup)}", path)
+    tc_col = header.index("Timecode")
+    columns = [header.index(n) for n in ARKIT_NAMES]
+    pick = operator.itemgetter(*columns)
+
+    good_lines: list[int] = []
+    good_tc: list[str] = []
+    good_cells: list[tuple[str, ...]] = []
+    lost: list[tuple[int, str]] = []
+    for raw in reader:
+        line = reader.line_num
+        n = len(raw)
+        while n > width and raw[n - 1].strip() == "":  # trailing commas
+            n -= 1
+        if n == width:
+            good_lines.append(line)
+            good_tc.append(raw[tc_col])
+            good_cells.append(pick(raw))
+            continue
+        if n == 0 or not any(c.strip() for c in raw):
+            continue  # blank line
+        core = [c.strip() for c in raw[:n]]
+        while core and core[-1] == "":
+            core.pop()
+        if len(core) == 2 and tc_col == 0 and _is_zero(core[1]):
+            lost.append((line, core[0]))
+            continue
+        raise InputError(
+            f"row {line} has {n} columns where the header has {width}, "
+            "and it is not a lost-tracking row ('timecode,0')", path)
+    return header, columns, (good_lines, good_tc, good_cells), lost
+
+
+def _is_zero(cell: str) -> bool:
+    try:
+        return float(cell) == 0.0
+    except ValueError:
+        return False
+
+
+def _to_float(cells: list[tuple[str, ...]], lines: list[int], columns: list[int], header: list[str],
+              path) -> np.ndarray:
+    """``(T, 52)`` float64 from the raw cells; the first bad cell is named on failure."""
+    try:
+        W = np.array(cells, dtype=np.float64)
+    except ValueError:
+        W = None
+    if W is not None and np.isfinite(W).all():
+        return W.reshape(len(cells), len(ARKIT_NAMES))
+    for r, row in enumerate(cells):  # slow path: only to name the culprit
+        for k, cell in enumerate(row):
+            try:
+                ok = np.isfinite(float(cell))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise InputError(
+                    f"row {lines[r]}, column {header[columns[k]]}: not a finite number: {cell!r}", path)
+    raise InputError("the weights could not be read as numbers", path)  # pragma: no cover
+
+
+def _parse_timecodes(tcs: list[str], lines: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:
+    """Whole seconds of the day and fractional frame numbers of ``HH:MM:SS:FF(.fff)`` timecodes."""
+    secs = np.empty(len(tcs))
+    frames = np.empty(len(tcs))
+    for i, tc in enumerate(tcs):
+        parts = tc.strip().split(":")
+        try:
+            if len(parts) != 4:
+                raise ValueError
+            h, m, s = int(parts[0]), int(parts[1]), int(parts[2])
+            f = float(parts[3])
+            if not (0 <= m < 60 and 0 <= s < 61 and h >= 0 and 0.0 <= f < 1000.0):
+                raise ValueError
+        except ValueError:
+            raise InputError(
+                f"row {int(lines[i])}, column Timecode: bad timecode {tc!r} (expected HH:MM:SS:FF.fff)",
+                path) from None
+        secs[i] = h * 3600 + m * 60 + s
+        frames[i] = f
+    return secs, frames
+
+
+def timecode_fps(frames: Sequence[float] | np.ndarray) -> float:
+    """The frame base of a take's timecode, inferred from its frame numbers.
+
+    Parameters
+    ----------
+    frames : array_like
+        The ``FF.fff`` fields of the timecodes.
+
+    Returns
+    -------
+    float
+        The smallest of 24, 25, 30, 48, 50, 60, 120 that exceeds the largest
+        whole frame number, but at least 30 (the usual rate when the file is
+        too short to show). Live Link Face files seen so far give 60.
+    """
+    f = np.asarray(frames, dtype=np.float64)
+    if f.size == 0:
+        return _DEFAULT_FPS
+    top = float(np.floor(f.max()))
+    for rate in _FRAME_RATES:
+        if rate >= _DEFAULT_FPS and top < rate:
+            return rate
+    return float(top + 1.0)
+
+
+def _unwrap_midnight(t: np.ndarray) -> np.ndarray:
+    """Add a day wherever the time of day falls back by more than 12 h."""
+    if t.size < 2:
+        return t
+    jumps = np.diff(t) < -_DAY / 2
+    if not jumps.any():
+        return t
+    return t + _DAY * np.concatenate([[0], np.cumsum(jumps)])
+
+
+def _interpolate(W_good: np.ndarray, t: np.ndarray, is_good: np.ndarray) -> np.ndarray:
+    """Fill lost rows linearly from good rows (in time if strictly increasing, else by row)."""
+    x = t if np.all(np.diff(t) > 0) else np.arange(t.size, dtype=np.float64)
+    xg, xl = x[is_good], x[~is_good]
+    out = np.empty((t.size, W_good.shape[1]))
+    out[is_good] = W_good
+    # Linear weights between the bracketing good rows; held constant beyond the ends.
+    hi = np.clip(np.searchsorted(xg, xl), 1, xg.size - 1) if xg.size > 1 else np.zeros(xl.size, int)
+    lo = np.maximum(hi - 1, 0)
+    span = xg[hi] - xg[lo]
+    a = np.where(span > 0, (xl - xg[lo]) / np.where(span > 0, span, 1.0), 0.0)
+    a = np.clip(a, 0.0, 1.0)[:, None]
+    out[~is_good] = (1.0 - a) * W_good[lo] + a * W_good[hi]
+    return out
+
+
+# ----------------------------------------------------------------------------- mapping
+
+
+def arkit_to_ict_name(name: str) -> list[str]:
+    """The ICT expression names that one ARKit weight drives.
+
+    Parameters
+    ----------
+    name : str
+        An ARKit blendshape name, PascalCase as in Live Link Face files
+        (``EyeBlinkLeft``) or camelCase as in ARKit's API (``eyeBlinkLeft``).
+
+    Returns
+    -------
+    list of str
+        ``['eyeBlink_L']`` for ``EyeBlinkLeft``; ``['mouthLeft']`` for
+        ``MouthLeft`` (a shape of its own, likewise ``MouthRight``, ``JawLeft``,
+        ``JawRight``); both sides for ``BrowInnerUp`` and ``CheekPuff``; ``[]``
+        for ``TongueOut``.
+
+    Raises
+    ------
+    InputError
+        ``name`` is not one of the 52 ARKit shapes.
+    """
+    pascal = name[:1].upper() + name[1:]
+    if pascal not in _ARKIT_SET:
+        raise InputError(f"not an ARKit blendshape name: {name!r}")
+    if pascal in _NO_ICT:
+        return []
+    camel = pascal[0].lower() + pascal[1:]
+    if pascal in _BOTH_SIDES:
+        return [camel + "_L", camel + "_R"]
+    if pascal not in _OWN_DIRECTION:
+        for side, suffix in (("Left", "_L"), ("Right", "_R")):
+            if camel.endswith(side):
+                return [camel[: -len(side)] + suffix]
+    return [camel]
+
+
+def ict_weights(take: Take, expression_names: Sequence[str], clip: bool = True) -> np.ndarray:
+    """A take's weights as ICT expression weights.
+
+    Parameters
+    ----------
+    take : Take
+        From :func:`read_take`.
+    expression_names : sequence of str
+        The ICT expression names, in the order wanted for the columns.
+    clip : bool
+        Clip the result to [0, 1] (the take keeps its raw values).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(T, E)`` float64, column ``e`` being the ARKit weight that drives
+        ``expression_names[e]``, or 0 for names no ARKit shape drives.
+    """
+    source: dict[str, int] = {}
+    for k, name in enumerate(take.names):
+        for target in arkit_to_ict_name(name):
+            source[target] = k
+    idx = np.array([source.get(n, -1) for n in expression_names], dtype=np.int64)
+    out = np.zeros((take.n_frames, len(idx)), dtype=np.float64)
+    has = idx >= 0
+    out[:, has] = take.weights[:, idx[has]]
+    if clip:
+        np.clip(out, 0.0, 1.0, out=out)
+    return out
+
+
+# ----------------------------------------------------------------------------- folders
+
+
+def find_takes(folder: str | os.PathLike) -> list[Path]:
+    """The ``*.csv`` takes of a folder, sorted by name.
+
+    Raises
+    ------
+    InputError
+        Naming the folder, if it does not exist, is not a folder, or holds no
+        ``.csv`` file.
+    """
+    p = Path(folder)
+    if not p.exists():
+        raise InputError("folder of takes not found", folder)
+    if not p.is_dir():
+        raise InputError("not a folder (expected a folder of .csv takes)", folder)
+    files = sorted((f for f in p.iterdir() if f.suffix.lower() == ".csv" and f.is_file()), key=lambda f: f.name)
+    if not files:
+        raise InputError("no .csv take in this folder", folder)
+    return files

@@ -1,0 +1,101 @@
+"""Shared pieces of blendshape fitting: target dispatch, pose alternation, results.
+
+Every fitter (SEM in :mod:`facegeom.methods.sem`, the baselines in ``baselines.fitters``)
+takes a :class:`~facegeom.model.rig.BlendshapeRig` and one of the targets of
+:mod:`facegeom.model.rig` and returns a :class:`~facegeom.interfaces.FitResult`
+(``weights`` in the rig's shape order, ``vertices`` the fitted face, ``info``).
+
+Landmark targets whose camera has no pose (``camera.posed`` is False) get the
+rigid pose estimated from the landmarks on the neutral face first, then
+alternately with the expression (:func:`fit_with_pose`), as in Sec. III of the
+SEM paper.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.interfaces import FitResult
+from facegeom.model import (
+    BlendshapeRig,
+    LandmarkTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    estimate_pose,
+    estimate_poses,
+)
+
+__all__ = ["check_fit_inputs", "fit_with_pose", "fit_with_poses", "result"]
+
+TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
+
+
+def check_fit_inputs(rig, target):
+    """Validate ``rig`` and ``target`` (type, vertex counts, landmark ids) and return them."""
+    if not isinstance(rig, BlendshapeRig):
+        raise InputError(f"rig must be a BlendshapeRig, got {type(rig).__name__}")
+    if not isinstance(target, TARGETS):
+        raise InputError(f"target must be a MeshTarget, LandmarkTarget or PointCloudTarget, got {type(target).__name__}")
+    if isinstance(target, (MeshTarget, LandmarkTarget)):
+        target.check(rig)
+    return rig, target
+
+
+def fit_with_pose(rig: BlendshapeRig, target: LandmarkTarget, solve: Callable[[PinholeCamera], np.ndarray],
+                  alternations: int = 3) -> tuple[np.ndarray, PinholeCamera]:
+    """Solve the expression under a known pose, or alternate pose and expression.
+
+    ``solve(camera) -> weights (B,)`` fits the expression for a posed camera.
+    With an unposed camera: pose from the neutral face's most stable landmarks
+    (:func:`stable_rows`), then
+    ``alternations`` rounds of (expression, pose refined from the fitted face),
+    and a final expression solve.
+    """
+    if target.camera.posed:
+        return solve(target.camera), target.camera
+    ids = target.vertex_ids
+    stable = stable_rows(rig, ids)
+    cam = estimate_pose(rig.neutral[ids[stable]], target.points2d[stable], target.camera)
+    for _ in range(alternations):
+        w = solve(cam)
+        cam = estimate_pose(rig.evaluate(w, ids), target.points2d, target.camera, init=cam)
+    return solve(cam), cam
+
+
+def fit_with_poses(rig: BlendshapeRig, ids: np.ndarray, points2d: np.ndarray, intrinsics, solve,
+                   alternations: int = 3):
+    """:func:`fit_with_pose` for ``K`` unposed targets sharing the landmark vertices ``ids``, batched.
+
+    ``points2d (K, n, 2)``; ``intrinsics = (focal, cx, cy)``, each ``(K,)``;
+    ``solve(R (K,3,3), t (K,3)) -> weights (K, B)``. Returns ``(weights, R, t)``.
+    """
+    K = points2d.shape[0]
+    stable = stable_rows(rig, ids)
+    P0 = np.broadcast_to(rig.neutral[ids[stable]], (K, stable.size, 3))
+    R, t = estimate_poses(P0, points2d[:, stable], *intrinsics)
+    base, deltas = rig.neutral[ids], rig.deltas[:, ids]
+    for _ in range(alternations):
+        w = solve(R, t)
+        R, t = estimate_poses(base[None] + np.tensordot(w, deltas, 1), points2d, *intrinsics, R0=R, t0=t)
+    return solve(R, t), R, t
+
+
+def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, minimum: int = 6) -> np.ndarray:
+    """Rows of ``ids`` whose vertices the expressions move least (at least ``minimum``, about ``fraction``).
+
+    The first pose is estimated from these only, so that an expression on the
+    target (an open jaw, raised brows) does not tilt it; the rig tells which
+    landmarks are stable (largest displacement over all its delta-blendshapes).
+    """
+    reach = np.linalg.norm(rig.deltas[:, ids], axis=2).max(axis=0)  # (L,)
+    k = min(len(ids), max(minimum, int(round(fraction * len(ids)))))
+    return np.sort(np.argsort(reach, kind="stable")[:k])
+
+
+def result(rig: BlendshapeRig, weights, **info) -> FitResult:
+    """A :class:`FitResult` with the fitted face evaluated from ``weights``."""
+    w = np.asarray(weights, dtype=np.float64)
+    return FitResult(weights=w, vertices=rig.evaluate(w), info=dict(info))

@@ -1,0 +1,585 @@
+"""Selective Expression Manipulation (SEM): greedy delta-blendshape selection (Kang et al., Sec. IV).
+
+Starting from the neutral face ``F^1 = B_1``, each iteration ``t``
+
+1. measures, for every remaining candidate ``dB_i``, its coefficient
+   ``e_i = max(ERSim(dB_i, dT^t), 0)`` (eq. 18) against the remaining motion
+   ``dT^t = T - F^t`` and the motional energy index from the initial face
+   ``r(t, dB_i) = 1 - ERSim(dT, sum_k e^k dB^k + e_i dB_i)`` (eq. 19);
+2. **excludes** (one-step backtracking) every candidate whose index would exceed
+   in magnitude the index reached by the previous selection,
+   ``|r(t-1, dB^{t-1})| < |r(t, dB_i)|`` -- a candidate that would undo the
+   motion selected so far, or overshoot the target, is dropped for good;
+3. **selects** the candidate of largest expressional similarity
+   ``s_i = ESim(dB_i, dT^t)`` (eqs. 16-17), with coefficient ``e^t`` (eq. 18),
+   ``F^{t+1} = F^t + e^t dB^t`` (eq. 13), and removes it from the candidates;
+
+until no candidate remains. ``ESim`` and ``ERSim`` are eqs. 9 and 10
+(:mod:`facegeom.metrics`). The first iteration has no previous index and
+excludes nothing; the index of the empty selection is ``1``. (On landmarks a
+target stops as soon as no remaining candidate has a positive coefficient: the
+selections left would all add ``0`` and change nothing, so the coefficients are
+those of the full run; only the reported order omits those zero selections.)
+
+Targets
+-------
+- :class:`~facegeom.model.targets.MeshTarget` (Sec. IV-B): everything is an inner product
+  of motions, so after ``c = D^T dT`` (one product per target) the whole
+  selection runs on the precomputed Gram matrix ``G = D^T D`` of the deltas
+  (:func:`sem_gram`, vectorised over many targets at once).
+- :class:`~facegeom.model.targets.LandmarkTarget` (Sec. IV-C, eqs. 20-22): motions are
+  2-D on the image, ``Pi(B_i) - Pi(B_1)`` for the candidates and
+  ``L - Pi(F^t)`` for the target, with the current face projected exactly. An
+  unposed camera gets its pose from the landmarks, then alternately with the
+  expression (:func:`facegeom.methods.fitting.fit_with_pose`).
+- :class:`~facegeom.model.targets.PointCloudTarget` (Sec. IV-D, eqs. 23-25): per
+  candidate, closest points ``P_i`` of the face moved by that candidate alone
+  (one ICP step from the coefficient on the current correspondences, a
+  KD-tree), then ``s_i = ESim(dB_i, P_i - F^t)``, ``e = ERSim(dB, P_i - F^t)``,
+  ``r = 1 - ERSim(P_i - F^1, B~_i)``; after each selection the selected
+  coefficients are refined on the new correspondences (non-negative least
+  squares), as the paper allows. Because every candidate has its own
+  correspondences, the exclusion compares its index with and without the
+  candidate on those same correspondences (with one fixed target, as for
+  meshes and landmarks, that is exactly the previous selection's index).
+
+Options beyond the paper (off by default, so the published algorithm runs):
+``clamp=True`` bounds every coefficient to ``[0, 1]`` (eq. 1's constraint), and
+``refit=True`` finishes with a bounded least-squares refit of the selected
+shapes' coefficients on the data.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.optimize import lsq_linear, nnls
+from scipy.spatial import cKDTree
+
+from facegeom.errors import InputError
+from facegeom.interfaces import FitResult
+from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
+from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
+
+__all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
+
+
+def _camera(intr, R, t, k) -> PinholeCamera:
+    """Camera ``k`` of a batch (intrinsics ``(f, cx, cy)`` arrays, poses ``R, t``)."""
+    U, _, Vt = np.linalg.svd(R[k])  # the nearest rotation, free of accumulated rounding
+    return PinholeCamera(intr[0][k], intr[1][k], intr[2][k], U @ Vt, t[k])
+
+_TINY = 1e-300
+
+
+def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim", min_gain=None):
+    """SEM on motions known only through inner products, for ``K`` targets at once.
+
+    Parameters
+    ----------
+    c : (K, B) or (B,)
+        ``dT . dB_i`` for each target motion ``dT`` and candidate.
+    G : (B, B)
+        Gram matrix ``dB_i . dB_j``.
+    tt : (K,) or scalar
+        ``|dT|^2``.
+    exclusion : bool
+        The one-step backtracking exclusion (eq. 19 and its condition).
+    upper : float or None
+        Upper bound of a coefficient (``None``: the paper, only ``e >= 0``).
+    select : {"esim", "gain"}
+        ``esim`` (the paper, eq. 17): the largest expressional similarity.
+        ``gain``: the largest decrease of the squared residual with the
+        candidate's (bounded) coefficient, ``2 e p - e^2 |dB|^2``; without an
+        upper bound it is ``ESim^2 |dT^t|^2``, the same choice, but with one a
+        candidate that would need a coefficient far above the bound (a shape
+        that barely moves the data) no longer wins on direction alone.
+    min_gain : (K,) or scalar or None
+        Stop a target's selection when the chosen candidate would decrease its
+        squared residual by less than this (see ``SEMFitter(stop="ric")``).
+
+    Returns
+    -------
+    e : (K, B) or (B,) coefficients
+    order : (K, B) int, the selected candidates in selection order (-1 after the last)
+    """
+    c = np.asarray(c, dtype=np.float64)
+    single = c.ndim == 1
+    c = np.atleast_2d(c)
+    K, B = c.shape
+    G = np.asarray(G, dtype=np.float64)
+    tt = np.broadcast_to(np.asarray(tt, dtype=np.float64), (K,))
+    diag = np.diag(G).copy()
+    moves = diag > _TINY
+    inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
+    inv_diag = np.where(moves, 1.0 / np.where(moves, diag, 1.0), 0.0)
+    inv_tt = np.where(tt > _TINY, 1.0 / np.where(tt > _TINY, tt, 1.0), 0.0)
+    e = np.zeros((K, B))
+    proj = c.copy()  # dT^t . dB_i, kept up to date
+    explained = np.zeros(K)  # dT . (sum_k e^k dB^k)
+    alive = np.broadcast_to(moves, (K, B)).copy()  # a shape that moves nothing is never a candidate
+    r_prev = np.ones(K)
+    order = np.full((K, B), -1, dtype=np.int64)
+    rows = np.arange(K)
+    for t in range(B):
+        active = alive.any(axis=1)
+        if not active.any():
+            break
+        # eq. 18 for every candidate; a projection at rounding level (the target already reached) counts as none
+        ei = np.where(proj * inv_norm > 1e-9 * np.sqrt(tt)[:, None], proj * inv_diag, 0.0)
+        if upper is not None:
+            ei = np.minimum(ei, upper)
+        if exclusion and t > 0:
+            r = 1.0 - (explained[:, None] + ei * c) * inv_tt[:, None]  # eq. 19
+            alive &= ~(np.abs(r) > np.abs(r_prev)[:, None])
+            active = alive.any(axis=1)
+            if not active.any():
+                break
+        if select == "gain":
+            score = np.where(alive & (ei > 0), 2.0 * ei * proj - ei * ei * diag, np.where(alive, 0.0, -np.inf))
+        else:
+            score = np.where(alive, proj * inv_norm, -np.inf)  # ESim up to the common factor 1/|dT^t|
+        pick = np.argmax(score, axis=1)
+        if min_gain is not None:
+            ep = ei[rows, pick]
+            gain = 2.0 * ep * proj[rows, pick] - ep * ep * diag[pick]
+            stop = active & (gain < min_gain)
+            alive[stop] = False
+            active = active & ~stop
+        et = np.where(active, ei[rows, pick], 0.0)
+        e[rows, pick] += et
+        proj -= et[:, None] * G[pick]
+        explained += et * c[rows, pick]
+        r_prev = np.where(active, 1.0 - explained * inv_tt, r_prev)
+        order[active, t] = pick[active]
+        alive[rows[active], pick[active]] = False
+    return (e[0], order[0]) if single else (e, order)
+
+
+def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = True, upper: float | None = None):
+    """SEM on explicit motion vectors (rows of ``motions (B, D)``, target ``(D,)``), via :func:`sem_gram`."""
+    M = np.asarray(motions, dtype=np.float64)
+    d = np.asarray(target_motion, dtype=np.float64).ravel()
+    return sem_gram(M @ d, M @ M.T, float(d @ d), exclusion, upper)
+
+
+class SEMFitter:
+    """Selective Expression Manipulation as a :class:`~facegeom.interfaces.Fitter`.
+
+    Parameters
+    ----------
+    exclusion : bool
+        One-step backtracking exclusion (the paper: on).
+    clamp : bool
+        Bound coefficients to ``[0, 1]`` (beyond the paper; off).
+    refit : bool
+        Finish with a bounded least-squares refit of the selected shapes (beyond the paper; off).
+    select : {"esim", "gain"}
+        Selection rule: the paper's largest ESim, or the largest decrease of the
+        residual with the bounded coefficient (see :func:`sem_gram`).
+    alternations : int
+        Pose/expression alternations for landmark targets with an unknown pose.
+    region : array of vertex ids or None
+        Vertices used for point-cloud matching (default: all).
+    max_points : int
+        At most this many region vertices (an evenly strided subset) take part in
+        point-cloud matching, for speed; ``0`` = all.
+    stop : {"none", "ric"}
+        ``none`` (the paper): select until no candidate remains. ``ric``: a
+        first full pass estimates the noise ``sigma^2`` from its residual
+        (per degree of freedom); a second pass stops when a selection would
+        decrease the squared residual by less than ``2 ln(B) sigma^2`` -- the
+        risk-inflation threshold of variable selection (Foster & George, 1994),
+        about what the best of ``B`` pure-noise directions gains. Meshes and
+        landmarks (point clouds: not applied).
+    covered_only : bool
+        Point clouds: only region vertices that are the nearest neutral vertex of
+        at least one scan point take part, so parts the scan does not cover
+        (ears, neck, the back of a cropped head) do not pull the fit.
+    """
+
+    def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
+                 region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
+                 stop: str = "none"):
+        if stop not in ("none", "ric"):
+            raise InputError(f"stop must be 'none' (the paper) or 'ric', got {stop!r}")
+        self.stop = stop
+        self.covered_only = bool(covered_only)
+        if select not in ("esim", "gain"):
+            raise InputError(f"select must be 'esim' (the paper) or 'gain', got {select!r}")
+        self.select = select
+        for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
+            if not isinstance(v, (bool, np.bool_)):
+                raise InputError(f"{name} must be true or false, got {v!r}")
+        if int(alternations) != alternations or alternations < 0:
+            raise InputError(f"alternations must be a non-negative integer, got {alternations!r}")
+        if int(max_points) != max_points or max_points < 0:
+            raise InputError(f"max_points must be a non-negative integer, got {max_points!r}")
+        self.exclusion, self.clamp, self.refit = bool(exclusion), bool(clamp), bool(refit)
+        self.alternations, self.max_points = int(alternations), int(max_points)
+        self.region = None if region is None else np.asarray(region, dtype=np.int64)
+
+    def get_params(self) -> dict:
+        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points",
+                                              "select", "covered_only", "stop")}
+
+    def __repr__(self) -> str:
+        return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
+
+    @property
+    def _upper(self):
+        return 1.0 if self.clamp else None
+
+    # ------------------------------------------------------------------ dispatch
+    def fit(self, rig: BlendshapeRig, target) -> FitResult:
+        rig, target = check_fit_inputs(rig, target)
+        t0 = time.perf_counter()
+        if isinstance(target, MeshTarget):
+            e, info = self._fit_mesh(rig, target)
+        elif isinstance(target, LandmarkTarget):
+            e, info = self._fit_landmarks(rig, target)
+        else:
+            e, info = self._fit_points(rig, target)
+        info["time_s"] = time.perf_counter() - t0
+        info["selected"] = [rig.names[i] for i in np.flatnonzero(e > 0)]
+        return result(rig, e, **info)
+
+    # ------------------------------------------------------------------ meshes
+    def _fit_mesh(self, rig, target: MeshTarget):
+        dT = target.vertices - rig.neutral
+        if target.weights is None:
+            c = rig.delta_matrix().T @ dT.ravel()
+            G = rig.gram()
+            tt = float((dT * dT).sum())
+        else:
+            w = np.repeat(target.weights, 3)
+            D = rig.delta_matrix()
+            c = D.T @ (w * dT.ravel())
+            G = D.T @ (w[:, None] * D)
+            tt = float((w * dT.ravel() ** 2).sum())
+        e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
+        if self.stop == "ric":
+            resid = max(tt - 2.0 * e @ c + e @ G @ e, 0.0)
+            e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select,
+                                self._ric_threshold(rig, resid, dT.size, e))
+        if self.refit:
+            e = self._refit_linear(rig.delta_matrix(), dT.ravel(), e, target.weights)
+        return e, {"order": [int(i) for i in order if i >= 0]}
+
+    def fit_meshes(self, rig: BlendshapeRig, targets) -> np.ndarray:
+        """Coefficients ``(K, B)`` for ``K`` corresponding target meshes ``(K, n, 3)`` at once (fast path)."""
+        T = np.asarray(targets, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (rig.n_vertices, 3):
+            raise InputError(f"targets must have shape (K, {rig.n_vertices}, 3), got {T.shape}")
+        K = T.shape[0]
+        D = rig.delta_matrix()
+        n_flat = rig.neutral.reshape(-1)
+        Tf = T.reshape(K, -1)
+        # one GEMM gives every T . dB_i and T . n; |dT|^2 = |T|^2 - 2 T . n + |n|^2 (no (K, 3n) temporary;
+        # the cancellation costs ~1e-16 |T|^2, far below any motion worth fitting)
+        cn = Tf @ np.c_[D, n_flat]
+        c = cn[:, :-1] - (n_flat @ D)[None]
+        t2 = np.einsum("ij,ij->i", Tf, Tf)
+        tt = np.maximum(t2 - 2.0 * cn[:, -1] + n_flat @ n_flat, 0.0)
+        near = np.flatnonzero(tt <= 1e-10 * t2)  # (almost) the neutral itself: recompute exactly
+        if near.size:
+            d = Tf[near] - n_flat
+            tt[near] = np.einsum("ij,ij->i", d, d)
+            c[near] = d @ D
+        if not (np.all(np.isfinite(tt)) and np.all(np.isfinite(c))):  # a NaN or inf anywhere in a target shows here
+            bad = int(np.flatnonzero(~(np.isfinite(tt) & np.isfinite(c).all(axis=1)))[0])
+            raise InputError(f"target {bad} contains NaN or inf")
+        G = rig.gram()
+        e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
+        if self.stop == "ric":
+            resid = np.maximum(tt - 2.0 * np.einsum("kb,kb->k", e, c) + np.einsum("kb,bc,kc->k", e, G, e), 0.0)
+            e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select,
+                            self._ric_threshold(rig, resid, n_flat.size, e))
+        if self.refit:
+            e = np.stack([self._refit_linear(D, (T[k] - rig.neutral).ravel(), e[k], None) for k in range(K)])
+        return e
+
+    def _refit_linear(self, A, b, e, weights=None):
+        sel = np.flatnonzero(e > 0)
+        if sel.size == 0:
+            return e
+        As = A[:, sel]
+        if weights is not None:
+            w = np.sqrt(np.repeat(weights, 3)) if As.shape[0] == 3 * weights.size else np.sqrt(weights)
+            As, b = As * w[:, None], b * w
+        out = np.zeros_like(e)
+        out[sel] = lsq_linear(As, b, bounds=(0.0, 1.0 if self.clamp else np.inf)).x
+        return out
+
+    @staticmethod
+    def _ric_threshold(rig, resid2, n_values, e):
+        """``2 ln(B) sigma^2`` with ``sigma^2`` = residual / degrees of freedom of a first, full pass."""
+        k = int((np.asarray(e) > 0).sum(axis=-1).max()) if np.ndim(e) == 1 else (np.asarray(e) > 0).sum(axis=-1)
+        sigma2 = np.asarray(resid2) / np.maximum(n_values - k, 1)
+        return 2.0 * np.log(rig.n_shapes) * sigma2
+
+    # ------------------------------------------------------------------ landmarks
+    def _fit_landmarks(self, rig, target: LandmarkTarget):
+        e, cams, orders = self._landmarks_batch(rig, [target])
+        return e[0], {"order": orders[0], "camera": cams[0], "pose_estimated": not target.camera.posed}
+
+    def fit_landmarks(self, rig: BlendshapeRig, targets, chunk: int = 256) -> tuple[np.ndarray, list[PinholeCamera]]:
+        """Coefficients ``(K, B)`` and the (estimated) cameras for ``K`` landmark targets at once (fast path).
+
+        The same computation as :meth:`fit` on each target, vectorised over the
+        targets: targets sharing a set of landmark vertices are fitted together
+        (their cameras may differ; unknown poses are estimated in one batched
+        Levenberg-Marquardt, :func:`facegeom.model.pose.estimate_poses`).
+        """
+        targets = list(targets)
+        for k, tg in enumerate(targets):
+            if not isinstance(tg, LandmarkTarget):
+                raise InputError(f"target {k} is a {type(tg).__name__}, not a LandmarkTarget")
+            tg.check(rig)
+        E = np.zeros((len(targets), rig.n_shapes))
+        cams: list = [None] * len(targets)
+        groups: dict = {}
+        for k, tg in enumerate(targets):
+            groups.setdefault((tg.vertex_ids.tobytes(), tg.camera.posed), []).append(k)
+        # chunks keep the (K, B, n, 3) work arrays in cache
+        for rows in (g[c0:c0 + chunk] for g in groups.values() for c0 in range(0, len(g), chunk)):
+            e, cs, _ = self._landmarks_batch(rig, [targets[k] for k in rows])
+            E[rows] = e
+            for k, c in zip(rows, cs):
+                cams[k] = c
+        return E, cams
+
+    def _landmarks_batch(self, rig, targets):
+        """Targets sharing vertex ids and posed-ness -> (e (K, B), cameras, selection orders)."""
+        ids = targets[0].vertex_ids
+        L = np.stack([tg.points2d for tg in targets])  # (K, n, 2)
+        intr = [np.array([getattr(tg.camera, a) for tg in targets]) for a in ("focal", "cx", "cy")]
+        orders = [None] * len(targets)
+
+        def solve(R, t):
+            e, order = self._sem_landmarks(rig, ids, L, R, t, *intr)
+            if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
+                F = rig.neutral[ids][None] + np.tensordot(e, rig.deltas[:, ids], 1)
+                resid = ((project_many(F, R, t, *intr) - L) ** 2).sum(axis=(1, 2))
+                e, order = self._sem_landmarks(rig, ids, L, R, t, *intr, self._ric_threshold(rig, resid, L[0].size, e))
+            if self.refit:
+                e = np.stack([self._refit_landmarks(rig, ids, L[k], _camera(intr, R, t, k), e[k])
+                              for k in range(len(e))])
+            orders[:] = order
+            return e
+
+        if targets[0].camera.posed:
+            R = np.stack([tg.camera.R for tg in targets])
+            t = np.stack([tg.camera.t for tg in targets])
+            e = solve(R, t)
+            cams = [tg.camera for tg in targets]
+        else:
+            e, R, t = fit_with_poses(rig, ids, L, intr, solve, self.alternations)
+            cams = [_camera(intr, R, t, k) for k in range(len(targets))]
+        return e, cams, [[int(i) for i in o if i >= 0] for o in orders]
+
+    def _sem_landmarks(self, rig, ids, L, R, t, f, cx, cy, min_gain=None):
+        """Eqs. 20-22 with the exact projection of the current face, for ``K`` targets at once.
+
+        ``L (K, n, 2)`` landmarks of the vertices ``ids``; camera ``k`` is
+        ``(R[k], t[k], f[k], cx[k], cy[k])``. Returns ``e (K, B)`` and the
+        selection orders ``(K, B)`` (-1 after the last). The work is done in
+        camera space (the rotated deltas are computed once), and the exclusion
+        test projects only the (target, candidate) pairs still alive.
+        """
+        K, n = L.shape[:2]
+        B = rig.n_shapes
+        deltas = rig.deltas[:, ids]  # (B, n, 3)
+        fc, cxc, cyc = f[:, None], cx[:, None], cy[:, None]
+
+        def uv(pc, rows):
+            """Pixels of camera-space points ``pc (k, ..., n, 3)`` of targets ``rows`` -> u, v ``(k, ..., n)``."""
+            d = -pc[..., 2]
+            if not np.all(d > 0):
+                raise InputError("a fitted landmark went behind the camera (the expression moves it past the camera)")
+            sh = (rows.size,) + (1,) * (pc.ndim - 2)
+            return (cxc[rows].reshape(sh) + fc[rows].reshape(sh) * pc[..., 0] / d,
+                    cyc[rows].reshape(sh) - fc[rows].reshape(sh) * pc[..., 1] / d)
+
+        allk = np.arange(K)
+        P1 = rig.neutral[ids] @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (K, n, 3) camera space
+        if not np.all(P1[..., 2] < 0):
+            k = int(np.argwhere(~(P1[..., 2] < 0))[0, 0])
+            raise InputError(f"a landmark is behind the camera{f' (target {k})' if K > 1 else ''}")
+        RD = np.einsum("kij,bnj->kbni", R, deltas)  # rotated deltas (K, B, n, 3)
+        u1, v1 = uv(P1, allk)  # Pi(F^1)
+        uB, vB = uv(P1[:, None] + RD, allk)
+        Mu, Mv = uB - u1[:, None], vB - v1[:, None]  # Pi(B_i) - Pi(B_1): (K, B, n)
+        nrm2 = np.einsum("kbn,kbn->kb", Mu, Mu) + np.einsum("kbn,kbn->kb", Mv, Mv)
+        moves = nrm2 > _TINY
+        safe2 = np.where(moves, nrm2, 1.0)
+        dTu, dTv = L[..., 0] - u1, L[..., 1] - v1  # L - Pi(F^1)
+        tt = np.einsum("kn,kn->k", dTu, dTu) + np.einsum("kn,kn->k", dTv, dTv)
+        has_t = tt > _TINY
+        inv_tt = np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0)
+        min_gain = None if min_gain is None else np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (K,))
+        e = np.zeros((K, B))
+        order = np.full((K, B), -1, dtype=np.int64)
+        PF = P1.copy()  # the current face F^t, camera space
+        alive = moves.copy()
+        r_prev = np.ones(K)
+        upper = self._upper
+        act = np.flatnonzero(alive.any(axis=1))  # targets still selecting
+        for step in range(B):
+            if act.size == 0:
+                break
+            uF, vF = uv(PF[act], act)
+            proj = (np.einsum("kbn,kn->kb", Mu[act], L[act, :, 0] - uF)
+                    + np.einsum("kbn,kn->kb", Mv[act], L[act, :, 1] - vF))  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            # eq. 21 (clamped, eq. 18); a projection at rounding level counts as none
+            level = 1e-9 * np.sqrt(tt[act])[:, None] * np.sqrt(safe2[act])
+            ei = np.where(moves[act] & (proj > level), proj / safe2[act], 0.0)
+            if upper is not None:
+                ei = np.minimum(ei, upper)
+            al = alive[act]
+            if self.exclusion and step > 0:
+                kk, bb = np.nonzero(al & has_t[act][:, None])
+                if kk.size:
+                    g = act[kk]
+                    moved = PF[g] + ei[kk, bb][:, None, None] * RD[g, bb]  # F^t + e_i dB_i
+                    um, vm = uv(moved, g)
+                    r = 1.0 - (np.einsum("pn,pn->p", um - u1[g], dTu[g])
+                               + np.einsum("pn,pn->p", vm - v1[g], dTv[g])) * inv_tt[g]  # eq. 22
+                    # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
+                    worse = np.abs(r) - np.abs(r_prev[g]) > 1e-11
+                    al[kk[worse], bb[worse]] = False
+            # once no alive candidate has a positive coefficient, every later selection adds 0 and leaves the
+            # face, the residual and the index unchanged: the coefficients are final, stop this target here
+            go = (al & (ei > 0)).any(axis=1)
+            if self.select == "gain":
+                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2[act], -np.inf)
+            else:
+                score = np.where(al, proj / np.sqrt(safe2[act]), -np.inf)  # eq. 20
+            pick = np.argmax(score, axis=1)
+            rows = np.arange(act.size)
+            ep = ei[rows, pick]
+            if min_gain is not None:
+                go &= ~(2.0 * ep * proj[rows, pick] - ep * ep * nrm2[act, pick] < min_gain[act])
+            al[rows, pick] = False
+            alive[act] = al
+            g = act[go]
+            pg = pick[go]
+            e[g, pg] += ep[go]
+            PF[g] += ep[go][:, None, None] * RD[g, pg]
+            ug, vg = uv(PF[g], g)
+            r_prev[g] = np.where(has_t[g], 1.0 - (np.einsum("kn,kn->k", ug - u1[g], dTu[g])
+                                                  + np.einsum("kn,kn->k", vg - v1[g], dTv[g])) * inv_tt[g], r_prev[g])
+            order[g, step] = pg
+            alive[act[~go]] = False
+            act = g[alive[g].any(axis=1)]
+        return e, order
+
+    def _refit_landmarks(self, rig, ids, L, cam, e):
+        sel = np.flatnonzero(e > 0)
+        if sel.size == 0:
+            return e
+        from scipy.optimize import least_squares
+
+        def resid(x):
+            w = np.zeros_like(e)
+            w[sel] = x
+            return (cam.project(rig.evaluate(w, ids), "landmark") - L).ravel()
+
+        hi = 1.0 if self.clamp else np.inf
+        x = least_squares(resid, np.minimum(e[sel], 1.0 if self.clamp else e[sel].max() + 1), bounds=(0.0, hi)).x
+        out = np.zeros_like(e)
+        out[sel] = x
+        return out
+
+    # ------------------------------------------------------------------ point clouds
+    def _fit_points(self, rig, target: PointCloudTarget):
+        n = rig.n_vertices
+        region = np.arange(n) if self.region is None else self.region
+        if region.size == 0 or region.min() < 0 or region.max() >= n:
+            raise InputError(f"region must hold vertex ids in [0, {n})")
+        if self.max_points and region.size > self.max_points:
+            region = region[np.linspace(0, region.size - 1, self.max_points).astype(np.int64)]
+        tree = cKDTree(target.points)
+        if self.covered_only:  # vertices the scan does not cover take no part (ears, neck of a cropped scan)
+            nearest = cKDTree(rig.neutral[region]).query(target.points, workers=-1)[1]
+            region = region[np.unique(nearest)]
+            if region.size < 3:
+                raise InputError("the point cloud covers fewer than 3 rig vertices (align it to the rig first)")
+        F1 = rig.neutral[region]  # (m, 3)
+        D = rig.deltas[:, region]  # (B, m, 3)
+        B = rig.n_shapes
+        nrm2 = np.einsum("bij,bij->b", D, D)
+        moves = nrm2 > _TINY
+        # vertices a candidate actually moves (others keep their correspondence)
+        mag = np.linalg.norm(D, axis=2)  # (B, m)
+        support = [np.flatnonzero(mag[b] > 1e-2 * mag[b].max()) if moves[b] else np.zeros(0, np.int64)
+                   for b in range(B)]
+
+        def closest(X):
+            return target.points[tree.query(X, workers=-1)[1]]
+
+        e = np.zeros(B)
+        F = F1.copy()
+        P = closest(F)
+        alive = moves.copy()
+        order = []
+        upper = self._upper
+        queries = 0
+        for t in range(B):
+            if not alive.any():
+                break
+            cand = np.flatnonzero(alive)
+            s = np.full(B, -np.inf)
+            ei = np.zeros(B)
+            r = np.zeros(B)
+            r0 = np.zeros(B)
+            Pi_store = {}
+            resid0 = P - F
+            for i in cand:
+                e0 = max(float((D[i] * resid0).sum()) / nrm2[i], 0.0)  # coefficient on the current matches
+                if upper is not None:
+                    e0 = min(e0, upper)
+                Pi = P
+                if e0 > 0 and support[i].size:  # eq. 23: one ICP step of the face moved by this candidate
+                    Pi = P.copy()
+                    sup = support[i]
+                    Pi[sup] = closest(F[sup] + e0 * D[i, sup])
+                    queries += sup.size
+                m = Pi - F
+                dot = float((D[i] * m).sum())
+                s[i] = dot / np.sqrt(nrm2[i])  # eq. 24 (ESim up to 1/|m|, which differs per candidate)
+                mn = float(np.sqrt((m * m).sum()))
+                s[i] = s[i] / mn if mn > _TINY else -np.inf
+                ei[i] = max(dot / nrm2[i], 0.0)
+                if upper is not None:
+                    ei[i] = min(ei[i], upper)
+                Pi_store[i] = Pi
+                if self.exclusion and t > 0:
+                    dT1 = Pi - F1  # P_i - F^1
+                    tt1 = float((dT1 * dT1).sum())
+                    if tt1 > _TINY:
+                        now = float((dT1 * (F - F1)).sum())  # the motion selected so far, B~ without the candidate
+                        r[i] = 1.0 - (now + ei[i] * float((dT1 * D[i]).sum())) / tt1  # eq. 25
+                        r0[i] = 1.0 - now / tt1  # the index before adding it, on the same correspondences
+            if self.exclusion and t > 0:
+                drop = cand[np.abs(r[cand]) > np.abs(r0[cand])]
+                alive[drop] = False
+                s[drop] = -np.inf
+                if not alive.any():
+                    break
+            i = int(np.argmax(s))
+            e[i] += ei[i]
+            order.append(i)
+            alive[i] = False
+            P = Pi_store[i]  # P^t
+            sel = np.flatnonzero(e > 0)
+            if sel.size:  # refine the selected coefficients on the updated correspondences
+                A = D[sel].reshape(sel.size, -1).T
+                if upper is None:
+                    e[sel] = nnls(A, (P - F1).ravel())[0]
+                else:
+                    e[sel] = lsq_linear(A, (P - F1).ravel(), bounds=(0.0, upper)).x
+            F = F1 + np.tensordot(e, D, axes=1)
+            P = closest(F)
+            queries += F.shape[0]
+        return e, {"order": order, "points_used": int(region.size), "queries": queries}

@@ -1,0 +1,510 @@
+"""The semi-supervised tangent framework (Zhang, Li & Liang, Signal Processing 2017).
+
+One core, used for face driving (data points = mesh vertices, neighbourhoods =
+mesh rings) and for expression retargeting (data points = frames,
+neighbourhoods = temporal windows).
+
+Algorithm 1 of the paper: for every neighbourhood ``I_i`` (``k_i`` points,
+centred block ``X_i - mean``), take the ``d`` leading left singular vectors
+``g_1..g_d`` (in ``R^{k_i}``), set ``G_i = [e/sqrt(k_i), g_1, .., g_d]`` and
+accumulate ``B(I_i, I_i) += I - G_i G_i^T``. The target ``Y`` minimises
+``trace(Y^T B Y) + beta * ||Y_labelled - Y_hat||^2`` (eq. 15), solved from the
+linear system of eq. 18; with ``beta=None`` the labels are hard constraints
+(eliminated), the limit ``beta -> inf``.
+
+``B`` is assembled for all neighbourhoods at once: neighbourhoods are grouped
+by size and each group's local PCAs are one batched ``eigh`` of the ``(D, D)``
+covariances (``D`` is small: 3 for vertices) or, when ``D`` exceeds ``k``,
+of the ``(k, k)`` Gram matrices. No Python loop runs per point.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from facegeom.errors import InputError, SolveError
+from facegeom.interfaces import as_faces, as_handles, as_positions, as_vertices, check_fitted
+from facegeom.linalg import SPDSolver, factorize_spd
+
+__all__ = [
+    "as_neighbourhoods",
+    "local_tangent_bases",
+    "alignment_matrix",
+    "TangentSolver",
+    "TangentDeformer",
+    "kabsch",
+]
+
+
+# --------------------------------------------------------------------------- neighbourhoods
+
+
+def as_neighbourhoods(neighbourhoods, n: int) -> sp.csr_matrix:
+    """Neighbourhoods as a boolean ``(n, n)`` CSR matrix (row ``i`` = the ``i``-th one).
+
+    Accepts such a sparse matrix or a list of ``n`` integer index arrays.
+    Duplicated indices within one neighbourhood are merged.
+    """
+    if sp.issparse(neighbourhoods):
+        R = sp.csr_matrix(neighbourhoods)
+        if R.shape != (n, n):
+            raise InputError(f"neighbourhood matrix must be ({n}, {n}), got {R.shape}")
+        R = R.astype(bool)
+    else:
+        lists = list(neighbourhoods)
+        if len(lists) != n:
+            raise InputError(f"expected {n} neighbourhoods (one per point), got {len(lists)}")
+        lens = np.array([len(x) for x in lists])
+        if (lens == 0).any():
+            raise InputError(f"neighbourhood {int(np.flatnonzero(lens == 0)[0])} is empty")
+        cols = np.concatenate([np.asarray(x).ravel() for x in lists]).astype(np.int64)
+        if cols.min() < 0 or cols.max() >= n:
+            raise InputError(f"neighbourhood index out of range [0, {n})")
+        rows = np.repeat(np.arange(n), lens)
+        R = sp.csr_matrix((np.ones(cols.size, bool), (rows, cols)), shape=(n, n))
+    R.sum_duplicates()
+    R.eliminate_zeros()
+    R.sort_indices()
+    if (np.diff(R.indptr) == 0).any():
+        raise InputError(f"neighbourhood {int(np.flatnonzero(np.diff(R.indptr) == 0)[0])} is empty")
+    return R
+
+
+# --------------------------------------------------------------------------- local PCA, alignment matrix
+
+
+def local_tangent_bases(P: np.ndarray, d: int, abs_tol: float = 0.0) -> np.ndarray:
+    """Batched local PCA: the ``d`` leading left singular vectors of each centred block.
+
+    Parameters
+    ----------
+    P : (m, k, D) float
+        ``m`` neighbourhoods of ``k`` points each.
+    d : int
+    abs_tol : float
+        Directions whose singular value is at most ``abs_tol`` are dropped too
+        (in addition to those below ``1e-10`` times the block's largest one).
+
+    Returns
+    -------
+    U : (m, k, d) float
+        Orthonormal columns spanning the ``d`` leading directions of each centred
+        block in ``R^k`` (a direction with zero singular value is returned as a
+        zero column: the block has lower rank than ``d``).
+    """
+    m, k, D = P.shape
+    Pc = P - P.mean(axis=1, keepdims=True)
+    if D <= k:
+        C = np.einsum("mki,mkj->mij", Pc, Pc)  # (m, D, D) covariances
+        w, V = np.linalg.eigh(C)  # ascending
+        w = w[:, ::-1][:, :d]
+        V = V[:, :, ::-1][:, :, :d]
+        s = np.sqrt(np.clip(w, 0, None))
+        scale = np.max(s[:, :1], axis=1, keepdims=True)
+        ok = (s > 1e-10 * np.maximum(scale, 1e-300)) & (s > abs_tol)
+        U = np.einsum("mki,mij->mkj", Pc, V) / np.where(ok, s, 1.0)[:, None, :]
+        U *= ok[:, None, :]
+    else:
+        Gm = np.einsum("mki,mli->mkl", Pc, Pc)  # (m, k, k) Gram matrices
+        w, U = np.linalg.eigh(Gm)
+        w = w[:, ::-1][:, :d]
+        U = U[:, :, ::-1][:, :, :d]
+        scale = np.max(w[:, :1], axis=1, keepdims=True)
+        ok = (w > 1e-20 * np.maximum(scale, 1e-300)) & (w > abs_tol**2)
+        U = U * ok[:, None, :]
+    return U
+
+
+def alignment_matrix(X, neighbourhoods, d: int, weights=None, rank_tol: float = 0.0) -> sp.csr_matrix:
+    """The alignment matrix ``B`` of Algorithm 1, as one sparse ``(N, N)`` matrix.
+
+    Parameters
+    ----------
+    X : (N, D) float
+        Data points (mesh vertices, or frames flattened to vectors).
+    neighbourhoods : (N, N) sparse bool matrix or list of N index arrays
+        The local structure of each point (the point itself included).
+    d : int
+        Manifold dimension (number of tangent directions). A neighbourhood with
+        ``k_i <= d + 1`` points is fitted exactly by its affine map and adds a
+        zero block.
+    weights : (N,) float, optional
+        Non-negative weight of each neighbourhood's block (default 1).
+    rank_tol : float
+        A local direction counts only if its singular value exceeds ``rank_tol``
+        times the data's global spread ``sqrt(mean ||x - mean(x)||^2)``; weaker
+        ones (e.g. rounding noise in a window where nothing moves) are dropped,
+        so the block pins the window to its affine fit of fewer directions
+        instead of leaving a free, arbitrarily large coefficient.
+
+    Returns
+    -------
+    B : (N, N) scipy.sparse.csr_matrix
+        Symmetric positive semidefinite; constants are in its null space, and so
+        is every coordinate of ``X`` when ``d >= rank`` of the local blocks.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    if X.ndim != 2 or X.shape[0] == 0:
+        raise InputError(f"X must have shape (N, D), got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise InputError("X contains NaN or inf")
+    if int(d) != d or d < 1:
+        raise InputError(f"d must be a positive integer, got {d!r}")
+    d = int(d)
+    N = X.shape[0]
+    R = as_neighbourhoods(neighbourhoods, N)
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (N,) or not np.all(np.isfinite(weights)) or (weights < 0).any():
+            raise InputError(f"weights must be ({N},) non-negative finite numbers")
+    sizes = np.diff(R.indptr)
+    abs_tol = 0.0
+    if rank_tol > 0:
+        abs_tol = float(rank_tol) * float(np.sqrt(((X - X.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    rows, cols, vals = [], [], []
+    for k in np.unique(sizes):
+        ids = np.flatnonzero(sizes == k)
+        if k <= d + 1:
+            continue  # an affine map of d coordinates fits k <= d+1 points exactly
+        idx = R.indices[R.indptr[ids][:, None] + np.arange(k)]  # (m, k)
+        U = local_tangent_bases(X[idx], d, abs_tol)
+        # I - G G^T with G = [e/sqrt(k), U]
+        blk = -np.einsum("mkd,mld->mkl", U, U)
+        blk -= 1.0 / k
+        blk[:, np.arange(k), np.arange(k)] += 1.0
+        if weights is not None:
+            blk *= weights[ids][:, None, None]
+        rows.append(np.repeat(idx, k, axis=1).ravel())
+        cols.append(np.tile(idx, (1, k)).ravel())
+        vals.append(blk.ravel())
+    if not vals:
+        return sp.csr_matrix((N, N))
+    B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(N, N))
+    B.sum_duplicates()
+    return B
+
+
+# --------------------------------------------------------------------------- solving eq. 18
+
+
+class TangentSolver:
+    """Factorize ``B`` (plus an optional extra SPD energy) once for a label set.
+
+    Parameters
+    ----------
+    B : (N, N) sparse symmetric PSD matrix
+    labelled : (M,) int
+        Indices of the labelled points.
+    beta : float or None
+        Label weight of eq. 9 / 18; ``None`` = hard constraints (labels exact).
+
+    dense_map : {"auto", True, False}
+        The solution is linear in the labels, ``Y = W Y_hat``. With ``True``
+        the ``(N, M)`` map ``W`` is precomputed in the constructor (``M``
+        back-substitutions at once) and ``solve`` is one dense product, the
+        fastest per-frame path for a few hundred labels; with ``False``
+        ``solve`` back-substitutes every call. ``auto``: the map when it holds
+        at most 8 million entries (64 MB).
+
+    ``solve(Y_hat)`` then costs one back-substitution or one dense product.
+
+    Raises
+    ------
+    SolveError
+        A connected part of ``B``'s graph holds no label (its position would be
+        free), or the system is singular for another reason.
+    """
+
+    def __init__(self, B, labelled, beta: float | None = None, dense_map="auto"):
+        B = sp.csr_matrix(B, dtype=np.float64)
+        N = B.shape[0]
+        labelled = as_handles(labelled, N, "labelled")
+        if beta is not None:
+            beta = float(beta)
+            if not np.isfinite(beta) or beta <= 0:
+                raise InputError(f"beta must be a positive number or None (hard constraints), got {beta!r}")
+        self.N, self.labelled, self.beta = N, labelled, beta
+        self._check_components(B, labelled)
+        if beta is None:
+            mask = np.ones(N, bool)
+            mask[labelled] = False
+            self.free = np.flatnonzero(mask)
+            Bf = B[self.free]
+            A = Bf[:, self.free]
+            self._coupling = Bf[:, labelled].tocsr()
+        else:
+            self.free = None
+            A = B + sp.csr_matrix((np.full(labelled.size, beta), (labelled, labelled)), shape=(N, N))
+        try:
+            self.solver: SPDSolver = factorize_spd(A)
+        except SolveError as exc:
+            raise SolveError(
+                f"the tangent-framework system cannot be solved with these {labelled.size} labels "
+                f"(too few labels, or labels in degenerate position): {exc}"
+            ) from None
+        if dense_map == "auto":
+            dense_map = N * labelled.size <= 8_000_000
+        self.map_ = None
+        if dense_map:
+            if beta is None:
+                free_map = self.solver.solve(-self._coupling.toarray())  # (N_free, M)
+                self.map_ = np.zeros((N, labelled.size))  # (N, M); a labelled row copies its label exactly
+                self.map_[self.free] = free_map
+                self.map_[labelled, np.arange(labelled.size)] = 1.0
+            else:
+                rhs = np.zeros((N, labelled.size))
+                rhs[labelled, np.arange(labelled.size)] = beta
+                self.map_ = self.solver.solve(rhs)  # (N, M)
+            # stored transposed: (D, M) @ (M, N) runs faster than (N, M) @ (M, D) for small D
+            self.map_ = np.ascontiguousarray(self.map_.T)
+
+    @staticmethod
+    def _check_components(B: sp.csr_matrix, labelled: np.ndarray) -> None:
+        from facegeom.geometry import unlabelled_components
+
+        count, example, size = unlabelled_components(B, labelled)
+        if count:
+            raise SolveError(
+                f"{count} connected part(s) of the data have no label (e.g. one of {size} points, "
+                f"point {example}); every connected component needs labels"
+            )
+
+    def solve(self, Y_hat) -> np.ndarray:
+        """Return ``Y (N, D)`` for labels ``Y_hat (M, D)``."""
+        Y_hat = np.asarray(Y_hat, dtype=np.float64)
+        if Y_hat.ndim == 1:
+            Y_hat = Y_hat[:, None]
+        if Y_hat.shape[0] != self.labelled.size:
+            raise InputError(f"expected {self.labelled.size} labels, got {Y_hat.shape[0]}")
+        if not np.all(np.isfinite(Y_hat)):
+            raise InputError("labels contain NaN or inf")
+        if self.map_ is not None:  # (M, N) for both forms: one product
+            return np.ascontiguousarray((Y_hat.T @ self.map_).T)
+        if self.beta is None:
+            Y = np.empty((self.N, Y_hat.shape[1]))
+            Y[self.labelled] = Y_hat
+            Y[self.free] = self.solver.solve(-(self._coupling @ Y_hat))
+            return Y
+        rhs = np.zeros((self.N, Y_hat.shape[1]))
+        rhs[self.labelled] = self.beta * Y_hat
+        return self.solver.solve(rhs)
+
+    def solve_rows(self, Z) -> np.ndarray:
+        """:meth:`solve` in transposed layout: labels ``Z (D, M)`` -> ``Y^T (D, N)``.
+
+        With the dense map this is one product ``Z @ map`` whose long rows suit
+        many right-hand sides (e.g. the coordinates of many frames); no checks
+        beyond the shape (callers validate their input).
+        """
+        Z = np.asarray(Z, dtype=np.float64)
+        if Z.ndim != 2 or Z.shape[1] != self.labelled.size:
+            raise InputError(f"expected labels of shape (D, {self.labelled.size}), got {Z.shape}")
+        if self.map_ is None:
+            return np.ascontiguousarray(self.solve(Z.T).T)
+        return Z @ self.map_
+
+
+# --------------------------------------------------------------------------- face driving
+
+
+def kabsch(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``R`` and translation ``t`` minimising ``||R P_i + t - Q_i||`` (no reflection)."""
+    mp, mq = P.mean(axis=0), Q.mean(axis=0)
+    H = (P - mp).T @ (Q - mq)
+    U, _, Vt = np.linalg.svd(H)
+    s = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, s]) @ U.T
+    return R, mq - R @ mp
+
+
+def kabsch_many(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`kabsch` of one point set ``P (m,3)`` onto each frame of ``Q (T,m,3)``: ``R (T,3,3)``, ``t (T,3)``."""
+    mp, mq = P.mean(axis=0), Q.mean(axis=1)
+    H = np.einsum("mi,tmj->tij", P - mp, Q - mq[:, None, :])
+    U, _, Vt = np.linalg.svd(H)
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    s = np.sign(np.linalg.det(V @ Ut))
+    s[s == 0] = 1.0
+    V = V.copy()
+    V[:, :, 2] *= s[:, None]
+    R = V @ Ut
+    return R, mq - np.einsum("tij,j->ti", R, mp)
+
+
+@dataclass
+class _Config:
+    neighbourhood: str
+    rings: int
+    radius: float | None
+    d: int
+    beta: float | None
+    field: str
+    align: str
+    smoothness: float
+
+
+class TangentDeformer:
+    """Face driving with the tangent framework (a :class:`~facegeom.interfaces.Deformer`).
+
+    Data points are the mesh vertices, neighbourhoods are mesh rings, labels
+    are the marker positions.
+
+    Parameters
+    ----------
+    neighbourhood : {"kring", "geodesic"}
+        ``kring``: all vertices within ``rings`` edges; ``geodesic``: all
+        vertices within geodesic distance ``radius`` (libigl exact geodesics)
+        joined with the 1-ring, so no neighbourhood is degenerate.
+    rings : int
+        Ring size for ``kring``.
+    radius : float, optional
+        Radius for ``geodesic``; default 2.5 x the mean edge length.
+    d : int
+        Number of tangent directions of the local PCA (the manifold dimension).
+    beta : float or None
+        Label weight (eq. 18); ``None`` = hard constraints (markers exact).
+    field : {"displacement", "position"}
+        ``position`` is the paper: the unknown is the deformed positions ``Y``.
+        ``displacement``: the unknown is ``Y - X``; the framework then asks the
+        *motion* to be locally an affine map of the tangent coordinates. With
+        ``d = 3`` both are identical (the rest shape lies in ``B``'s null
+        space); with ``d = 2`` (the surface's own dimension) only the
+        displacement form keeps the rest shape, while the position form
+        flattens the face.
+    align : {"rigid", "none"}
+        ``rigid``: per ``deform``, estimate the best rigid motion of the markers
+        (Kabsch, 80 points: microseconds), solve in the rest frame, move the
+        result back. Makes the method exactly equivariant to rigid motions of
+        all markers, whatever ``d`` and ``field``.
+    smoothness : float
+        Weight of an added biharmonic energy ``L^T M^-1 L`` (libigl cotangent
+        Laplacian and Voronoi mass) on the unknown field, relative to ``B``
+        after both are scaled to the same trace. ``0`` = the framework alone.
+
+    Defaults (``kring``, 1 ring, ``d=2``, displacement, rigid, smoothness 1)
+    are the best configuration found in ``facegeom bench drive``; the paper's
+    plain configuration is ``d=3, field="position", align="none",
+    smoothness=0``. See the README for both, measured side by side.
+    """
+
+    def __init__(self, neighbourhood: str = "kring", rings: int = 1, radius: float | None = None, d: int = 2,
+                 beta: float | None = None, field: str = "displacement", align: str = "rigid",
+                 smoothness: float = 1.0):
+        if neighbourhood not in ("kring", "geodesic"):
+            raise InputError(f"neighbourhood must be 'kring' or 'geodesic', got {neighbourhood!r}")
+        if int(rings) != rings or rings < 1:
+            raise InputError(f"rings must be a positive integer, got {rings!r}")
+        if radius is not None and (not np.isfinite(radius) or radius <= 0):
+            raise InputError(f"radius must be a positive number, got {radius!r}")
+        if int(d) != d or not 1 <= d <= 3:
+            raise InputError(f"d must be 1, 2 or 3 for mesh vertices, got {d!r}")
+        if beta is not None and (not np.isfinite(beta) or beta <= 0):
+            raise InputError(f"beta must be a positive number or None (hard constraints), got {beta!r}")
+        if field not in ("displacement", "position"):
+            raise InputError(f"field must be 'displacement' or 'position', got {field!r}")
+        if align not in ("rigid", "none"):
+            raise InputError(f"align must be 'rigid' or 'none', got {align!r}")
+        if not np.isfinite(smoothness) or smoothness < 0:
+            raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
+        self.neighbourhood, self.rings, self.radius = neighbourhood, int(rings), radius
+        self.d, self.beta, self.field, self.align = int(d), beta, field, align
+        self.smoothness = float(smoothness)
+        self.solver_ = None
+
+    def get_params(self) -> dict:
+        return {k: getattr(self, k) for k in
+                ("neighbourhood", "rings", "radius", "d", "beta", "field", "align", "smoothness")}
+
+    def __repr__(self) -> str:
+        return "TangentDeformer(" + ", ".join(f"{k}={v!r}" for k, v in self.get_params().items()) + ")"
+
+    # ---------------------------------------------------------------- fit
+    def _neighbourhoods(self, V, F):
+        from facegeom import geometry
+
+        if self.neighbourhood == "kring":
+            return geometry.k_ring(F, V.shape[0], self.rings)
+        radius = self.radius if self.radius is not None else 2.5 * geometry.mean_edge_length(V, F)
+        R = geometry.geodesic_rings(V, F, radius, method="exact")
+        return (R + geometry.k_ring(F, V.shape[0], 1)).astype(bool).tocsr()
+
+    def fit(self, vertices, faces, handles) -> "TangentDeformer":
+        V = as_vertices(vertices)
+        F = as_faces(faces, V.shape[0])
+        H = as_handles(handles, V.shape[0])
+        if H.size < 3 and self.align == "rigid":
+            raise InputError(f"align='rigid' needs at least 3 markers, got {H.size}")
+        R = self._neighbourhoods(V, F)
+        B = alignment_matrix(V, R, self.d)
+        if self.smoothness > 0:
+            from facegeom import geometry
+
+            L = geometry.cotangent_laplacian(V, F)
+            M = geometry.mass_matrix(V, F).diagonal()
+            if (M <= 0).any():
+                raise InputError("the mesh has vertices with zero area (unreferenced or degenerate); clean it first")
+            Q = (L.T @ sp.diags(1.0 / M) @ L).tocsr()
+            B = (B + (self.smoothness * B.diagonal().sum() / Q.diagonal().sum()) * Q).tocsr()
+        self.vertices_, self.faces_, self.handles_ = V, F, H
+        self.solver_ = TangentSolver(B, H, self.beta)
+        return self
+
+    # ---------------------------------------------------------------- deform
+    def deform(self, handle_positions) -> np.ndarray:
+        check_fitted(self, "solver_")
+        P = as_positions(handle_positions, self.handles_.size)
+        X, H = self.vertices_, self.handles_
+        if self.align == "rigid":
+            Rm, t = kabsch(X[H], P)
+            P = (P - t) @ Rm  # the labels in the rest frame: R^T (p - t)
+        if self.field == "displacement":
+            Y = X + self.solver_.solve(P - X[H])
+        else:
+            Y = self.solver_.solve(P)
+        if self.align == "rigid":
+            Y = Y @ Rm.T + t
+        return Y
+
+    def deform_many(self, handle_positions) -> np.ndarray:
+        """:meth:`deform` of every frame of ``handle_positions (T, k, 3)`` -> ``(T, n, 3)`` (a transposed view).
+
+        One product with the precomputed marker-to-vertex map for all frames
+        (or one multi-right-hand-side solve) instead of one per frame: the map is
+        read from memory once per call, not once per frame. Equal to stacking
+        :meth:`deform` up to rounding (~1e-15 relative).
+        """
+        check_fitted(self, "solver_")
+        P = np.asarray(handle_positions, dtype=np.float64)
+        k = self.handles_.size
+        if P.ndim != 3 or P.shape[1:] != (k, 3):
+            raise InputError(f"handle_positions must have shape (T, {k}, 3), got {P.shape}")
+        if not np.all(np.isfinite(P)):
+            raise InputError("handle_positions contain NaN or inf")
+        T = P.shape[0]
+        X, H = self.vertices_, self.handles_
+        if self.align == "rigid":
+            Rm, t = kabsch_many(X[H], P)
+            P = np.matmul(P - t[:, None, :], Rm)  # R^T (p - t), per frame
+        else:
+            Rm, t = np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3))
+        if self.field == "displacement":
+            P = P - X[H]
+        Zt = P.transpose(0, 2, 1)  # (T, 3, k): rows = the x, y, z label coordinates of each frame
+        M = self.solver_.map_
+        if M is None:  # no dense map: one multi-right-hand-side solve, then the rigid motion
+            Y = self.solver_.solve_rows(Zt.reshape(3 * T, k)).reshape(T, 3, X.shape[0])
+            if self.field == "displacement":
+                Y += X.T
+            Y = np.matmul(Rm, Y) + t[:, :, None]
+        else:
+            # Y_t^T = R_t Z_t^T map + R_t X^T + t_t 1^T = [R_t Z_t^T | R_t | t_t] @ [map; X^T; 1]: the rotation goes
+            # to the small (3, k) labels and the rest position and translation into the same product, so the
+            # (3T, n) result is written once instead of being passed over four more times
+            if getattr(self, "_map_aug", None) is None or self._map_aug.shape[1] != M.shape[1]:
+                rest = X.T if self.field == "displacement" else np.zeros_like(X.T)
+                self._map_aug = np.ascontiguousarray(np.vstack([M, rest, np.ones((1, X.shape[0]))]))
+            C = np.concatenate([np.matmul(Rm, Zt), Rm, t[:, :, None]], axis=2)  # (T, 3, k + 4)
+            Y = (C.reshape(3 * T, k + 4) @ self._map_aug).reshape(T, 3, X.shape[0])
+        return Y.transpose(0, 2, 1)  # a view: the caller's copy (e.g. into a float32 cache) is the only pass

@@ -1,0 +1,433 @@
+"""The face-model data bundle (ICT-FaceKit "light") and the :class:`FaceModel`.
+
+The bundle is never part of this project; it is found, in this order, at
+
+1. the path given on the command line (``--data``) or to :func:`locate_data`,
+2. the environment variable ``FACEGEOM_DATA``,
+3. ``../shared/data/ict-face-light`` relative to the repository root.
+
+A path may name the folder or the ``.npz`` itself. See the bundle's README for
+its keys. :func:`import_ict_folder` reads the original ICT-FaceKit layout (one
+OBJ per shape plus ``vertex_indices.json``) into the same arrays.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from facegeom.errors import DataNotFoundError, InputError
+
+__all__ = [
+    "ENV_VAR",
+    "TAKES_ENV_VAR",
+    "default_takes_path",
+    "locate_takes",
+    "BUNDLE_NAME",
+    "REQUIRED_KEYS",
+    "FaceModel",
+    "default_data_path",
+    "locate_data",
+    "load_bundle",
+    "load_face_model",
+    "import_ict_folder",
+    "read_obj_positions",
+    "read_obj_polygons",
+]
+
+ENV_VAR = "FACEGEOM_DATA"
+BUNDLE_NAME = "ict_face_light.npz"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+REQUIRED_KEYS = (
+    "neutral",
+    "quads",
+    "triangles",
+    "expression_names",
+    "expression_deltas",
+    "identity_names",
+    "identity_modes",
+    "landmarks_multipie68",
+)
+
+
+def default_data_path() -> Path:
+    """``../shared/data/ict-face-light`` next to the repository root."""
+    return REPO_ROOT.parent / "shared" / "data" / "ict-face-light"
+
+
+def _as_bundle_file(p: Path) -> Path | None:
+    if p.is_file():
+        return p
+    if p.is_dir() and (p / BUNDLE_NAME).is_file():
+        return p / BUNDLE_NAME
+    return None
+
+
+def locate_data(path: str | os.PathLike | None = None) -> Path:
+    """Find the bundle's ``.npz``: ``path``, else ``$FACEGEOM_DATA``, else the default.
+
+    Raises
+    ------
+    DataNotFoundError
+        Naming the three places that were looked at.
+    """
+    tried = []
+    if path is not None:
+        found = _as_bundle_file(Path(path))
+        if found:
+            return found
+        tried.append(f"--data {path}")
+        # an explicit path that is wrong is an error even if another place would work
+        raise DataNotFoundError(
+            f"face data not found at the given path {path} (expected a folder holding {BUNDLE_NAME}, or the file)"
+        )
+    env = os.environ.get(ENV_VAR)
+    if env:
+        found = _as_bundle_file(Path(env))
+        if found:
+            return found
+        tried.append(f"${ENV_VAR}={env}")
+    else:
+        tried.append(f"${ENV_VAR} (not set)")
+    default = default_data_path()
+    found = _as_bundle_file(default)
+    if found:
+        return found
+    tried.append(str(default))
+    raise DataNotFoundError(
+        f"face data ({BUNDLE_NAME}) not found; looked at: the --data option (not given), "
+        + ", ".join(tried)
+        + ". Pass --data PATH or set FACEGEOM_DATA."
+    )
+
+
+def load_bundle(path: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+    """Load and validate the bundle's arrays (see :data:`REQUIRED_KEYS`)."""
+    f = locate_data(path)
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
+        raise InputError(f"cannot read the face data bundle ({exc.__class__.__name__}: {exc})", f) from None
+    missing = [k for k in REQUIRED_KEYS if k not in arrays]
+    if missing:
+        raise InputError(f"face data bundle lacks the keys {', '.join(missing)}", f)
+    _validate_bundle(arrays, f)
+    arrays["_path"] = np.array(str(f))
+    return arrays
+
+
+def _validate_bundle(a: Mapping[str, np.ndarray], f) -> None:
+    n = a["neutral"].shape[0] if a["neutral"].ndim == 2 else -1
+    checks = [
+        (a["neutral"].ndim == 2 and a["neutral"].shape[1] == 3, f"neutral must be (n, 3), is {a['neutral'].shape}"),
+        (a["triangles"].ndim == 2 and a["triangles"].shape[1] == 3, f"triangles must be (m, 3), is {a['triangles'].shape}"),
+        (a["quads"].ndim == 2 and a["quads"].shape[1] == 4, f"quads must be (q, 4), is {a['quads'].shape}"),
+        (a["expression_deltas"].shape[1:] == (n, 3), f"expression_deltas must be (B, {n}, 3), is {a['expression_deltas'].shape}"),
+        (a["expression_names"].shape == a["expression_deltas"].shape[:1],
+         f"expression_names {a['expression_names'].shape} does not match expression_deltas {a['expression_deltas'].shape}"),
+        (a["identity_modes"].shape[1:] == (n, 3), f"identity_modes must be (I, {n}, 3), is {a['identity_modes'].shape}"),
+        (a["identity_names"].shape == a["identity_modes"].shape[:1],
+         f"identity_names {a['identity_names'].shape} does not match identity_modes {a['identity_modes'].shape}"),
+        (a["landmarks_multipie68"].shape == (68,), f"landmarks_multipie68 must be (68,), is {a['landmarks_multipie68'].shape}"),
+    ]
+    for ok, msg in checks:
+        if not ok:
+            raise InputError(f"malformed face data bundle: {msg}", f)
+    for key in ("triangles", "quads", "landmarks_multipie68"):
+        v = a[key]
+        if v.size and (v.min() < 0 or v.max() >= n):
+            raise InputError(f"malformed face data bundle: {key} index past the {n} vertices", f)
+    for key in ("neutral", "expression_deltas", "identity_modes"):
+        if not np.all(np.isfinite(a[key])):
+            raise InputError(f"malformed face data bundle: {key} contains NaN or inf", f)
+
+
+@dataclass(frozen=True)
+class FaceModel:
+    """A linear face model: neutral + identity modes + delta-blendshapes.
+
+    ``V = neutral + sum_i a_i identity_modes[i] + sum_j w_j expression_deltas[j]``
+
+    Units are the data's own (centimetres for ICT).
+    """
+
+    neutral: np.ndarray  # (n, 3) float64
+    triangles: np.ndarray  # (m, 3) int64
+    quads: np.ndarray  # (q, 4) int64
+    expression_names: tuple[str, ...]
+    expression_deltas: np.ndarray  # (B, n, 3) float32 (kept compact)
+    identity_names: tuple[str, ...]
+    identity_modes: np.ndarray  # (I, n, 3) float32
+    landmarks: np.ndarray  # (68,) int64 vertex ids (Multi-PIE order)
+    source: str = ""
+    path: str = ""
+
+    @classmethod
+    def from_bundle(cls, arrays: Mapping[str, np.ndarray]) -> "FaceModel":
+        return cls(
+            neutral=np.asarray(arrays["neutral"], dtype=np.float64),
+            triangles=np.asarray(arrays["triangles"], dtype=np.int64),
+            quads=np.asarray(arrays["quads"], dtype=np.int64),
+            expression_names=tuple(str(s) for s in arrays["expression_names"]),
+            expression_deltas=np.asarray(arrays["expression_deltas"], dtype=np.float32),
+            identity_names=tuple(str(s) for s in arrays["identity_names"]),
+            identity_modes=np.asarray(arrays["identity_modes"], dtype=np.float32),
+            landmarks=np.asarray(arrays["landmarks_multipie68"], dtype=np.int64),
+            source=str(arrays.get("source", "")),
+            path=str(arrays.get("_path", "")),
+        )
+
+    # ----------------------------------------------------------------- sizes
+    @property
+    def n_vertices(self) -> int:
+        return self.neutral.shape[0]
+
+    @property
+    def n_expressions(self) -> int:
+        return len(self.expression_names)
+
+    @property
+    def n_identities(self) -> int:
+        return len(self.identity_names)
+
+    # ----------------------------------------------------------------- weights
+    def expression_index(self, name: str) -> int:
+        try:
+            return self.expression_names.index(name)
+        except ValueError:
+            raise InputError(
+                f"unknown expression {name!r}; known: {', '.join(self.expression_names)}"
+            ) from None
+
+    def expression_vector(self, expression: Mapping[str, float] | Sequence[float] | np.ndarray | None) -> np.ndarray:
+        """Named weights (``{"jawOpen": 0.7}``) or a full ``(B,)`` vector -> ``(B,)`` float64."""
+        w = np.zeros(self.n_expressions)
+        if expression is None:
+            return w
+        if isinstance(expression, Mapping):
+            for name, value in expression.items():
+                value = float(value)
+                if not np.isfinite(value):
+                    raise InputError(f"expression weight for {name!r} is NaN or inf")
+                w[self.expression_index(name)] = value
+            return w
+        e = np.asarray(expression, dtype=np.float64)
+        if e.shape != (self.n_expressions,):
+            raise InputError(f"expression weights must have shape ({self.n_expressions},), got {e.shape}")
+        if not np.all(np.isfinite(e)):
+            raise InputError("expression weights contain NaN or inf")
+        return e
+
+    def identity_vector(self, identity: Sequence[float] | np.ndarray | None) -> np.ndarray:
+        """``None`` (the generic face) or up to ``I`` leading coefficients -> ``(I,)`` float64."""
+        a = np.zeros(self.n_identities)
+        if identity is None:
+            return a
+        c = np.asarray(identity, dtype=np.float64).ravel()
+        if c.size > self.n_identities:
+            raise InputError(f"at most {self.n_identities} identity coefficients, got {c.size}")
+        if not np.all(np.isfinite(c)):
+            raise InputError("identity coefficients contain NaN or inf")
+        a[: c.size] = c
+        return a
+
+    def random_identity(self, rng: np.random.Generator | int | None = None, scale: float = 1.0) -> np.ndarray:
+        """Identity coefficients ~ N(0, scale^2), seeded."""
+        rng = np.random.default_rng(rng)
+        return scale * rng.standard_normal(self.n_identities)
+
+    # ----------------------------------------------------------------- faces
+    def identity_neutral(self, identity=None) -> np.ndarray:
+        """The neutral face of an identity, ``(n, 3)`` float64."""
+        a = self.identity_vector(identity)
+        V = self.neutral.copy()
+        nz = np.flatnonzero(a)
+        if nz.size:
+            V += np.tensordot(a[nz], self.identity_modes[nz].astype(np.float64), axes=1)
+        return V
+
+    def face(self, identity=None, expression=None) -> np.ndarray:
+        """A face from identity coefficients and expression weights, ``(n, 3)`` float64."""
+        V = self.identity_neutral(identity)
+        w = self.expression_vector(expression)
+        nz = np.flatnonzero(w)
+        if nz.size:
+            V += np.tensordot(w[nz], self.expression_deltas[nz].astype(np.float64), axes=1)
+        return V
+
+    def landmark_positions(self, vertices: np.ndarray) -> np.ndarray:
+        """The 68 landmark positions of a face ``(n, 3)`` -> ``(68, 3)``."""
+        return np.asarray(vertices)[self.landmarks]
+
+    def summary(self) -> dict:
+        lo = self.neutral.min(axis=0)
+        hi = self.neutral.max(axis=0)
+        return {
+            "path": self.path,
+            "vertices": self.n_vertices,
+            "triangles": int(self.triangles.shape[0]),
+            "quads": int(self.quads.shape[0]),
+            "expressions": self.n_expressions,
+            "identities": self.n_identities,
+            "landmarks": int(self.landmarks.size),
+            "bounding box (cm)": [round(float(x), 2) for x in (hi - lo)],
+        }
+
+
+def load_face_model(path: str | os.PathLike | None = None) -> FaceModel:
+    """Locate, load and validate the bundle, as a :class:`FaceModel`."""
+    return FaceModel.from_bundle(load_bundle(path))
+
+
+# --------------------------------------------------------------------------- ICT folder importer
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror})", path) from None
+
+
+def read_obj_positions(path: str | os.PathLike) -> np.ndarray:
+    """The ``v`` lines of an OBJ as ``(n, 3)`` float64 (texture coordinates etc. ignored)."""
+    path = Path(path)
+    lines = [ln for ln in _read_text(path).splitlines() if ln.startswith("v ")]
+    if not lines:
+        raise InputError("no vertex ('v') lines: not an OBJ mesh", path)
+    try:
+        V = np.array([ln.split()[1:4] for ln in lines], dtype=np.float64)
+    except ValueError:
+        raise InputError("malformed 'v' line (expected three numbers)", path) from None
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise InputError("malformed 'v' line (expected three numbers)", path)
+    if not np.all(np.isfinite(V)):
+        raise InputError("vertex coordinates contain NaN or inf", path)
+    return V
+
+
+def read_obj_polygons(path: str | os.PathLike) -> list[list[int]]:
+    """The ``f`` lines of an OBJ as 0-based vertex-id lists (``v/vt/vn`` forms accepted)."""
+    path = Path(path)
+    polys = []
+    for ln in _read_text(path).splitlines():
+        if ln.startswith("f "):
+            try:
+                polys.append([int(tok.split("/")[0]) - 1 for tok in ln.split()[1:]])
+            except ValueError:
+                raise InputError(f"malformed face line {ln[:60]!r}", path) from None
+    return polys
+
+
+def import_ict_folder(folder: str | os.PathLike, n_face_vertices: int = 9409, n_face_polygons: int = 9230,
+                      expressions: Sequence[str] | None = None,
+                      identities: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """Read the original ICT-FaceKit layout into the bundle's arrays.
+
+    Parameters
+    ----------
+    folder : path
+        Holds ``generic_neutral_mesh.obj``, ``vertex_indices.json``, one OBJ per
+        expression (``jawOpen.obj`` ...) and per identity mode (``identity000.obj`` ...).
+    n_face_vertices, n_face_polygons : int
+        The face region: the first vertices and polygons of the full head.
+    expressions, identities : sequence of str, optional
+        Which shapes to read; default: the expressions listed in
+        ``vertex_indices.json`` and the ``identity*.obj`` files present.
+        A listed expression whose OBJ is missing is skipped (the light bundle
+        ships only a few); a name given explicitly must exist.
+
+    Returns
+    -------
+    dict with the keys of :data:`REQUIRED_KEYS` (deltas as float32, like the bundle).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("not a folder", folder)
+    neutral_path = folder / "generic_neutral_mesh.obj"
+    index_path = folder / "vertex_indices.json"
+    full_neutral = read_obj_positions(neutral_path)
+    polys = read_obj_polygons(neutral_path)
+    try:
+        meta = json.loads(_read_text(index_path))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"malformed JSON ({exc.msg} at line {exc.lineno})", index_path) from None
+    if "idx_to_landmark_verts" not in meta:
+        raise InputError("lacks the key 'idx_to_landmark_verts'", index_path)
+    if full_neutral.shape[0] < n_face_vertices or len(polys) < n_face_polygons:
+        raise InputError(
+            f"has {full_neutral.shape[0]} vertices and {len(polys)} polygons, fewer than the face region "
+            f"({n_face_vertices}, {n_face_polygons})", neutral_path)
+    face_polys = polys[:n_face_polygons]
+    if any(len(p) != 4 for p in face_polys):
+        raise InputError("the face region is expected to hold quads only", neutral_path)
+    quads = np.array(face_polys, dtype=np.int64)
+    if quads.max() >= n_face_vertices:
+        raise InputError("a face polygon uses a vertex outside the face region", neutral_path)
+    triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
+    neutral = full_neutral[:n_face_vertices]
+
+    def delta(name: str) -> np.ndarray:
+        p = folder / f"{name}.obj"
+        V = read_obj_positions(p)
+        if V.shape[0] != full_neutral.shape[0]:
+            raise InputError(f"has {V.shape[0]} vertices, the neutral {full_neutral.shape[0]}", p)
+        return (V[:n_face_vertices] - neutral).astype(np.float32)
+
+    if expressions is None:
+        expressions = [e for e in meta.get("expressions", []) if (folder / f"{e}.obj").is_file()]
+    if identities is None:
+        identities = sorted(p.stem for p in folder.glob("identity*.obj"))
+    exp = np.stack([delta(e) for e in expressions]) if expressions else np.zeros((0, n_face_vertices, 3), np.float32)
+    ids = np.stack([delta(i) for i in identities]) if identities else np.zeros((0, n_face_vertices, 3), np.float32)
+    return {
+        "neutral": neutral.astype(np.float32),
+        "quads": quads.astype(np.int32),
+        "triangles": triangles.astype(np.int32),
+        "expression_names": np.array(list(expressions)),
+        "expression_deltas": exp,
+        "identity_names": np.array(list(identities)),
+        "identity_modes": ids,
+        "landmarks_multipie68": np.asarray(meta["idx_to_landmark_verts"], dtype=np.int32),
+    }
+
+
+TAKES_ENV_VAR = "FACEGEOM_TAKES"
+
+
+def default_takes_path() -> Path:
+    """``../shared/data/arkit-takes`` next to the repository root."""
+    return REPO_ROOT.parent / "shared" / "data" / "arkit-takes"
+
+
+def locate_takes(path: str | os.PathLike | None = None) -> Path:
+    """Folder of ARKit take CSVs: ``path``, else ``$FACEGEOM_TAKES``, else the default.
+
+    Raises
+    ------
+    DataNotFoundError
+        Naming the places that were looked at.
+    """
+    if path is not None:
+        p = Path(path)
+        if p.is_dir() or p.is_file():
+            return p
+        raise DataNotFoundError(f"takes not found at the given path {path} (expected a folder of .csv takes)")
+    env = os.environ.get(TAKES_ENV_VAR)
+    if env and Path(env).exists():
+        return Path(env)
+    default = default_takes_path()
+    if default.is_dir():
+        return default
+    raise DataNotFoundError(
+        "ARKit takes not found; looked at: the --takes option (not given), "
+        + (f"${TAKES_ENV_VAR}={env}" if env else f"${TAKES_ENV_VAR} (not set)")
+        + f", {default}. Pass --takes PATH or set {TAKES_ENV_VAR}."
+    )

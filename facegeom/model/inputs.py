@@ -1,0 +1,67 @@
+"""Model objects from user files: the rig to fit and a fitting target read from disk."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from facegeom.errors import InputError
+from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud
+
+__all__ = ['load_rig', 'read_fit_target']
+
+
+def load_rig(rig_path=None, face_model=None):
+    """The rig of ``facegeom fit``: an ``.npz`` (``BlendshapeRig.save_npz``) or a folder of OBJs.
+
+    With ``rig_path=None``, the ICT generic face of ``face_model()`` (a callable
+    returning a :class:`~facegeom.model.face.FaceModel`) with its expressions.
+    """
+    from facegeom.model.rig import BlendshapeRig
+
+    if rig_path is None:
+        return BlendshapeRig.from_face_model(face_model())
+    rp = Path(rig_path)
+    return BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
+
+
+def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None, cx=None, cy=None):
+    """Read a fitting target for ``rig`` as ``facegeom fit`` does -> ``(kind, target)``.
+
+    ``kind`` ``auto``: ``.csv`` = landmarks (``vertex_id,u,v``), a mesh file with
+    the rig's vertex count = mesh, anything else = a point cloud. Landmarks need
+    the camera intrinsics ``focal, cx, cy`` (pixels).
+    """
+    from facegeom.io import MESH_FORMATS, read_mesh
+    from facegeom.model.camera import PinholeCamera
+    from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
+
+    if kind not in TARGET_KINDS:
+        raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(TARGET_KINDS)}")
+    tp = Path(path)
+    if kind == "auto":
+        if tp.suffix.lower() == ".csv":
+            kind = "landmarks"
+        elif tp.suffix.lower() in MESH_FORMATS:
+            try:
+                V, _ = read_mesh(tp)
+                kind = "mesh" if V.shape[0] == rig.n_vertices else "points"
+            except InputError:  # no faces: a point cloud
+                kind = "points"
+        else:
+            kind = "points"
+    if kind == "landmarks":
+        if focal is None or cx is None or cy is None:
+            raise InputError("landmark targets need the camera: --focal, --cx and --cy (pixels)", tp)
+        ids, uv = read_landmarks(tp)
+        if ids.max() >= rig.n_vertices:
+            raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
+        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy))
+    elif kind == "mesh":
+        V, _ = read_mesh(tp)
+        if V.shape[0] != rig.n_vertices:
+            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use --kind points "
+                             f"for a scan without correspondence", tp)
+        tgt = MeshTarget(V)
+    else:
+        tgt = PointCloudTarget(read_point_cloud(tp))
+    return kind, tgt

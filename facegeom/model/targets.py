@@ -1,0 +1,166 @@
+"""What a blendshape rig is fitted to: a mesh, 2-D landmarks under a camera, or a point cloud."""
+from __future__ import annotations
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.interfaces import as_handles, as_vertices
+from facegeom.model._checks import _as_ids, _first_nonfinite, _readonly
+from facegeom.model.camera import PinholeCamera
+from facegeom.model.rig import BlendshapeRig
+
+__all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget']
+
+
+class MeshTarget:
+    """A target mesh in vertex correspondence with the rig (SEM on meshes, Sec. IV-B).
+
+    Parameters
+    ----------
+    vertices : (n, 3)
+        Target positions ``T``.
+    weights : (n,) or None
+        Optional non-negative per-vertex weights (not all zero).
+    """
+
+    __slots__ = ("vertices", "weights")
+
+    def __init__(self, vertices, weights=None):
+        self.vertices = _readonly(as_vertices(vertices, "target vertices").copy())
+        if weights is not None:
+            w = np.asarray(weights, dtype=np.float64)
+            n = self.vertices.shape[0]
+            if w.shape != (n,):
+                raise InputError(f"target weights must have shape ({n},), got {w.shape}")
+            if not np.all(np.isfinite(w)):
+                raise InputError("target weights contain NaN or inf")
+            if (w < 0).any():
+                raise InputError(f"target weights must be >= 0 (vertex {int(np.flatnonzero(w < 0)[0])} is negative)")
+            if not (w > 0).any():
+                raise InputError("target weights are all zero")
+            weights = _readonly(w.copy())
+        self.weights = weights
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    def check(self, rig: BlendshapeRig) -> "MeshTarget":
+        """Raise :class:`InputError` unless this target matches ``rig``'s vertex count."""
+        if self.n_vertices != rig.n_vertices:
+            raise InputError(f"target mesh has {self.n_vertices} vertices, the rig {rig.n_vertices}")
+        return self
+
+
+class LandmarkTarget:
+    """2-D landmarks ``l_k`` of rig vertices ``v_k`` seen by ``camera`` (eq. 4, Sec. IV-C).
+
+    Parameters
+    ----------
+    points2d : (L, 2)
+        Pixel positions, finite.
+    vertex_ids : (L,)
+        Distinct rig vertex ids (checked against a rig by :meth:`check`).
+    camera : PinholeCamera
+    """
+
+    __slots__ = ("points2d", "vertex_ids", "camera")
+
+    def __init__(self, points2d, vertex_ids, camera: PinholeCamera):
+        p = np.asarray(points2d, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise InputError(f"landmark points must have shape (L, 2), got {p.shape}")
+        if p.shape[0] == 0:
+            raise InputError("no landmark: points2d is empty")
+        bad = _first_nonfinite(p)
+        if bad is not None:
+            raise InputError(f"landmark {bad[0]} is NaN or inf")
+        ids = _as_ids(vertex_ids, "landmark vertex_ids")
+        if ids.size != p.shape[0]:
+            raise InputError(f"{p.shape[0]} landmark points for {ids.size} vertex ids")
+        if not isinstance(camera, PinholeCamera):
+            raise InputError(f"camera must be a PinholeCamera, got {type(camera).__name__}")
+        self.points2d = _readonly(p.copy())
+        self.vertex_ids = _readonly(ids)
+        self.camera = camera
+
+    @property
+    def n_landmarks(self) -> int:
+        return int(self.points2d.shape[0])
+
+    @classmethod
+    def from_mesh(cls, vertices, vertex_ids, camera: PinholeCamera) -> "LandmarkTarget":
+        """Synthetic landmarks: the projection of ``vertices[vertex_ids]``."""
+        V = as_vertices(vertices)
+        ids = as_handles(vertex_ids, V.shape[0], "landmark vertex_ids")
+        return cls(camera.project(V[ids], "landmark"), ids, camera)
+
+    def check(self, rig: BlendshapeRig) -> "LandmarkTarget":
+        """Raise :class:`InputError` unless every vertex id exists in ``rig``."""
+        as_handles(self.vertex_ids, rig.n_vertices, "landmark vertex_ids")
+        return self
+
+    def project(self, vertices) -> np.ndarray:
+        """``Pi(f_{v_k})`` for a face ``vertices (n, 3)`` -> ``(L, 2)``."""
+        V = np.asarray(vertices, dtype=np.float64)
+        if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] <= int(self.vertex_ids.max()):
+            raise InputError(f"vertices must have shape (n, 3) with n > {int(self.vertex_ids.max())}, got {V.shape}")
+        return self.camera.project(V[self.vertex_ids], "landmark")
+
+    def subset(self, rows) -> "LandmarkTarget":
+        """The landmarks at ``rows`` (indices into this target)."""
+        r = np.asarray(rows)
+        if r.ndim != 1 or r.size == 0 or not np.issubdtype(r.dtype, np.integer):
+            raise InputError("rows must be a non-empty 1-D array of integers")
+        if r.min() < -self.n_landmarks or r.max() >= self.n_landmarks:
+            raise InputError(f"row out of range [0, {self.n_landmarks})")
+        return LandmarkTarget(self.points2d[r], self.vertex_ids[r], self.camera)
+
+    def rows_of(self, vertex_ids) -> np.ndarray:
+        """Row of each of ``vertex_ids`` in this target; InputError for an absent id."""
+        pos = {int(v): i for i, v in enumerate(self.vertex_ids)}
+        out = []
+        for v in np.atleast_1d(np.asarray(vertex_ids)).tolist():
+            if int(v) not in pos:
+                raise InputError(f"vertex {int(v)} is not among the target's landmarks")
+            out.append(pos[int(v)])
+        return np.asarray(out, dtype=np.int64)
+
+
+class PointCloudTarget:
+    """Unordered target points (a scan), optionally with normals (Sec. IV-D).
+
+    Parameters
+    ----------
+    points : (N, 3), N >= 1, finite.
+    normals : (N, 3) or None; non-zero, finite; stored normalised.
+    """
+
+    __slots__ = ("points", "normals")
+
+    def __init__(self, points, normals=None):
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise InputError(f"point cloud must have shape (N, 3), got {p.shape}")
+        if p.shape[0] == 0:
+            raise InputError("point cloud is empty")
+        bad = _first_nonfinite(p)
+        if bad is not None:
+            raise InputError(f"point cloud point {bad[0]} is NaN or inf")
+        if normals is not None:
+            nr = np.asarray(normals, dtype=np.float64)
+            if nr.shape != p.shape:
+                raise InputError(f"normals must have shape {p.shape}, got {nr.shape}")
+            bad = _first_nonfinite(nr)
+            if bad is not None:
+                raise InputError(f"normal {bad[0]} is NaN or inf")
+            length = np.linalg.norm(nr, axis=1)
+            if (length <= 1e-12).any():
+                raise InputError(f"normal {int(np.flatnonzero(length <= 1e-12)[0])} is zero")
+            normals = _readonly(nr / length[:, None])
+        self.points = _readonly(p.copy())
+        self.normals = normals
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points.shape[0])

@@ -1,0 +1,1 @@
+"""Pipelines that compose methods: performance-driven animation, mesh clean-up, batch jobs."""
