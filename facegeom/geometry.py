@@ -194,7 +194,7 @@ def _exact_on_patches(V, F, P: sp.csr_matrix, radius: float, progress: bool) -> 
 
 
 def neighbourhood_lists(R: sp.csr_matrix) -> list[np.ndarray]:
-    """Rows of a neighbourhood matrix as a list of int64 index arrays."""
+    """Rows of an ``(n, n)`` neighbourhood matrix as a list of ``n`` int64 index arrays."""
     R = sp.csr_matrix(R)
     return [R.indices[R.indptr[i]:R.indptr[i + 1]].astype(np.int64) for i in range(R.shape[0])]
 
@@ -231,14 +231,40 @@ def unlabelled_components(graph, labelled) -> tuple[int, int, int]:
 
 
 def cotangent_laplacian(V, F) -> sp.csr_matrix:
-    """libigl's cotangent Laplacian ``L`` (negative semidefinite, rows sum to 0)."""
+    """libigl's cotangent Laplacian ``L`` (negative semidefinite, rows sum to 0).
+
+    Parameters
+    ----------
+    V : (n, 3) float array
+    F : (m, 3) int array
+
+    Returns
+    -------
+    L : (n, n) scipy.sparse.csr_matrix of float64
+    """
     V = as_vertices(V)
     F = as_faces(F, V.shape[0])
     return igl.cotmatrix(V, F).tocsr()
 
 
 def mass_matrix(V, F, kind: str = "voronoi") -> sp.csr_matrix:
-    """libigl's lumped mass matrix (diagonal): ``kind`` in {"voronoi", "barycentric"}."""
+    """libigl's lumped mass matrix (diagonal): ``kind`` in {"voronoi", "barycentric"}.
+
+    Parameters
+    ----------
+    V : (n, 3) float array
+    F : (m, 3) int array
+
+    Returns
+    -------
+    M : (n, n) scipy.sparse.csr_matrix of float64
+        Vertex areas (in squared mesh units) on the diagonal.
+
+    Raises
+    ------
+    InputError
+        Unknown ``kind``, or invalid ``V`` / ``F``.
+    """
     V = as_vertices(V)
     F = as_faces(F, V.shape[0])
     types = {

@@ -35,12 +35,38 @@ class SPDSolver:
     """
 
     def __init__(self, n: int, backend: str, impl):
+        """Wrap a backend's factor (done by :func:`factorize_spd`).
+
+        Parameters
+        ----------
+        n : int
+            Size of the factored ``(n, n)`` matrix.
+        backend : {"cholespy", "splu"}
+            The library that made ``impl``.
+        impl : cholespy.CholeskySolverD or scipy.sparse.linalg.SuperLU
+            The factor; :meth:`solve` calls its ``solve``.
+        """
         self.n = n
         self.backend = backend
         self._impl = impl
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """Solve ``A x = b`` for ``b`` of shape ``(n,)`` or ``(n, r)``."""
+        """Solve ``A x = b`` by back-substitution.
+
+        Parameters
+        ----------
+        b : (n,) or (n, r) float array
+            One right-hand side or ``r`` of them (converted to contiguous float64).
+
+        Returns
+        -------
+        x : float64 array, the shape of ``b``
+
+        Raises
+        ------
+        ValueError
+            ``b`` does not have ``n`` rows.
+        """
         b = np.ascontiguousarray(b, dtype=np.float64)
         if b.shape[0] != self.n:
             raise ValueError(f"right-hand side has {b.shape[0]} rows, the matrix {self.n}")

@@ -161,12 +161,20 @@ def motion_ersim(target, fitted, initial) -> float:
 
 
 def mesh_ersim(fitted, neutral, target) -> float:
-    """``ERSim(T - B_1, F - B_1)`` for a target mesh ``T`` in correspondence (appendix)."""
+    """``ERSim(T - B_1, F - B_1)`` for a target mesh ``T`` in correspondence (appendix).
+
+    ``fitted``, ``neutral`` and ``target`` are ``(n, 3)`` arrays (any shape with the
+    same number of values works, see the module docstring).
+    """
     return motion_ersim(target, fitted, neutral)
 
 
 def landmark_ersim(fitted, neutral, target) -> float:
-    """``ERSim(L_T - Pi(B_1), Pi(F) - Pi(B_1))`` for a :class:`~facegeom.model.targets.LandmarkTarget` (appendix)."""
+    """``ERSim(L_T - Pi(B_1), Pi(F) - Pi(B_1))`` for a :class:`~facegeom.model.targets.LandmarkTarget` (appendix).
+
+    ``fitted`` and ``neutral`` are ``(n, 3)`` faces; both are projected by the
+    target's camera onto its ``(L, 2)`` landmarks.
+    """
     return motion_ersim(target.points2d, target.project(fitted), target.project(neutral))
 
 
@@ -175,7 +183,9 @@ def pointcloud_ersim(fitted, neutral, target, vertex_ids=None) -> float:
 
     The paper does not say how ``S_T`` is put in correspondence with ``B_1``;
     we use, as in eqs. (23)-(25), the target point closest to each fitted
-    vertex ``f_k`` (restricted to ``vertex_ids`` if given).
+    vertex ``f_k`` (restricted to ``vertex_ids`` ``(k,)`` if given).
+
+    ``fitted`` and ``neutral`` are ``(n, 3)`` faces of the same shape.
     """
     F = as_vertices(fitted, "fitted vertices")
     B1 = as_vertices(neutral, "neutral")
@@ -211,6 +221,8 @@ def closest_point_rms(vertices, points, direction: str = "mesh_to_cloud") -> flo
     ``direction="mesh_to_cloud"`` (the paper's text: ``p_k`` is the point of
     ``S_T`` closest to the vertex ``f_k``; averaged over the given vertices)
     or ``"cloud_to_mesh"`` (each target point to its closest vertex).
+
+    ``vertices`` is ``(n, 3)``, ``points`` ``(N, 3)``; the result is in their units.
     """
     V = as_vertices(vertices, "vertices")
     P = as_vertices(points, "point cloud")
@@ -385,7 +397,11 @@ class SupportScores(NamedTuple):
 
 
 def support_scores(w_fit, w_true, tol: float = 1e-3) -> SupportScores:
-    """Precision / recall of the support ``{b : |w_b| > tol}`` and the mean absolute coefficient error."""
+    """Precision / recall of the support ``{b : |w_b| > tol}`` and the mean absolute coefficient error.
+
+    ``w_fit`` and ``w_true`` are ``(B,)`` weight vectors; InputError if their sizes
+    differ, they hold NaN / inf, or ``tol`` is negative.
+    """
     a = _flat(w_fit, "w_fit")
     b = _flat(w_true, "w_true")
     if a.size != b.size:

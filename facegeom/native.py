@@ -1,4 +1,9 @@
-"""Small shared helpers."""
+"""Native-library helpers: silence what libigl, CHOLMOD (cholespy) or pymeshlab print.
+
+:func:`quiet_native` points the process's stdout/stderr file descriptors at the
+null device for the duration of a native call, so only facegeom's own, clearer
+messages are seen.
+"""
 from __future__ import annotations
 
 import contextlib

@@ -121,6 +121,10 @@ class Widgets:
         self.pending: dict[str, object] = {}
 
     def set(self, label: str, value) -> None:
+        """Queue ``value`` for the widget ``label``: its next draw reports a change to ``value``.
+
+        Buttons take ``True``; a combo box takes the item itself, not its index.
+        """
         self.pending[label] = value
 
     def _take(self, label, changed, value):
@@ -129,21 +133,25 @@ class Widgets:
         return changed, value
 
     def slider_float(self, label, v, lo, hi, fmt="%.3f"):
+        """A float slider over ``[lo, hi]`` showing ``v`` (printf format ``fmt``) -> ``(changed, value)``."""
         import polyscope.imgui as psim
 
         return self._take(label, *psim.SliderFloat(label, float(v), float(lo), float(hi), format=fmt))
 
     def slider_int(self, label, v, lo, hi):
+        """An integer slider over ``[lo, hi]`` showing ``v`` -> ``(changed, value)``."""
         import polyscope.imgui as psim
 
         return self._take(label, *psim.SliderInt(label, int(v), int(lo), int(hi)))
 
     def input_int(self, label, v, step=1):
+        """An integer box with -/+ buttons stepping by ``step`` -> ``(changed, value)``."""
         import polyscope.imgui as psim
 
         return self._take(label, *psim.InputInt(label, int(v), step))
 
     def checkbox(self, label, v):
+        """A checkbox showing ``v`` -> ``(changed, checked)``."""
         import polyscope.imgui as psim
 
         return self._take(label, *psim.Checkbox(label, bool(v)))
@@ -158,6 +166,7 @@ class Widgets:
         return changed, item
 
     def button(self, label) -> bool:
+        """A button -> whether it was pressed this frame; a value queued by :meth:`set` replaces the click."""
         import polyscope.imgui as psim
 
         pressed = psim.Button(label)
@@ -189,6 +198,25 @@ class BaseView:
             self._bounds = (np.minimum(self._bounds[0], lo), np.maximum(self._bounds[1], hi))
 
     def mesh(self, name, V, F, shift, color=TRUTH_COLOR):
+        """Register the surface mesh ``name`` at ``V + shift`` and grow the framed bounding box.
+
+        Parameters
+        ----------
+        name : str
+            Polyscope structure name.
+        V : (n, 3) float array
+            Vertex positions (cm).
+        F : (m, 3) int array
+            Triangles.
+        shift : (3,) float array
+            Offset of this copy in the row (see :func:`row_offsets`).
+        color : (3,) float
+            RGB in [0, 1].
+
+        Returns
+        -------
+        polyscope.SurfaceMesh
+        """
         import polyscope as ps
 
         P = np.asarray(V) + shift
@@ -197,6 +225,25 @@ class BaseView:
         return m
 
     def points(self, name, P, shift, color=MARKER_COLOR, radius=0.0035):
+        """Register the point cloud ``name`` at ``P + shift`` (it does not grow the framed bounding box).
+
+        Parameters
+        ----------
+        name : str
+            Polyscope structure name.
+        P : (k, 3) float array
+            Point positions (cm).
+        shift : (3,) float array
+            Offset of this copy in the row.
+        color : (3,) float
+            RGB in [0, 1].
+        radius : float
+            Point radius relative to the scene's length scale (polyscope's default).
+
+        Returns
+        -------
+        polyscope.PointCloud
+        """
         import polyscope as ps
 
         Q = np.asarray(P) + shift
@@ -209,6 +256,7 @@ class BaseView:
                                  vminmax=(0.0, float(vmax)), onscreen_colorbar_enabled=colorbar)
 
     def build(self) -> None:  # pragma: no cover - overridden
+        """Register the view's structures; implemented by every view, which also sets ``self._built``."""
         raise NotImplementedError
 
     def rebuild(self) -> None:
@@ -223,6 +271,7 @@ class BaseView:
 
     # ------------------------------------------------------------------ panel
     def panel(self) -> None:  # pragma: no cover - overridden
+        """Draw the view's widgets and apply what changed; implemented by every view, called by :meth:`callback`."""
         raise NotImplementedError
 
     def callback(self) -> None:
@@ -241,6 +290,7 @@ class BaseView:
             psim.TextWrapped(m)
 
     def note(self, message: str) -> None:
+        """Add ``message`` to the view's messages (the last three are shown under the panel)."""
         self.messages.append(message)
 
     # ------------------------------------------------------------------ camera, run, screenshots

@@ -146,6 +146,12 @@ class DriveView(BaseView):
         self.rebuild()
 
     def spec_for(self, label: str) -> MethodSpec:
+        """The spec of method ``label`` with the panel's parameters applied.
+
+        ``tangent`` specs get ``d`` and ``beta`` from ``tangent_d`` / ``tangent_beta``,
+        ``rbf`` specs get ``kernel`` from ``rbf_kernel``; other specs keep their own
+        parameters (copied). An unknown label raises ``KeyError``.
+        """
         s = self.specs[label]
         params = dict(s.params)
         if s.name == "tangent":
@@ -155,6 +161,11 @@ class DriveView(BaseView):
         return MethodSpec(s.label, s.name, params)
 
     def fit_method(self, label: str) -> None:
+        """Build method ``label`` and fit it on the case's source face and handles (timed, in ``fit_s``).
+
+        A :class:`~facegeom.errors.FacegeomError` is not raised: the message goes
+        to ``failed[label]`` and the method's last face is dropped.
+        """
         self.failed.pop(label, None)
         self.deformers.pop(label, None)
         try:
@@ -229,9 +240,12 @@ class DriveView(BaseView):
 
     # ------------------------------------------------------------------ scene
     def copies(self) -> list[str]:
+        """Names of the faces in the row, left to right: ``source``, the selected methods, ``target``."""
         return ["source", *[x for x in self.selected], "target"]
 
     def build(self) -> None:
+        """Register the row: source and target with their markers, one face per selected method with the
+        handle positions it is driven with (a failed method's face is red), then :meth:`refresh`."""
         self._built = True
         c, F = self.case, self.model.triangles
         names = self.copies()
@@ -250,6 +264,7 @@ class DriveView(BaseView):
         self.refresh()
 
     def points(self, name, P, shift, color=MARKER_COLOR, radius=0.2):
+        """Like :meth:`BaseView.points`, but ``radius`` is absolute, in world units (cm)."""
         pc = super().points(name, P, shift, color=color)
         pc.set_radius(radius, relative=False)
         return pc
@@ -317,12 +332,15 @@ class DriveView(BaseView):
         self.set_offset(m, hit - self.shifts[label] - self.case.labels[m])
 
     def end_drag(self) -> None:
+        """Stop dragging and give the mouse back to polyscope's camera controls."""
         import polyscope as ps
 
         self._drag = None
         ps.set_do_default_mouse_interaction(True)
 
     def handle_mouse(self) -> None:
+        """Mouse dragging, once per frame: a left click the panel does not take starts a drag
+        (:meth:`begin_drag`), holding the button moves the marker (:meth:`drag_to`), releasing it ends the drag."""
         import polyscope.imgui as psim
 
         io = psim.GetIO()
@@ -336,11 +354,17 @@ class DriveView(BaseView):
 
     # ------------------------------------------------------------------ panel
     def callback(self) -> None:
+        """:meth:`BaseView.callback`, then mouse dragging (not while a screenshot is taken)."""
         super().callback()
         if not self.frozen:
             self.handle_mouse()
 
     def panel(self) -> None:
+        """Per-method timings and errors (mm), then the Case, Methods and Marker sections.
+
+        Every change goes through the matching method (:meth:`load_case`,
+        :meth:`set_methods`, :meth:`set_params`, :meth:`set_offset`).
+        """
         import polyscope.imgui as psim
 
         ui, c = self.ui, self.case

@@ -33,6 +33,24 @@ TOP = 5  # largest coefficients listed by name per method
 
 @dataclass
 class FitCase:
+    """One case of ``facegeom view fit``: the rig, the true face and the target the fitters get.
+
+    Attributes
+    ----------
+    description : str
+        One line for the panel.
+    rig : BlendshapeRig
+        The rig fitted: the case's identity, or the generic ICT face for a mesh file.
+    truth : (n, 3) float64
+        The true face (cm).
+    weights : (B,) float64 or None
+        The true coefficients; ``None`` for a mesh given by the user.
+    target : LandmarkTarget or MeshTarget
+        What the fitters are given.
+    landmark_ids : (L,) int64 or None
+        Vertex ids of a landmark target (drawn on every face); ``None`` for a mesh target.
+    """
+
     description: str
     rig: BlendshapeRig
     truth: np.ndarray  # (n, 3) the true face
@@ -109,6 +127,8 @@ class FitView(BaseView):
 
     # ------------------------------------------------------------------ model side
     def load_case(self, **changes) -> None:
+        """(Re)build the case with ``changes`` (arguments of :func:`make_fit_case`), fit every selected
+        fitter, set the colour scale from their errors and register the scene again."""
         self.case_args.update(changes)
         self.case = make_fit_case(self.model, **self.case_args)
         self.results.clear()
@@ -120,6 +140,11 @@ class FitView(BaseView):
         self.rebuild()
 
     def fit_method(self, label: str) -> None:
+        """Build fitter ``label`` and fit it to the case (timed, in ``time_ms``).
+
+        A :class:`~facegeom.errors.FacegeomError` is not raised: the message goes
+        to ``failed[label]`` and the fitter's last result is dropped.
+        """
         self.failed.pop(label, None)
         try:
             f = self.specs[label].build("fitters")
@@ -131,6 +156,13 @@ class FitView(BaseView):
             self.results.pop(label, None)
 
     def set_methods(self, labels: list[str]) -> None:
+        """Select the fitters shown, fitting those without a result (new or failed).
+
+        Raises
+        ------
+        InputError
+            A label is not a known fitter.
+        """
         unknown = [x for x in labels if x not in self.specs]
         if unknown:
             raise InputError(f"no fitter {unknown[0]!r}; available: {', '.join(self.specs)}")
@@ -141,13 +173,17 @@ class FitView(BaseView):
         self.rebuild()
 
     def shown(self) -> list[str]:
+        """The selected fitters that have a result (failed ones left out), in selection order."""
         return [x for x in self.selected if x in self.results]
 
     # ------------------------------------------------------------------ scene
     def copies(self) -> list[str]:
+        """Names of the faces in the row, left to right: ``truth``, then every shown fitter."""
         return ["truth", *self.shown()]
 
     def build(self) -> None:
+        """Register the row: the true face and each fitted face coloured by its error (mm), and, for a
+        landmark target, the landmark vertices on every face."""
         self._built = True
         c, F = self.case, self.model.triangles
         names = self.copies()
@@ -166,6 +202,7 @@ class FitView(BaseView):
                 pc.set_radius(r, relative=False)
 
     def refresh_colors(self) -> None:
+        """Colour every fitted face again by its distance to the truth, on the current scale ``vmax`` (mm)."""
         import polyscope as ps
 
         if not ps.is_initialized() or not self._built:
@@ -217,6 +254,8 @@ class FitView(BaseView):
         psim.EndTable()
 
     def panel(self) -> None:
+        """Timings and mean face-area errors (mm), coefficient histograms and table, then the Target and
+        Methods sections (changes go through :meth:`load_case` and :meth:`set_methods`)."""
         import polyscope.imgui as psim
 
         ui, c = self.ui, self.case

@@ -82,6 +82,18 @@ def build(name: str, model, takes=None):
 
 
 def main(argv=None) -> int:
+    """Command line of ``python -m viewer.make_images``: render the views of ``--only`` into ``--out``.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: 0 on success, 2 on a facegeom error (one line on stderr).
+    """
     ap = argparse.ArgumentParser(prog="python -m viewer.make_images", description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="docs/images", help="output folder (default: docs/images)")
     ap.add_argument("--only", default=",".join(VIEWS), help=f"comma-separated subset of {', '.join(VIEWS)}")

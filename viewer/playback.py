@@ -63,6 +63,15 @@ class PlaybackView(BaseView):
     """Frame state, play/pause and the frame slider; subclasses draw a frame in ``show_frame``."""
 
     def __init__(self, n_frames: int, frame: int = 0):
+        """Start paused at ``frame``, one frame per tick.
+
+        Parameters
+        ----------
+        n_frames : int
+            Number of frames ``T`` of the sequence (at least 1).
+        frame : int
+            The first frame shown, wrapped into ``[0, T)``.
+        """
         super().__init__()
         self.n_frames = int(n_frames)
         self.frame = int(frame) % self.n_frames
@@ -76,6 +85,7 @@ class PlaybackView(BaseView):
         self.show_frame()
 
     def play(self, on: bool = True) -> None:
+        """Start (``on=True``) or pause playback."""
         self.playing = bool(on)
 
     def advance(self) -> None:
@@ -84,13 +94,16 @@ class PlaybackView(BaseView):
             self.set_frame(self.frame + self.speed)
 
     def show_frame(self) -> None:  # pragma: no cover - overridden
+        """Move the registered structures to the current ``frame``; implemented by every playback view."""
         raise NotImplementedError
 
     def callback(self) -> None:
+        """:meth:`BaseView.callback`, then one playback tick (:meth:`advance`)."""
         super().callback()
         self.advance()
 
     def playback_panel(self) -> None:
+        """Play/pause and one-frame step buttons, the frame slider and the speed slider (frames per tick)."""
         import polyscope.imgui as psim
 
         ui = self.ui
@@ -125,6 +138,7 @@ class PlaybackView(BaseView):
         return 0.011 * float(np.ptp(np.asarray(V)[:, 0]))
 
     def points(self, name, P, shift, color=(0.95, 0.35, 0.1), radius=0.2):
+        """Like :meth:`BaseView.points`, but ``radius`` is absolute, in world units (cm)."""
         pc = super().points(name, P, shift, color=color)
         pc.set_radius(radius, relative=False)
         return pc
@@ -177,9 +191,14 @@ class RetargetView(PlaybackView):
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th percentile
 
     def copies(self) -> list[str]:
+        """Names of the copies in the row, left to right: ``actor``, ``character``, then every retargeter
+        that succeeded."""
         return ["actor", "character", *self.results]
 
     def build(self) -> None:
+        """Register the row at the current frame: the actor's face and markers; the character's true face
+        and true markers (dark) as ``character`` and again under each retargeter, which adds its
+        retargeted markers; then :meth:`show_frame`."""
         self._built = True
         F, t = self.model.triangles, self.frame
         names = self.copies()
@@ -196,6 +215,8 @@ class RetargetView(PlaybackView):
         self.show_frame()
 
     def show_frame(self) -> None:
+        """Move every face and marker set to the current frame; each retargeter's markers are coloured by
+        their distance to the true markers (mm). Does nothing before :meth:`build`."""
         import polyscope as ps
 
         if not ps.is_initialized() or not self._built:
@@ -212,6 +233,8 @@ class RetargetView(PlaybackView):
             self.error_colors(pc, error_mm(Y[t], s.target[t]), self.vmax)
 
     def panel(self) -> None:
+        """The sequence, the colour scale and the playback controls, then per retargeter its mean and
+        worst-frame marker error (mm), its time and a per-frame error plot."""
         import polyscope.imgui as psim
 
         s = self.seq
@@ -301,9 +324,13 @@ class AnimateView(PlaybackView):
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
 
     def copies(self) -> list[str]:
+        """Names of the faces in the row, left to right: ``actor``, the character driven through each
+        retargeter that succeeded, ``character`` (the truth)."""
         return ["actor", *self.faces, "character"]
 
     def build(self) -> None:
+        """Register the row at the current frame: the actor with its markers, the true character with its
+        true markers, and per retargeter the driven face with the retargeted markers; then :meth:`show_frame`."""
         self._built = True
         F, t = self.model.triangles, self.frame
         names = self.copies()
@@ -319,6 +346,8 @@ class AnimateView(PlaybackView):
         self.show_frame()
 
     def show_frame(self) -> None:
+        """Move every face and marker set to the current frame; each driven face is coloured by its
+        per-vertex distance to the true face (mm). Does nothing before :meth:`build`."""
         import polyscope as ps
 
         if not ps.is_initialized() or not self._built:
@@ -337,6 +366,8 @@ class AnimateView(PlaybackView):
             ps.get_point_cloud(f"{label} markers").update_point_positions(self.markers[label][t] + self.shifts[label])
 
     def panel(self) -> None:
+        """The sequence and deformer, the colour scale and the playback controls, then per retargeter its
+        times and per-frame plots of the face error and the marker error (mm)."""
         import polyscope.imgui as psim
 
         s = self.seq

@@ -1,8 +1,10 @@
-"""Atomic writes and the shared CSV prologue of every reader of user files.
+"""Atomic writes and the CSV prologue shared by every CSV reader of :mod:`facegeom.io`.
 
 Every writer of facegeom writes to a temporary file in the destination folder
-and renames it into place, so an interrupted or failed write never leaves a
-half-written file.
+and renames it into place (:func:`atomic_path`; :func:`all_or_nothing` for a
+group of files), so an interrupted or failed write never leaves a
+half-written file. :func:`read_csv_rows` turns a missing, folder or non-text
+path into a one-line :class:`~facegeom.errors.InputError` naming the file.
 """
 from __future__ import annotations
 

@@ -6,6 +6,9 @@
   ignored), or ``.npy`` ``(N, 3)``.
 - Coefficients: JSON ``{"weights": {name: value}, ...}`` or CSV ``shape,weight``,
   written atomically.
+
+The model objects built from these files (rig, targets) are made by
+:mod:`facegeom.model.inputs`.
 """
 from __future__ import annotations
 
@@ -127,6 +130,17 @@ def read_weights(path: str | os.PathLike, names) -> np.ndarray:
     """Read coefficients written by :func:`write_weights` (``.json`` or ``.csv``) in the order of ``names``.
 
     Shapes the file does not name are 0; a name the rig does not have is an error.
+
+    Returns
+    -------
+    (B,) float64
+        One finite weight per name of ``names`` (``B = len(names)``).
+
+    Raises
+    ------
+    InputError
+        Missing, empty or unreadable file, unsupported suffix, wrong header or
+        layout, an unknown shape name, or a weight that is not a finite number.
     """
     path = Path(path)
     _exists(path, "coefficient")

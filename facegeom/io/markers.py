@@ -1,4 +1,8 @@
-"""Marker files: CSV ``vertex_id,x,y,z``, read with clear errors, written atomically."""
+"""Marker files: CSV ``vertex_id,x,y,z``, read with clear errors, written atomically.
+
+Positions are in the mesh's units (cm for the ICT face). CSVs with further
+columns (marker names...) are read by :mod:`facegeom.io.vertex_csv`.
+"""
 from __future__ import annotations
 
 import csv
@@ -64,7 +68,28 @@ def read_markers(path: str | os.PathLike, n_vertices: int | None = None) -> tupl
 
 
 def write_markers(path: str | os.PathLike, ids, positions) -> Path:
-    """Write a marker CSV (``vertex_id,x,y,z``) atomically."""
+    """Write a marker CSV (``vertex_id,x,y,z``) atomically.
+
+    Parameters
+    ----------
+    path : path
+        The ``.csv`` to write; its folder must exist.
+    ids : (k,) int array
+        Distinct, non-negative vertex ids, k >= 1.
+    positions : (k, 3) float array
+        Finite marker positions (written with full precision).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        Empty, repeated or negative ids; positions not ``(k, 3)`` or not
+        finite; a different number of ids and positions.
+    """
     path = Path(path)
     ids = np.asarray(ids)
     positions = as_vertices(positions, "marker positions")

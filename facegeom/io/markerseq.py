@@ -33,7 +33,20 @@ SEQUENCE_FORMATS = (".csv", ".npz")
 
 @dataclass
 class MarkerSequence:
-    """Frames of marker positions read from a file."""
+    """Frames of marker positions read from a file.
+
+    Attributes
+    ----------
+    frames : (T,) int64
+        Frame index of each row of ``positions`` (increasing, as the readers sort them).
+    names : tuple of p str
+        Marker names, in the order of the columns of ``positions``.
+    positions : (T, p, 3) float64
+        Marker positions in the file's units (cm for the ICT face); NaN where a
+        marker is lost.
+    path : str
+        The file it was read from (``""`` when built in memory); errors name it.
+    """
 
     frames: np.ndarray  # (T,) int64 frame indices
     names: tuple[str, ...]  # (p,) marker names
@@ -42,10 +55,12 @@ class MarkerSequence:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames ``T``."""
         return self.positions.shape[0]
 
     @property
     def n_markers(self) -> int:
+        """Number of markers per frame ``p``."""
         return self.positions.shape[1]
 
     def missing(self) -> np.ndarray:
@@ -53,7 +68,17 @@ class MarkerSequence:
         return ~np.isfinite(self.positions).all(axis=2)
 
     def reorder(self, names, what: str = "markers") -> "MarkerSequence":
-        """The same frames with the markers in the order of ``names`` (same set required)."""
+        """The same frames with the markers in the order of ``names`` (same set required).
+
+        ``what`` names the file's role in the error message. Returns ``self``
+        when the order is already right.
+
+        Raises
+        ------
+        InputError
+            ``names`` has another length than the sequence's markers, or names a
+            marker the sequence lacks.
+        """
         names = tuple(names)
         if names == self.names:
             return self
@@ -175,6 +200,19 @@ def read_marker_sequence(path: str | os.PathLike) -> MarkerSequence:
     """Read a marker sequence (``.csv`` long format or ``.npz``); frames sorted by index.
 
     Missing markers are NaN; see :meth:`MarkerSequence.missing` and :func:`fill_gaps`.
+
+    Returns
+    -------
+    MarkerSequence
+        ``positions`` ``(T, p, 3)`` float64, ``frames`` ``(T,)`` int64.
+
+    Raises
+    ------
+    InputError
+        Missing, empty or folder path, unsupported suffix, wrong header, a
+        malformed row or array (non-integer or negative frame, infinite
+        coordinate, repeated marker in a frame or repeated frame, a frame
+        missing one of the markers), naming the file and line.
     """
     path = Path(path)
     _check_path(path)

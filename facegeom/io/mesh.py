@@ -1,12 +1,11 @@
-"""Mesh files, read with clear errors and written atomically.
+"""Triangle-mesh files (OBJ, PLY, OFF), read with clear errors and written atomically.
 
-Meshes: OBJ, PLY (ascii or binary) and OFF through libigl's
-``read_triangle_mesh`` / ``write_triangle_mesh``; polygons are fan-triangulated
-on reading.
-
-Every writer writes to a temporary file in the destination folder and renames
-it into place, so an interrupted or failed write never leaves a half-written
-file.
+Reading and writing go through libigl (``read_triangle_mesh`` /
+``write_triangle_mesh``; binary PLY through ``writePLY``); polygons are
+fan-triangulated on reading. :func:`write_mesh` writes through
+:func:`facegeom.io.files.atomic_path`, so an interrupted or failed write never
+leaves a half-written file. A file that cannot be read is an
+:class:`~facegeom.errors.InputError` naming it.
 """
 from __future__ import annotations
 

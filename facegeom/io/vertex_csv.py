@@ -1,4 +1,10 @@
-"""Vertex-indexed CSV files (markers, landmarks, any CSV with a ``vertex_id`` column)."""
+"""Vertex-indexed CSV files (markers, landmarks, any CSV with a ``vertex_id`` column).
+
+:func:`read_vertex_csv` keeps every column as text, so a marker file with extra
+columns (names, labels) can be checked against a mesh and its rows named in
+messages; the strict formats are read by :mod:`facegeom.io.markers` and
+:mod:`facegeom.io.fitfiles`.
+"""
 from __future__ import annotations
 
 import os
@@ -14,7 +20,23 @@ __all__ = ['VertexCSV', 'read_vertex_csv']
 
 @dataclass
 class VertexCSV:
-    """A CSV with a ``vertex_id`` column (markers, landmarks); other columns are kept verbatim."""
+    """A CSV with a ``vertex_id`` column (markers, landmarks); other columns are kept verbatim.
+
+    Attributes
+    ----------
+    path : Path
+        The file read.
+    header : list of str
+        Column names as written (stripped, case kept).
+    rows : list of list of str
+        The k data rows, every cell as text.
+    ids : (k,) int64
+        The ``vertex_id`` of each row, distinct and in ``[0, n_vertices)``.
+    lines : (k,) int
+        1-based line number of each row in the file.
+    id_col : int
+        Index of the ``vertex_id`` column.
+    """
 
     path: Path
     header: list[str]

@@ -1,4 +1,9 @@
-"""Argument checks shared by the model classes (rig, targets, camera): read-only arrays, ids, scalars."""
+"""Argument checks shared by the model classes (rig, targets, camera): read-only arrays, ids, scalars.
+
+Private to :mod:`facegeom.model`; the checks of arrays passed between layers
+(vertices, faces, handles) are in :mod:`facegeom.interfaces`. Every failed
+check raises :class:`~facegeom.errors.InputError`.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,20 @@
-"""The pinhole camera of landmark fitting (intrinsics and an optional rigid pose)."""
+"""The pinhole camera of landmark fitting (intrinsics and an optional rigid pose).
+
+A :class:`~facegeom.model.targets.LandmarkTarget` holds one; :func:`look_at_camera`
+frames a face from the front; :mod:`facegeom.model.pose` estimates the pose
+when it is unknown.
+
+Convention
+----------
+World -> camera is ``x_cam = R @ x + t``.  Camera space is OpenGL-like: x to
+the right, y up, the camera at the origin looking down **-z** (the ICT face
+has +z towards the viewer, so the identity rotation sees it from the front).
+Pixels: ``u = cx + f * x / (-z)`` (to the right), ``v = cy - f * y / (-z)``
+(downwards, image rows).  A point with ``-z <= 0`` is behind the camera and
+cannot be projected (:class:`~facegeom.errors.InputError`).  With this
+convention the subject's right eye (landmark 36, world -x) appears on the
+image's left, as in a photograph.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -24,6 +40,21 @@ class PinholeCamera:
         Principal point in pixels.
     R : (3, 3) rotation (world -> camera), default identity.
     t : (3,) translation, default zero.
+
+    Attributes
+    ----------
+    R : (3, 3) float64, t : (3,) float64
+        Read-only copies of the pose.
+    posed : bool
+        Whether ``R`` or ``t`` was given; ``False`` means the pose is unknown
+        (the fitters estimate it).
+
+    Raises
+    ------
+    InputError
+        ``focal`` not a positive finite number, ``cx`` / ``cy`` not finite,
+        ``R`` not a ``(3, 3)`` rotation (orthonormal, det +1), ``t`` not a
+        finite ``(3,)`` vector.
     """
 
     __slots__ = ("focal", "cx", "cy", "R", "t", "posed")
@@ -117,7 +148,32 @@ def look_at_camera(vertices, focal: float = 1000.0, image_size: tuple[int, int] 
     principal point is the image centre.  With ``distance=None`` the distance is
     chosen so that the face's bounding box fills ``fill`` of the image.
 
-    Returns a :class:`PinholeCamera` with ``x_cam = R @ x + t``.
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+        The points to frame (cm for the ICT face).
+    focal : float
+        Focal length in pixels.
+    image_size : (width, height)
+        In pixels; the principal point is its centre.
+    distance : float, optional
+        From the camera to the bounding-box centre, in the units of ``vertices``.
+    yaw, pitch : float
+        Orbit angles in degrees.
+    fill : float
+        Fraction of the smaller image side the bounding sphere covers (when
+        ``distance`` is None).
+
+    Returns
+    -------
+    PinholeCamera
+        Posed, with ``x_cam = R @ x + t``.
+
+    Raises
+    ------
+    InputError
+        Invalid vertices, a non-positive focal, size, fill or distance, or a
+        non-finite angle.
     """
     V = as_vertices(vertices)
     f = _as_scalar(focal, "focal", positive=True)

@@ -106,7 +106,23 @@ def locate_data(path: str | os.PathLike | None = None) -> Path:
 
 
 def load_bundle(path: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
-    """Load and validate the bundle's arrays (see :data:`REQUIRED_KEYS`)."""
+    """Load and validate the bundle's arrays (see :data:`REQUIRED_KEYS`).
+
+    Returns
+    -------
+    dict of str to ndarray
+        Every array of the ``.npz``, as stored (``neutral`` ``(n, 3)``,
+        ``expression_deltas`` ``(B, n, 3)``, ``identity_modes`` ``(I, n, 3)``,
+        ``landmarks_multipie68`` ``(68,)``...), plus ``_path``: the file read.
+
+    Raises
+    ------
+    DataNotFoundError
+        The bundle was not found (see :func:`locate_data`).
+    InputError
+        Unreadable file, missing keys, wrong shapes, indices out of range or
+        NaN / inf in the positions.
+    """
     f = locate_data(path)
     try:
         with np.load(f, allow_pickle=False) as z:
@@ -154,6 +170,28 @@ class FaceModel:
     ``V = neutral + sum_i a_i identity_modes[i] + sum_j w_j expression_deltas[j]``
 
     Units are the data's own (centimetres for ICT).
+
+    Attributes
+    ----------
+    neutral : (n, 3) float64
+        The generic neutral face.
+    triangles : (m, 3) int64
+        Triangles of the mesh.
+    quads : (q, 4) int64
+        The original quads.
+    expression_names : tuple of B str
+        ARKit-style blendshape names (``jawOpen``, ``eyeBlink_L``...).
+    expression_deltas : (B, n, 3) float32
+        Expression blendshapes as offsets from the neutral (kept compact).
+    identity_names : tuple of I str
+    identity_modes : (I, n, 3) float32
+        Identity modes as offsets from the neutral.
+    landmarks : (68,) int64
+        Vertex id of each Multi-PIE landmark.
+    source : str
+        The bundle's ``source`` note, if any.
+    path : str
+        The ``.npz`` it was loaded from (``""`` when not loaded from a file).
     """
 
     neutral: np.ndarray  # (n, 3) float64
@@ -169,6 +207,23 @@ class FaceModel:
 
     @classmethod
     def from_bundle(cls, arrays: Mapping[str, np.ndarray]) -> "FaceModel":
+        """A model from the arrays of :func:`load_bundle` or :func:`import_ict_folder`.
+
+        The arrays are converted, not validated again (:func:`load_bundle`
+        validates them): positions to float64, triangles, quads and landmark
+        ids to int64, deltas and identity modes to float32, names to tuples of
+        str.
+
+        Parameters
+        ----------
+        arrays : mapping of str to ndarray
+            The keys of :data:`REQUIRED_KEYS`; optionally ``source`` and
+            ``_path`` (the file, set by :func:`load_bundle`).
+
+        Returns
+        -------
+        FaceModel
+        """
         return cls(
             neutral=np.asarray(arrays["neutral"], dtype=np.float64),
             triangles=np.asarray(arrays["triangles"], dtype=np.int64),
@@ -185,18 +240,28 @@ class FaceModel:
     # ----------------------------------------------------------------- sizes
     @property
     def n_vertices(self) -> int:
+        """Number of vertices ``n`` of the face mesh."""
         return self.neutral.shape[0]
 
     @property
     def n_expressions(self) -> int:
+        """Number of expression blendshapes ``B``."""
         return len(self.expression_names)
 
     @property
     def n_identities(self) -> int:
+        """Number of identity modes ``I``."""
         return len(self.identity_names)
 
     # ----------------------------------------------------------------- weights
     def expression_index(self, name: str) -> int:
+        """Index of the expression called ``name`` (its row in ``expression_deltas``).
+
+        Raises
+        ------
+        InputError
+            ``name`` is not an expression of the model; the message lists the known names.
+        """
         try:
             return self.expression_names.index(name)
         except ValueError:
@@ -265,6 +330,16 @@ class FaceModel:
         return np.asarray(vertices)[self.landmarks]
 
     def summary(self) -> dict:
+        """What ``facegeom info`` prints about the model.
+
+        Returns
+        -------
+        dict
+            ``path``; the counts ``vertices``, ``triangles``, ``quads``,
+            ``expressions``, ``identities``, ``landmarks``; and
+            ``"bounding box (cm)"``: the neutral face's extent along x, y, z,
+            rounded to 0.01.
+        """
         lo = self.neutral.min(axis=0)
         hi = self.neutral.max(axis=0)
         return {

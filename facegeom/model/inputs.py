@@ -1,4 +1,10 @@
-"""Model objects from user files: the rig to fit and a fitting target read from disk."""
+"""Model objects from user files: the rig to fit and a fitting target read from disk.
+
+The files are read by :mod:`facegeom.io` (:mod:`facegeom.io.mesh`,
+:mod:`facegeom.io.fitfiles`); this module turns them into a
+:class:`~facegeom.model.rig.BlendshapeRig` and a target of
+:mod:`facegeom.model.targets`, as ``facegeom fit`` does.
+"""
 from __future__ import annotations
 
 import os

@@ -1,4 +1,32 @@
-"""The 68 Multi-PIE landmark index sets used by fitting and its benchmarks."""
+"""The 68 Multi-PIE landmark index sets used by fitting and its benchmarks.
+
+Indices are into the 68 Multi-PIE / iBUG landmarks (``BlendshapeRig.landmark_ids``,
+``FaceModel.landmarks``); the paper is the SEM paper (Kang et al., IEEE Access).
+
+:data:`INNER_LANDMARKS_49` are the 49 inner points the paper evaluates on (17-67
+without the inner lip corners 60 and 64).  The paper splits them into 23
+*used* (fitted) and 26 *unused* (evaluation only) points (Fig. 6) but does not
+list them; :data:`FIT_LANDMARKS_23` / :data:`EVAL_LANDMARKS_26` is our fixed
+split.  Both halves are mirror-symmetric (left/right) and both cover every
+region, so a method cannot score well on the unused points by overfitting one
+region:
+
+=============  ==============================  ================================
+region         fit (23)                        eval (26)
+=============  ==============================  ================================
+brows          17 19 21 22 24 26 (ends, mid)   18 20 23 25
+nose           27 30 31 33 35 (top, tip, base) 28 29 32 34
+eyes           36 37 39 42 44 45 (corners,     38 40 41 43 46 47 (other lids,
+               one upper-lid point each)       all lower lid points)
+outer lips     48 51 54 57 (corners, mids)     49 50 52 53 55 56 58 59
+inner lips     62 66 (mid points)              61 63 65 67
+=============  ==============================  ================================
+
+The inner eye corners 39 / 42 (the paper's inter-ocular normaliser, eq. 31)
+are in the fitted set. :data:`INNER_EYE_CORNERS` and :data:`OUTER_EYE_CORNERS`
+give those and the outer corners 36 / 45 (right eye first); :data:`MIRROR_68`
+maps each landmark to its left/right mirror.
+"""
 from __future__ import annotations
 
 __all__ = ['INNER_LANDMARKS_49', 'FIT_LANDMARKS_23', 'EVAL_LANDMARKS_26', 'INNER_EYE_CORNERS', 'OUTER_EYE_CORNERS', 'MIRROR_68']

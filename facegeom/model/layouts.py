@@ -1,15 +1,21 @@
-"""Marker layouts on the ICT face.
+"""Marker layouts on the ICT face: which vertices carry markers (vertex-id arrays).
+
+:func:`layout` picks one by name:
 
 ``ict80`` (the default layout of the face-driving experiments): the 68
 Multi-PIE landmarks plus 12 points spread over the rest of the narrow face area
-(vertices ``[0, 6706)``) by farthest-point sampling in edge-path (geodesic-like)
+(vertices ``[0, FACE_AREA)``, :data:`facegeom.constants.FACE_AREA` = 6706) by
+farthest-point sampling in edge-path (geodesic-like)
 distance on the generic neutral face, starting from the landmarks. The 12 land
 where the landmarks leave gaps: forehead, temples, cheeks, under the chin.
 Fully determined by the mesh, so every run and every identity uses the same
 vertex ids.
 
-``random`` layouts (held-out marker layouts): ``k`` points by farthest-point
-sampling from a seeded random start vertex on the narrow face area.
+``landmarks68``: the 68 landmark vertices alone.
+
+``random<k>`` layouts (held-out marker layouts, e.g. ``random60``): ``k``
+points by farthest-point sampling from a seeded random start vertex on the
+narrow face area.
 """
 from __future__ import annotations
 
@@ -77,13 +83,25 @@ def _narrow(n: int) -> np.ndarray:
 
 
 def ict80(model) -> np.ndarray:
-    """The 80-marker layout: 68 landmarks + 12 farthest points on the narrow face area."""
+    """The 80-marker layout: 68 landmarks + 12 farthest points on the narrow face area.
+
+    Returns
+    -------
+    (80,) int64
+        Vertex ids: ``model.landmarks`` first, then the 12 added points.
+    """
     extra = farthest_points(model.neutral, model.triangles, model.landmarks, 12, _narrow(model.n_vertices))
     return np.r_[model.landmarks, extra].astype(np.int64)
 
 
 def random_layout(model, count: int = 80, seed: int = 0) -> np.ndarray:
-    """``count`` well-spread markers from a seeded random start (a held-out layout)."""
+    """``count`` well-spread markers from a seeded random start (a held-out layout).
+
+    Returns
+    -------
+    (count,) int64
+        Vertex ids in the narrow face area: the random start, then farthest points.
+    """
     rng = np.random.default_rng(seed)
     region = _narrow(model.n_vertices)
     start = np.array([rng.integers(0, min(FACE_AREA, model.n_vertices))])
@@ -91,7 +109,20 @@ def random_layout(model, count: int = 80, seed: int = 0) -> np.ndarray:
 
 
 def layout(model, name: str = "ict80", seed: int = 0) -> np.ndarray:
-    """A layout by name: ``ict80``, ``landmarks68`` or ``random<k>`` (e.g. ``random60``)."""
+    """A layout by name: ``ict80``, ``landmarks68`` or ``random<k>`` (e.g. ``random60``).
+
+    ``seed`` is used by the ``random<k>`` layouts only (``random`` alone is ``random80``).
+
+    Returns
+    -------
+    (k,) int64
+        Marker vertex ids.
+
+    Raises
+    ------
+    InputError
+        Unknown name, or ``k`` not an integer in [4, 2000].
+    """
     if name == "ict80":
         return ict80(model)
     if name == "landmarks68":

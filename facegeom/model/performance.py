@@ -27,11 +27,16 @@ Construction (every random choice seeded):
   offset (per-shape intensities, identity and warp change it) nor a fixed
   function of each marker's own position (a marker moved by several shapes
   whose intensities differ traces a different path).
-- **Markers**: the same vertex ids on both faces (default ``ict80``); the
-  character's markers are the warped vertices.
+- **Markers**: the same vertex ids on both faces (the callers default to the
+  ``ict80`` layout of :mod:`facegeom.model.layouts`); the character's markers
+  are the warped vertices.
 
 Head motion is not simulated: the markers are taken as stabilised (head pose
 removed), as a marker pipeline delivers them before retargeting.
+
+Used by ``facegeom bench retarget`` / ``bench animate``
+(:mod:`facegeom.bench`), the animation pipeline
+(:mod:`facegeom.pipelines.animate`) and the viewer's playback views.
 """
 from __future__ import annotations
 
@@ -79,7 +84,20 @@ def stylise(V: np.ndarray, warp: Warp) -> np.ndarray:
 
 @dataclass
 class Character:
-    """A target character: identity, per-expression intensity and stylising warp."""
+    """A target character: identity, per-expression intensity and stylising warp.
+
+    Attributes
+    ----------
+    identity : (I,) float64
+        Identity coefficients of the character's face.
+    intensity : (E,) float64
+        Factor applied to each expression weight (ICT order); :func:`make_character`
+        draws them in [0.5, 1.8], one per left/right pair.
+    warp : Warp
+        The stylising warp applied to every frame.
+    seed : int
+        The seed :func:`make_character` built it from.
+    """
 
     identity: np.ndarray
     intensity: np.ndarray  # (E,)
@@ -87,6 +105,18 @@ class Character:
     seed: int = 0
 
     def weights(self, W: np.ndarray) -> np.ndarray:
+        """The character's weights for the actor's weights ``W``: each expression scaled by its intensity.
+
+        Parameters
+        ----------
+        W : (T, E) or (E,) float array
+            Expression weights in ICT order.
+
+        Returns
+        -------
+        (T, E) or (E,) float64
+            ``W * intensity``.
+        """
         return np.asarray(W) * self.intensity
 
 
@@ -164,6 +194,7 @@ class Sequence:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames ``T``."""
         return self.source.shape[0]
 
     def mean_motion(self) -> float:
@@ -206,8 +237,32 @@ def character_faces(model, seq: Sequence) -> np.ndarray:
 
 
 def character_neutral(model, character: Character) -> np.ndarray:
+    """The character's neutral face: the neutral of its identity, stylised by its warp.
+
+    Parameters
+    ----------
+    model : FaceModel
+    character : Character
+
+    Returns
+    -------
+    (n, 3) float64
+        Vertex positions in model units (cm).
+    """
     return character.warp(model.identity_neutral(character.identity))
 
 
 def actor_faces(model, seq: Sequence) -> np.ndarray:
+    """The actor's full faces for every frame: its identity performing ``seq.weights``.
+
+    Parameters
+    ----------
+    model : FaceModel
+    seq : Sequence
+
+    Returns
+    -------
+    (T, n, 3) float64
+        Vertex positions in model units (cm).
+    """
     return blend(model, seq.actor_identity, seq.weights)

@@ -167,6 +167,6 @@ def _orthonormal(R):
 
 
 def reprojection_rms(points3d, points2d, camera: PinholeCamera) -> float:
-    """RMS pixel distance between ``camera.project(points3d)`` and ``points2d``."""
+    """RMS pixel distance between ``camera.project(points3d)`` ``(L, 3)`` and ``points2d`` ``(L, 2)``."""
     d = camera.project(points3d) - np.asarray(points2d, dtype=np.float64)
     return float(np.sqrt((d ** 2).sum(axis=1).mean()))

@@ -1,4 +1,4 @@
-"""Delta-blendshape rigs and the targets they are fitted to.
+"""The delta-blendshape rig that the fitters work on.
 
 A :class:`BlendshapeRig` is eq. (1) of Kang et al., "A Selective Expression
 Manipulation With Parametric 3D Facial Model" (IEEE Access), the SEM paper::
@@ -9,48 +9,17 @@ with ``B_1`` the ``neutral (n,3)`` and ``dB_i`` the ``deltas (B,n,3)``; the
 paper's index ``i = 2..n_exp`` is our ``b = 0..B-1`` (the neutral has no
 weight here).  Units are the data's (centimetres for the ICT face).
 
-Targets (what a fitter reproduces), all validated when built:
+A rig is built from a :class:`~facegeom.model.face.FaceModel`
+(:meth:`BlendshapeRig.from_face_model`), from a folder of OBJ meshes
+(:meth:`BlendshapeRig.from_obj_folder`) or from an ``.npz`` written by
+:meth:`BlendshapeRig.save_npz`; :func:`facegeom.model.inputs.load_rig` picks
+one of these for ``facegeom fit``.
 
-- :class:`MeshTarget`: a mesh in vertex correspondence with the rig (Sec. IV-B),
-- :class:`LandmarkTarget`: 2-D image landmarks of known rig vertices seen by a
-  :class:`PinholeCamera` (Sec. IV-C, the projection ``Pi`` of eq. 4),
-- :class:`PointCloudTarget`: unordered 3-D points, no correspondence (Sec. IV-D).
-
-Camera convention (:class:`PinholeCamera`)
-------------------------------------------
-World -> camera is ``x_cam = R @ x + t``.  Camera space is OpenGL-like: x to
-the right, y up, the camera at the origin looking down **-z** (the ICT face
-has +z towards the viewer, so the identity rotation sees it from the front).
-Pixels: ``u = cx + f * x / (-z)`` (to the right), ``v = cy - f * y / (-z)``
-(downwards, image rows).  A point with ``-z <= 0`` is behind the camera and
-cannot be projected (:class:`~facegeom.errors.InputError`).  With this
-convention the subject's right eye (landmark 36, world -x) appears on the
-image's left, as in a photograph.
-
-Landmark sets
--------------
-Indices are into the 68 Multi-PIE / iBUG landmarks (``rig.landmark_ids``).
-:data:`INNER_LANDMARKS_49` are the 49 inner points the paper evaluates on (17-67
-without the inner lip corners 60 and 64).  The paper splits them into 23
-*used* (fitted) and 26 *unused* (evaluation only) points (Fig. 6) but does not
-list them; :data:`FIT_LANDMARKS_23` / :data:`EVAL_LANDMARKS_26` is our fixed
-split.  Both halves are mirror-symmetric (left/right) and both cover every
-region, so a method cannot score well on the unused points by overfitting one
-region:
-
-=============  ==============================  ================================
-region         fit (23)                        eval (26)
-=============  ==============================  ================================
-brows          17 19 21 22 24 26 (ends, mid)   18 20 23 25
-nose           27 30 31 33 35 (top, tip, base) 28 29 32 34
-eyes           36 37 39 42 44 45 (corners,     38 40 41 43 46 47 (other lids,
-               one upper-lid point each)       all lower lid points)
-outer lips     48 51 54 57 (corners, mids)     49 50 52 53 55 56 58 59
-inner lips     62 66 (mid points)              61 63 65 67
-=============  ==============================  ================================
-
-The inner eye corners 39 / 42 (the paper's inter-ocular normaliser, eq. 31)
-are in the fitted set.
+Related modules: what a rig is fitted to (mesh, 2-D landmarks, point cloud) is
+in :mod:`facegeom.model.targets`; the pinhole camera of landmark targets and its
+convention in :mod:`facegeom.model.camera`; the 68-landmark index sets (the 49
+inner points, the fitted / evaluation split) in :mod:`facegeom.model.landmarks`;
+the fitters in :mod:`facegeom.methods.sem` and :mod:`facegeom.methods.fitting`.
 """
 from __future__ import annotations
 
@@ -151,10 +120,12 @@ class BlendshapeRig:
     # ----------------------------------------------------------------- sizes
     @property
     def n_vertices(self) -> int:
+        """Number of vertices ``n``."""
         return int(self.neutral.shape[0])
 
     @property
     def n_shapes(self) -> int:
+        """Number of delta-blendshapes ``B``."""
         return int(self.deltas.shape[0])
 
     def __repr__(self) -> str:

@@ -1,4 +1,15 @@
-"""What a blendshape rig is fitted to: a mesh, 2-D landmarks under a camera, or a point cloud."""
+"""What a blendshape rig is fitted to: a mesh, 2-D landmarks under a camera, or a point cloud.
+
+All three are validated when built (:class:`~facegeom.errors.InputError`) and
+hold read-only arrays; the section numbers are those of the SEM paper (Kang et
+al., IEEE Access):
+
+- :class:`MeshTarget`: a mesh in vertex correspondence with the rig (Sec. IV-B),
+- :class:`LandmarkTarget`: 2-D image landmarks of known rig vertices seen by a
+  :class:`~facegeom.model.camera.PinholeCamera` (Sec. IV-C, the projection
+  ``Pi`` of eq. 4),
+- :class:`PointCloudTarget`: unordered 3-D points, no correspondence (Sec. IV-D).
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -43,6 +54,7 @@ class MeshTarget:
 
     @property
     def n_vertices(self) -> int:
+        """Number of target vertices ``n``."""
         return int(self.vertices.shape[0])
 
     def check(self, rig: BlendshapeRig) -> "MeshTarget":
@@ -86,11 +98,26 @@ class LandmarkTarget:
 
     @property
     def n_landmarks(self) -> int:
+        """Number of landmarks ``L``."""
         return int(self.points2d.shape[0])
 
     @classmethod
     def from_mesh(cls, vertices, vertex_ids, camera: PinholeCamera) -> "LandmarkTarget":
-        """Synthetic landmarks: the projection of ``vertices[vertex_ids]``."""
+        """Synthetic landmarks: the projection of ``vertices[vertex_ids]``.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float array
+            A face (e.g. a rig evaluation), in the rig's units.
+        vertex_ids : (L,) int array
+            Distinct vertex ids in ``[0, n)``.
+        camera : PinholeCamera
+
+        Raises
+        ------
+        InputError
+            Invalid ids or vertices, or a landmark behind the camera.
+        """
         V = as_vertices(vertices)
         ids = as_handles(vertex_ids, V.shape[0], "landmark vertex_ids")
         return cls(camera.project(V[ids], "landmark"), ids, camera)
@@ -108,7 +135,13 @@ class LandmarkTarget:
         return self.camera.project(V[self.vertex_ids], "landmark")
 
     def subset(self, rows) -> "LandmarkTarget":
-        """The landmarks at ``rows`` (indices into this target)."""
+        """The landmarks at ``rows`` ``(r,)`` int (indices into this target), same camera.
+
+        Raises
+        ------
+        InputError
+            ``rows`` empty, not 1-D integers, or out of range.
+        """
         r = np.asarray(rows)
         if r.ndim != 1 or r.size == 0 or not np.issubdtype(r.dtype, np.integer):
             raise InputError("rows must be a non-empty 1-D array of integers")
@@ -117,7 +150,7 @@ class LandmarkTarget:
         return LandmarkTarget(self.points2d[r], self.vertex_ids[r], self.camera)
 
     def rows_of(self, vertex_ids) -> np.ndarray:
-        """Row of each of ``vertex_ids`` in this target; InputError for an absent id."""
+        """Row of each of ``vertex_ids`` in this target -> ``(r,)`` int64; InputError for an absent id."""
         pos = {int(v): i for i, v in enumerate(self.vertex_ids)}
         out = []
         for v in np.atleast_1d(np.asarray(vertex_ids)).tolist():
@@ -163,4 +196,5 @@ class PointCloudTarget:
 
     @property
     def n_points(self) -> int:
+        """Number of points ``N``."""
         return int(self.points.shape[0])
