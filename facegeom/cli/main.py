@@ -82,14 +82,14 @@ def methods(kind):
 
 
 def _parse_params(items) -> dict:
-    from facegeom.bench.common import _value
+    from facegeom.registry import parse_value
 
     out = {}
     for item in items:
         if "=" not in item:
             raise click.BadParameter(f"{item!r} must be key=value", param_hint="--param")
         k, v = item.split("=", 1)
-        out[k.strip()] = _value(v)
+        out[k.strip()] = parse_value(v)
     return out
 
 
@@ -238,7 +238,7 @@ def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, o
     from pathlib import Path
 
     from facegeom.bench import drive as bd
-    from facegeom.bench.common import parse_methods
+    from facegeom.registry import parse_methods
 
     specs = parse_methods(methods, "deformers", bd.DEFAULT_METHODS)
     model = obj.face_model()
@@ -270,8 +270,8 @@ def bench_retarget(obj: _Context, sequences, frames, seed, methods, labels, take
                    layout_seed, out, no_plot, quiet):
     """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
     from facegeom.bench import retarget as br
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         counts = sorted({int(x) for x in labels.split(",") if x.strip()})
@@ -321,8 +321,8 @@ def bench_noise(obj: _Context, sequences, frames, labels, levels, seed, methods,
                 no_plot, quiet):
     """Retargeting with Gaussian noise on the known character frames and on the actor's markers."""
     from facegeom.bench import noise as bn
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         lv = tuple(float(x) for x in levels.split(",") if x.strip())
@@ -357,8 +357,8 @@ def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, d
                   out, quiet):
     """Performance-driven animation over many takes: face error and times per retargeter."""
     from facegeom.bench import animate as ba
-    from facegeom.bench.common import parse_method, parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_method, parse_methods
 
     if labels > frames:
         raise InputError(f"--labels {labels} exceeds --frames {frames}")
@@ -393,8 +393,8 @@ def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_
               takes_path, start, frames, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
     bad = [x for x in ex if x not in bf.EXPERIMENTS]
@@ -428,8 +428,8 @@ def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_
 def bench_scaling(obj: _Context, levels, methods):
     """Fit and deform times on the face subdivided to ~37k and ~150k vertices."""
     from facegeom.bench import scaling as bs
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         lv = [int(x) for x in levels.split(",") if x.strip()]
@@ -502,10 +502,10 @@ def write_animation_npz(out, anim, ids) -> Path:
 @click.pass_obj
 def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
-    from facegeom.bench.common import parse_method
     from facegeom.errors import InputError
     from facegeom.io import find_takes, write_mesh
     from facegeom.model import locate_takes
+    from facegeom.registry import parse_method
 
     model = obj.face_model()
     path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]

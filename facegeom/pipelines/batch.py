@@ -890,7 +890,7 @@ class _Animate(_Op):
     suffixes = (".csv",)
 
     def prepare(self, job, spec, files):
-        from facegeom.bench.common import parse_method
+        from facegeom.registry import parse_method
 
         s = {"start": 0, "frames": 100, "labels": 10, "seed": 0, "deformer": "tangent", **job.shared}
         if s["start"] < 0 or s["frames"] < 2 or s["labels"] < 2:
@@ -910,7 +910,7 @@ class _Animate(_Op):
         return [stem.with_name(stem.name + ".npz")], {}
 
     def state(self, spec):
-        from facegeom.bench.common import parse_method
+        from facegeom.registry import parse_method
 
         return {"model": _load_model(spec),
                 "deformer": _FitOnce(parse_method(spec["shared"]["deformer"]).build("deformers"))}
