@@ -441,52 +441,6 @@ def bench_scaling(obj: _Context, levels, methods):
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
 
 
-def animate_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter, deformer):
-    """``facegeom animate`` on one take -> ``(Animation, Sequence, marker ids)``.
-
-    The window ``start .. start + frames - 1`` of the Live Link Face take at
-    ``path`` plays on a synthetic actor (``seed``) with the 80 ``ict80`` markers,
-    is retargeted (``retargeter()`` builds the retargeter) from ``labels`` known
-    frames of the character of ``seed``, and drives that character's neutral
-    (``deformer()`` builds the deformer); errors over the face area (6706
-    vertices).
-    """
-    from facegeom.constants import FACE_AREA
-    from facegeom.errors import InputError
-    from facegeom.io import ict_weights, read_take
-    from facegeom.model import layout
-    from facegeom.model import performance as sq
-    from facegeom.pipelines.animate import animate as run_animation
-
-    path = Path(path)
-    take = read_take(path)
-    W = ict_weights(take, model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end", path)
-    if labels > frames:
-        raise InputError(f"--labels {labels} exceeds --frames {frames}")
-    ids = layout(model, "ict80")
-    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
-                           f"{path.stem}@{start}")
-    anim = run_animation(model, seq, retargeter(), deformer(), labels, region=FACE_AREA)
-    return anim, seq, ids
-
-
-def write_animation_npz(out, anim, ids) -> Path:
-    """Write an animation as ``facegeom animate`` does (compressed npz, float32 vertices), atomically."""
-    import numpy as np
-
-    from facegeom.io import atomic_path
-
-    out = Path(out)
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
-                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
-                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
-    return out
-
-
 @cli.command()
 @click.option("--take", "take_path", type=click.Path(), default=None,
               help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")
@@ -505,6 +459,7 @@ def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, r
     from facegeom.errors import InputError
     from facegeom.io import find_takes, write_mesh
     from facegeom.model import locate_takes
+    from facegeom.pipelines.animate import animate_take, write_animation_npz
     from facegeom.registry import parse_method
 
     model = obj.face_model()

@@ -917,7 +917,7 @@ class _Animate(_Op):
 
     def one(self, state, spec, item):
         from facegeom import registry
-        from facegeom.cli.main import animate_take
+        from facegeom.pipelines.animate import animate_take
 
         s = spec["shared"]
         anim, _, ids = animate_take(state["model"], item["input"], s["start"], s["frames"], s["labels"], s["seed"],
@@ -926,7 +926,7 @@ class _Animate(_Op):
         return anim, ids
 
     def write(self, state, spec, item, result):
-        from facegeom.cli.main import write_animation_npz
+        from facegeom.pipelines.animate import write_animation_npz
 
         anim, ids = result
         write_animation_npz(item["outputs"][0], anim, ids)
