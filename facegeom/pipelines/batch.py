@@ -995,12 +995,12 @@ class _Clean(_Op):
         return outs, extra
 
     def one(self, state, spec, item):
-        from facegeom.cli.cleanup import _read_input
         from facegeom.io import read_vertex_csv
         from facegeom.pipelines import cleanup
+        from facegeom.pipelines.meshinput import read_input_mesh
 
         method, p = spec["method"], dict(spec["params"])
-        V, F = _read_input(item["input"], polygons=method == "clean")
+        V, F = read_input_mesh(item["input"], polygons=method == "clean")
         sources = [read_vertex_csv(item["extra"]["markers"], V.shape[0])] if "markers" in item["extra"] \
             else []
         if method == "clean":
