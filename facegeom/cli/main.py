@@ -152,21 +152,15 @@ def retarget(source, labels, output, method, params, fill_gaps):
     Both files are marker sequences (CSV with header frame,marker,x,y,z, or npz
     with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
     """
-    import numpy as np
-
     from facegeom import registry
-    from facegeom.io import read_retarget_inputs, write_marker_sequence
+    from facegeom.pipelines.single import retarget_files, write_retargeted
 
-    src, P, lab, _ = read_retarget_inputs(source, labels, fill_gaps, echo=click.echo)
-    T = src.n_frames
-    r = registry.create("retargeters", method, **_parse_params(params))
-    t = time.perf_counter()
-    Y = r.fit(P, lab.frames, lab.positions).transform()
-    dt = time.perf_counter() - t
-    dev = float(np.abs(Y[lab.frames] - lab.positions).max())
-    write_marker_sequence(output, Y, names=src.names, extra={"labelled_frames": lab.frames})
-    click.echo(f"{method}: {T} frames x {src.n_markers} markers from {lab.n_frames} labelled frames in "
-               f"{dt * 1e3:.1f} ms (largest deviation from a label {dev:.3g}) -> {output}")
+    res = retarget_files(source, labels, lambda: registry.create("retargeters", method, **_parse_params(params)),
+                         fill_gaps, echo=click.echo)
+    write_retargeted(output, res)
+    click.echo(f"{method}: {res.source.n_frames} frames x {res.source.n_markers} markers from {res.labels.n_frames} "
+               f"labelled frames in {res.seconds * 1e3:.1f} ms (largest deviation from a label "
+               f"{res.label_deviation:.3g}) -> {output}")
 
 
 @cli.command()
@@ -191,23 +185,16 @@ def fit(obj: _Context, target, kind, rig_path, method, params, focal, cx, cy, ou
     import numpy as np
 
     from facegeom import registry
-    from facegeom.io import write_mesh, write_weights
-    from facegeom.model import load_rig, read_fit_target
+    from facegeom.io import write_mesh
+    from facegeom.model import load_rig
+    from facegeom.pipelines.single import fit_file, write_fit
 
     rig = load_rig(rig_path, obj.face_model)
     tp = Path(target)
-    kind, tgt = read_fit_target(tp, rig, kind, focal, cx, cy)
-    fitter = registry.create("fitters", method, **_parse_params(params))
-    t = time.perf_counter()
-    r = fitter.fit(rig, tgt)
-    dt = time.perf_counter() - t
-    active = np.flatnonzero(np.abs(r.weights) > 1e-6)
-    info = {"method": method, "target": str(tp), "kind": kind, "time_s": dt}
-    cam = r.info.get("camera") if isinstance(r.info, dict) else None
-    if cam is not None:
-        info["pose"] = {"R": np.asarray(cam.R).tolist(), "t": np.asarray(cam.t).tolist()}
-    write_weights(output, rig.names, r.weights, info)
-    click.echo(f"{method}: {kind} target, {active.size} active shapes in {dt * 1e3:.1f} ms -> {output}")
+    r = fit_file(rig, tp, lambda: registry.create("fitters", method, **_parse_params(params)), kind, focal, cx, cy)
+    active = r.active
+    write_fit(output, rig.names, r, method, str(tp), time_s=r.seconds)
+    click.echo(f"{method}: {r.kind} target, {active.size} active shapes in {r.seconds * 1e3:.1f} ms -> {output}")
     for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
         click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
     if mesh_out:

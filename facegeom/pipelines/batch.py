@@ -549,6 +549,7 @@ class _Fit(_Op):
 
     def compute(self, state, spec, items):
         from facegeom.model import read_fit_target
+        from facegeom.pipelines.single import FitOutcome, fit_file
 
         rig, fitter = state["rig"], state["fitter"]
         cam = spec["shared"]["camera"]
@@ -572,26 +573,15 @@ class _Fit(_Op):
                 else:
                     share = (time.perf_counter() - t0) / len(targets)
                     for k, (it, dt) in enumerate(good):
-                        yield it, ("landmarks", E[k], cams[k]), dt + share
+                        yield it, FitOutcome("landmarks", E[k], cams[k]), dt + share
 
-        def one(it):
-            kind, tgt = read_fit_target(it["input"], rig, spec["shared"]["kind"], *cam)
-            r = fitter.fit(rig, tgt)
-            info = r.info if isinstance(r.info, dict) else {}
-            return kind, r.weights, info.get("camera")
-
-        yield from _timed(one, single)
+        yield from _timed(lambda it: fit_file(rig, it["input"], lambda: fitter, spec["shared"]["kind"], *cam), single)
 
     def write(self, state, spec, item, result):
-        from facegeom.io import write_weights
+        from facegeom.pipelines.single import write_fit
 
-        kind, w, cam = result
-        rig = state["rig"]
-        info = {"method": spec["method"], "target": item["input"], "kind": kind}
-        if cam is not None:
-            info["pose"] = {"R": np.asarray(cam.R).tolist(), "t": np.asarray(cam.t).tolist()}
-        write_weights(item["outputs"][0], rig.names, w, info)
-        return {"active": int((np.abs(w) > 1e-6).sum())}
+        write_fit(item["outputs"][0], state["rig"].names, result, spec["method"], item["input"])
+        return {"active": int(result.active.size)}
 
     def evaluate(self, state, spec, item, result, truth):
         return self.evaluate_many(state, spec, [(item, result)])[0]
@@ -608,7 +598,7 @@ class _Fit(_Op):
             except Exception as exc:  # noqa: BLE001
                 out.append(exc)
                 continue
-            dW.append(np.asarray(res[1], dtype=np.float64) - wt)
+            dW.append(np.asarray(res.weights, dtype=np.float64) - wt)
             slots.append(len(out))
             out.append(None)
         if dW:
@@ -824,25 +814,23 @@ class _Retarget(_Op):
 
     def one(self, state, spec, item):
         from facegeom import registry
-        from facegeom.io import read_retarget_inputs
+        from facegeom.pipelines.single import retarget_files
 
-        src, P, lab, n = read_retarget_inputs(item["input"], item["extra"]["labels"], spec["shared"]["fill_gaps"])
-        r = registry.create("retargeters", spec["method"], **spec["params"])
-        Y = r.fit(P, lab.frames, lab.positions).transform()
-        return Y, src.names, lab, n
+        return retarget_files(item["input"], item["extra"]["labels"],
+                              lambda: registry.create("retargeters", spec["method"], **spec["params"]),
+                              spec["shared"]["fill_gaps"])
 
     def write(self, state, spec, item, result):
-        from facegeom.io import write_marker_sequence
+        from facegeom.pipelines.single import write_retargeted
 
-        Y, names, lab, n = result
-        write_marker_sequence(item["outputs"][0], Y, names=names, extra={"labelled_frames": lab.frames})
-        return {"frames": int(Y.shape[0]), "filled": int(n),
-                "label_dev": float(np.abs(Y[lab.frames] - lab.positions).max())}
+        write_retargeted(item["outputs"][0], result)
+        return {"frames": int(result.markers.shape[0]), "filled": int(result.filled),
+                "label_dev": result.label_deviation}
 
     def evaluate(self, state, spec, item, result, truth):
         from facegeom.io import read_marker_sequence
 
-        Y, names = result[0], result[1]
+        Y, names = result.markers, result.source.names
         tr = read_marker_sequence(truth).reorder(names, "truth")
         if tr.n_frames != Y.shape[0] or not np.array_equal(tr.frames, np.arange(Y.shape[0])):
             raise InputError(f"the truth must hold the frames 0..{Y.shape[0] - 1} of the source", truth)
