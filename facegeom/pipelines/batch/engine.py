@@ -9,6 +9,9 @@ import time
 from facegeom.errors import InputError
 from facegeom.pipelines.batch.tasks import describe, make_row, run_chunk
 
+__all__ = ["default_workers", "LOCAL_CLUSTER_CONFIG", "local_cluster", "connect", "run_inline", "run_on_dask",
+           "progress_bar"]
+
 
 def default_workers() -> int:
     """One worker process per core available to this process."""
@@ -55,7 +58,28 @@ def local_cluster(n_workers: int | None = None):
 
 @contextlib.contextmanager
 def connect(client=None, scheduler: str | None = None, workers: int | None = None):
-    """A Dask client: the given one, one connected to ``scheduler``, or a new local cluster."""
+    """A Dask client: the given one, one connected to ``scheduler``, or a new local cluster (closed on exit).
+
+    Parameters
+    ----------
+    client : distributed.Client, optional
+        Used as it is and left open.
+    scheduler : str, optional
+        Address of a running scheduler.
+    workers : int, optional
+        Worker processes of a new local cluster (default: one per core).
+
+    Yields
+    ------
+    client : distributed.Client
+    description : str
+        Where the tasks run, for the log.
+
+    Raises
+    ------
+    InputError
+        The scheduler cannot be reached.
+    """
     if client is not None:
         yield client, f"Dask scheduler {client.scheduler.address}"
         return
@@ -107,6 +131,22 @@ def run_inline(spec: dict, chunks: list[list[dict]], rows: dict, progress: bool)
 
 
 def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retries: int, progress: bool) -> None:
+    """Submit a task per chunk; gather their rows into ``rows`` as they finish (a failed task fails its items).
+
+    Parameters
+    ----------
+    client : distributed.Client
+    spec : dict
+        The task spec.
+    chunks : list of list of dict
+        The items of each task.
+    rows : dict
+        Summary rows by item index, filled in place.
+    retries : int
+        Retries of a task that raised.
+    progress : bool
+        Show a progress bar.
+    """
     from distributed import as_completed
 
     token = hashlib.sha1(f"{spec['key']}{time.time_ns()}{os.getpid()}".encode()).hexdigest()[:8]
@@ -146,6 +186,7 @@ def _task_error(fut) -> str:
 
 @contextlib.contextmanager
 def progress_bar(total: int, desc: str, enabled: bool):
+    """A tqdm bar of ``total`` items labelled ``desc`` (silent unless ``enabled``), closed on exit."""
     from tqdm import tqdm
 
     bar = tqdm(total=total, desc=desc, unit="item", disable=not enabled, dynamic_ncols=True)

@@ -1,4 +1,10 @@
-"""The output folder's records: the manifest (batch-job.json), the summary (batch-summary.csv), resume, stale temporary files."""
+"""The output folder's records: manifest, summary, resume, stale temporary files.
+
+The manifest (``batch-job.json``) records what the folder was made with; a
+rerun with other settings is refused unless ``overwrite``. The summary
+(``batch-summary.csv``) has a row per input; a rerun keeps the metrics and
+times of the outputs it skips.
+"""
 from __future__ import annotations
 
 import contextlib
@@ -12,16 +18,25 @@ from facegeom.errors import InputError
 from facegeom.pipelines.batch.job import Job
 from facegeom.pipelines.batch.tasks import make_row
 
+__all__ = ["SUMMARY_NAME", "MANIFEST_NAME", "SUMMARY_COLUMNS", "read_summary", "write_summary", "write_manifest",
+           "remove_outputs", "remove_stale_temporaries", "finish_rows"]
+
 SUMMARY_NAME = "batch-summary.csv"
-
-
 MANIFEST_NAME = "batch-job.json"
-
-
 SUMMARY_COLUMNS = ("input", "output", "status", "message", "time_s", "worker")
 
 
 def read_summary(path: Path) -> dict:
+    """The rows of an earlier summary by their ``input`` column; empty when there is none or it is unreadable.
+
+    Parameters
+    ----------
+    path : Path
+
+    Returns
+    -------
+    dict of str to dict
+    """
     if not path.is_file():
         return {}
     try:
@@ -40,6 +55,14 @@ def _fmt(v) -> str:
 
 
 def write_summary(path: Path, rows: list[dict]) -> None:
+    """Write the summary CSV atomically: :data:`SUMMARY_COLUMNS`, then every metric column in order of appearance.
+
+    Parameters
+    ----------
+    path : Path
+    rows : list of dict
+        One row per input (keys starting with ``_`` and ``index`` are not written).
+    """
     from facegeom.io import atomic_path
 
     cols = list(SUMMARY_COLUMNS)
@@ -54,6 +77,21 @@ def write_summary(path: Path, rows: list[dict]) -> None:
 
 
 def write_manifest(job: Job, spec: dict, overwrite: bool) -> None:
+    """Record the job's settings in the output folder; refuse a folder made by another job.
+
+    Parameters
+    ----------
+    job : Job
+    spec : dict
+        The task spec (its ``config`` hash and settings).
+    overwrite : bool
+        Replace another job's manifest instead of refusing.
+
+    Raises
+    ------
+    InputError
+        The folder holds the results of a job with other settings.
+    """
     from facegeom import __version__
     from facegeom.io import atomic_path
 
@@ -96,11 +134,21 @@ def remove_outputs(items: list[dict], summary: Path) -> None:
 
 
 def remove_stale_temporaries(items: list[dict]) -> int:
-    """Delete the temporary files of this job's outputs (``.STEM.*.tmp.EXT``, see :func:`facegeom.io.files.atomic_path`).
+    """Delete the temporary files of this job's outputs (``.STEM.*.tmp.EXT``, see :func:`facegeom.io.atomic_path`).
 
     A process killed while writing leaves its temporary file behind (the output
     itself is never half-written). Run before any task starts, so none is in use
     by this job.
+
+    Parameters
+    ----------
+    items : list of dict
+        The planned items (their ``outputs``).
+
+    Returns
+    -------
+    int
+        The number of files deleted.
     """
     wanted: dict[str, dict[str, set]] = {}  # folder -> ".STEM." -> {".tmp.EXT"}
     for it in items:
@@ -126,6 +174,22 @@ def remove_stale_temporaries(items: list[dict]) -> int:
 
 
 def finish_rows(job: Job, items: list[dict], rows: dict, previous: dict) -> list[dict]:
+    """The summary rows in input order, with relative paths; a skipped output keeps its earlier metrics.
+
+    Parameters
+    ----------
+    job : Job
+    items : list of dict
+        The planned items.
+    rows : dict
+        Rows by item index (an item without one was ``not run``).
+    previous : dict
+        The earlier summary (:func:`read_summary`).
+
+    Returns
+    -------
+    list of dict
+    """
     out = []
     for it in items:
         r = dict(rows.get(it["index"]) or make_row(it, "not run", "interrupted before this input ran", None, ""))

@@ -1,4 +1,10 @@
-"""The five operations (fit, drive, retarget, animate, clean): checks, outputs, per-worker state, compute, write, metrics."""
+"""The five operations of a batch job and their per-worker shared state.
+
+``fit``, ``drive``, ``retarget``, ``animate`` and ``clean`` (:data:`OPS`), each
+an :class:`Operation`: client-side checks of the job, the output files of an
+input, the state a worker builds once per job, and per item compute, write
+and error metrics against ground truth.
+"""
 from __future__ import annotations
 
 import hashlib
@@ -11,6 +17,8 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.pipelines.batch.cache import load_model, stamp
 from facegeom.pipelines.batch.job import Job, job_error, resolve_template
+
+__all__ = ["Operation", "OPS"]
 
 
 def _timed(fn, items):
@@ -64,6 +72,16 @@ def _vertex_errors(A: np.ndarray, B: np.ndarray, what: str, path) -> dict:
 
 
 class Operation:
+    """One batch operation; the engine calls these methods.
+
+    Client side, once per job: :meth:`prepare`, :meth:`outputs` per input,
+    :meth:`default_chunk`. Worker side: :meth:`state` once per process and job,
+    then per chunk :meth:`compute` (by default :meth:`one` per item),
+    :meth:`write` per result and :meth:`evaluate_many` for the items with
+    ground truth. ``spec`` is the task spec, ``item`` an item of the plan
+    (:mod:`facegeom.pipelines.batch.plan`).
+    """
+
     name = ""
 
     def prepare(self, job: Job, spec: dict, files: list[Path]) -> None:
@@ -74,21 +92,27 @@ class Operation:
         raise NotImplementedError
 
     def default_chunk(self, job: Job, spec: dict, items: list[dict]) -> int:
+        """Items per task when the job sets none."""
         return 1
 
     def state(self, spec: dict):
+        """The shared state of the job on a worker (built once per process, :func:`~.tasks.worker_state`)."""
         return {}
 
     def compute(self, state, spec: dict, items: list[dict]):
+        """Yield ``(item, result or exception, seconds)`` for every item."""
         return _timed(lambda it: self.one(state, spec, it), items)
 
     def one(self, state, spec: dict, item: dict):
+        """The result of one item (raises for a bad input)."""
         raise NotImplementedError
 
     def write(self, state, spec: dict, item: dict, result) -> dict:
+        """Write the item's output files; returns the summary columns of the item."""
         raise NotImplementedError
 
     def evaluate(self, state, spec: dict, item: dict, result, truth: str) -> dict:
+        """Error metrics of one result against its ground truth file ``truth``."""
         return {}
 
     def evaluate_many(self, state, spec: dict, pairs: list) -> list:
@@ -126,7 +150,7 @@ class _Fit(Operation):
         landmarks = kind == "landmarks" or (kind == "auto" and any(f.suffix.lower() == ".csv" for f in files))
         if landmarks and any(c is None for c in cam):
             raise job_error(job.source, "landmark targets need the camera: set shared.focal, shared.cx and shared.cy "
-                                    "(pixels)")
+                                        "(pixels)")
         fitter = _check_method(job, "fitters")
         spec["shared"] = {"rig": rig, "kind": kind, "camera": cam,
                           "vectorised": hasattr(fitter, "fit_landmarks")}
@@ -274,14 +298,14 @@ class _Drive(Operation):
             if not p.exists() and (name in ("ict80", "landmarks68") or name.startswith("random")):
                 if model is None:
                     raise job_error(job.source, f"shared.markers {name!r} is a layout of the ICT face; with "
-                                            f"shared.mesh give a marker file (a CSV with a vertex_id column)")
+                                                f"shared.mesh give a marker file (a CSV with a vertex_id column)")
                 try:
                     return layout(model, name)
                 except InputError as exc:
                     raise job_error(job.source, f"shared.markers: {exc}") from None
             if not p.exists():
                 raise job_error(job.source, f"shared.markers {p}: file not found (a CSV with a vertex_id column, "
-                                        f"or a layout name: ict80, landmarks68, random<k>)")
+                                            f"or a layout name: ict80, landmarks68, random<k>)")
             try:
                 return read_vertex_csv(p, n).ids.astype(np.int64)
             except InputError as exc:
@@ -298,7 +322,7 @@ class _Drive(Operation):
                 continue
             break
         raise job_error(job.source, "shared.markers is needed: a marker file (CSV with a vertex_id column) or a layout "
-                                "name (ict80, landmarks68, random<k>) giving the marker vertices")
+                                    "name (ict80, landmarks68, random<k>) giving the marker vertices")
 
     def outputs(self, job, spec, src, stem):
         t = self._type(job, src)
@@ -391,7 +415,7 @@ class _Retarget(Operation):
     def prepare(self, job, spec, files):
         if "labels" not in job.shared:
             raise job_error(job.source, "retarget needs shared.labels, the labelled character frames of each source "
-                                    "as a path template, e.g. \"labels/{stem}.csv\"")
+                                        "as a path template, e.g. \"labels/{stem}.csv\"")
         _check_method(job, "retargeters")
         spec["shared"] = {"fill_gaps": bool(job.shared.get("fill_gaps", False))}
 
@@ -532,7 +556,7 @@ class _Clean(Operation):
         if job.method == "crop":
             if ("from_vertices" in p) == ("id_range" in p):
                 raise job_error(job.source, "crop needs either params.from_vertices with params.radius, or "
-                                        "params.id_range (one of them)")
+                                            "params.id_range (one of them)")
             if "from_vertices" in p and "radius" not in p:
                 raise job_error(job.source, "params.from_vertices needs params.radius (geodesic distance)")
         m = job.shared.get("map")

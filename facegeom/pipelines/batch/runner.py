@@ -1,4 +1,4 @@
-"""run_job: plan, check the folder, skip what is complete, run the rest, write the summary."""
+"""Running a job: plan it, check the output folder, skip what is complete, run the rest, write the summary."""
 from __future__ import annotations
 
 import os
@@ -20,10 +20,28 @@ from facegeom.pipelines.batch.ledger import (
 from facegeom.pipelines.batch.plan import plan
 from facegeom.pipelines.batch.tasks import is_complete, make_row
 
+__all__ = ["BatchResult", "run_job"]
+
 
 @dataclass
 class BatchResult:
-    """What :func:`run_job` did: one row per input (in input order), the summary file, counts."""
+    """What :func:`run_job` did.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One summary row per input, in input order.
+    summary : Path
+        The summary CSV.
+    seconds : float
+        Wall time of the run.
+    engine : str
+        Where the tasks ran.
+    chunk : int
+        Items per task.
+    tasks : int
+        Tasks run.
+    """
 
     rows: list[dict]
     summary: Path
@@ -34,6 +52,7 @@ class BatchResult:
 
     @property
     def counts(self) -> dict:
+        """Inputs per status: ``ok``, ``failed``, ``skipped``, ``not run``."""
         c = {"ok": 0, "failed": 0, "skipped": 0, "not run": 0}
         for r in self.rows:
             c[r["status"]] = c.get(r["status"], 0) + 1
@@ -41,6 +60,7 @@ class BatchResult:
 
     @property
     def failed(self) -> list[dict]:
+        """The rows of the inputs that failed."""
         return [r for r in self.rows if r["status"] == "failed"]
 
 

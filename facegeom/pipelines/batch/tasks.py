@@ -1,4 +1,10 @@
-"""A task on a worker: a chunk of items run with the job state cached per process, one summary row per item."""
+"""A task on a worker: a chunk of items run with the job's state cached per process, one summary row per item.
+
+The heavy shared state of a job (rig and Gram matrix, fitted deformer, face
+model) is built once per worker process and kept in a module-level cache keyed
+by the job's hash (:func:`worker_state`); ``_BUILDS`` counts the builds (tests
+read it on the workers).
+"""
 from __future__ import annotations
 
 import contextlib
@@ -10,20 +16,27 @@ import time
 from facegeom.errors import FacegeomError
 from facegeom.pipelines.batch.operations import OPS, Operation
 
+__all__ = ["worker_state", "SharedStateError", "run_chunk", "make_row", "describe", "is_complete", "worker_name"]
+
 _STATE: dict = {}
-
-
 _STATE_LOCK = threading.Lock()
-
-
 _BUILDS: dict = {}  # job key -> how many times this process built the state (1 unless evicted)
-
-
 _KEEP = 2  # job states kept per worker process
 
 
 def worker_state(spec: dict):
-    """The operation's shared state for ``spec``, built once per process and cached by the job key."""
+    """The operation's shared state for a task, built once per process and cached by the job key.
+
+    Parameters
+    ----------
+    spec : dict
+        The task spec; ``spec["key"]`` identifies the job and its shared files' versions.
+
+    Returns
+    -------
+    object
+        What the operation's ``state(spec)`` built (e.g. ``{"rig": ..., "fitter": ...}``).
+    """
     key = spec["key"]
     with _STATE_LOCK:
         st = _STATE.get(key)
@@ -41,10 +54,21 @@ class SharedStateError(FacegeomError, RuntimeError):
 
 
 def worker_name() -> str:
+    """``host:pid`` of this process (the summary's ``worker`` column)."""
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
 def describe(exc: BaseException) -> str:
+    """An exception as one line: a facegeom error's own message, else ``Type: message``.
+
+    Parameters
+    ----------
+    exc : BaseException
+
+    Returns
+    -------
+    str
+    """
     if isinstance(exc, FacegeomError):
         return " ".join(str(exc).split())
     text = " ".join(str(exc).split())
@@ -52,6 +76,7 @@ def describe(exc: BaseException) -> str:
 
 
 def is_complete(item: dict) -> bool:
+    """Whether every output file of ``item`` exists (outputs are written atomically, so they are whole)."""
     return all(os.path.exists(o) for o in item["outputs"])
 
 
@@ -81,10 +106,26 @@ def _measure(op, state, spec: dict, done: list) -> None:
 def run_chunk(spec: dict, items: list[dict]) -> list[dict]:
     """Process a chunk of items (a task): skip complete ones, compute and write the others; one row each.
 
-    Never raises for a bad item: its row says ``failed`` with the message. Raises
-    :class:`SharedStateError` when the job's shared state cannot be built (Dask
-    then retries the task). Error metrics against ground truth are computed
-    after the chunk's outputs are written, for the whole chunk at once.
+    Never raises for a bad item: its row says ``failed`` with the message. Error
+    metrics against ground truth are computed after the chunk's outputs are
+    written, for the whole chunk at once.
+
+    Parameters
+    ----------
+    spec : dict
+        The task spec (:func:`facegeom.pipelines.batch.plan.plan`).
+    items : list of dict
+        The chunk's items: ``index``, ``input``, ``outputs``, ``truth``, ``extra``.
+
+    Returns
+    -------
+    list of dict
+        One summary row per item (:func:`make_row`), in chunk order.
+
+    Raises
+    ------
+    SharedStateError
+        The job's shared state cannot be built (Dask then retries the task).
     """
     op = OPS[spec["operation"]]
     where = worker_name()
@@ -93,7 +134,7 @@ def run_chunk(spec: dict, items: list[dict]) -> list[dict]:
     for it in items:
         if is_complete(it):
             rows[it["index"]] = make_row(it, "skipped", "output already complete (an earlier attempt or run wrote it)",
-                                     None, where)
+                                         None, where)
         else:
             todo.append(it)
     if not todo:
@@ -139,6 +180,27 @@ def _run_todo(op, spec: dict, items: list[dict], todo: list[dict], rows: dict, w
 
 
 def make_row(item: dict, status: str, message: str, seconds, where: str, metrics: dict | None = None) -> dict:
+    """A summary row of ``item``.
+
+    Parameters
+    ----------
+    item : dict
+        The item (its ``index``).
+    status : str
+        ``ok``, ``failed``, ``skipped`` or ``not run``.
+    message : str
+        Why it failed or was skipped, or a note.
+    seconds : float or None
+        Time spent on the item.
+    where : str
+        The worker (``host:pid``), or empty.
+    metrics : dict, optional
+        Extra columns (output sizes, errors against the truth).
+
+    Returns
+    -------
+    dict
+    """
     r = {"index": item["index"], "status": status, "message": message,
          "time_s": None if seconds is None else float(seconds), "worker": where}
     r.update(metrics or {})
