@@ -8,16 +8,21 @@ Groups (declared in ``pyproject.toml``, also by third-party packages):
 
 The CLI, the viewer and the comparison scripts list and build every method the
 same way: ``create("deformers", "tangent", d=3)``.
+
+Method specs: a registered name plus parameters, parsed from text like
+``label=name:k=v,k=v`` (:func:`parse_method`, :func:`parse_methods`) and built
+with :meth:`MethodSpec.build`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 
 from facegeom.errors import InputError
 
 KINDS = ("deformers", "retargeters", "fitters")
 
-__all__ = ["KINDS", "available", "get", "create"]
+__all__ = ["KINDS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method", "parse_methods"]
 
 
 def _group(kind: str) -> str:
@@ -48,3 +53,126 @@ def create(kind: str, name: str, **params):
         return cls(**params)
     except TypeError as exc:  # unknown keyword
         raise InputError(f"{kind[:-1]} {name!r}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A method with its parameters: ``label=name:key=value,key=value`` (label and parameters optional).
+
+    Attributes
+    ----------
+    label : str
+        The name shown in tables and plots (the whole spec text when no label is given).
+    name : str
+        The registered plugin name.
+    params : dict
+        Constructor parameters of the plugin.
+    """
+
+    label: str
+    name: str
+    params: dict = field(default_factory=dict)
+
+    def build(self, kind: str):
+        """Build the method: ``create(kind, name, **params)``.
+
+        Parameters
+        ----------
+        kind : str
+            One of :data:`KINDS`.
+
+        Returns
+        -------
+        object
+            A new instance of the registered class.
+        """
+        return create(kind, self.name, **self.params)
+
+
+def parse_value(text: str):
+    """A parameter value from text: ``None``/``null``, ``true``/``false``, an int, a float, else the string.
+
+    Parameters
+    ----------
+    text : str
+        The value as written (surrounding spaces ignored). Lowercase ``none``
+        stays a word (e.g. ``align=none``).
+
+    Returns
+    -------
+    None, bool, int, float or str
+    """
+    t = text.strip()
+    low = t.lower()
+    if t in ("None", "null"):  # lowercase "none" stays a word (e.g. align=none)
+        return None
+    if low in ("true", "false"):
+        return low == "true"
+    for cast in (int, float):
+        try:
+            return cast(t)
+        except ValueError:
+            pass
+    return t
+
+
+def parse_method(spec: str) -> MethodSpec:
+    """Parse ``[label=]name[:k=v,k=v]``; e.g. ``tangent-paper=tangent:d=3,rings=1``.
+
+    Parameters
+    ----------
+    spec : str
+        The spec text; values are read with :func:`parse_value`.
+
+    Returns
+    -------
+    MethodSpec
+        The name is not checked against the registry (see :func:`parse_methods`).
+
+    Raises
+    ------
+    InputError
+        A parameter without ``=``.
+    """
+    spec = spec.strip()
+    label = None
+    head, _, params = spec.partition(":")
+    if "=" in head:
+        label, head = head.split("=", 1)
+    kv = {}
+    if params:
+        for item in params.split(","):
+            if "=" not in item:
+                raise InputError(f"bad method spec {spec!r}: parameter {item!r} needs key=value")
+            k, v = item.split("=", 1)
+            kv[k.strip()] = parse_value(v)
+    return MethodSpec(label or spec, head.strip(), kv)
+
+
+def parse_methods(text: str, kind: str, defaults: list[str]) -> list[MethodSpec]:
+    """Parse ``;``-separated specs (``,`` separates parameters); ``all`` means ``defaults``.
+
+    Parameters
+    ----------
+    text : str
+        ``all`` or specs such as ``rbf;t1=tangent:rings=1``.
+    kind : str
+        One of :data:`KINDS`; every name must be registered in it.
+    defaults : list of str
+        The specs that ``all`` stands for.
+
+    Returns
+    -------
+    list of MethodSpec
+
+    Raises
+    ------
+    InputError
+        A malformed spec or a name not registered in ``kind``.
+    """
+    specs = [parse_method(s) for s in (defaults if text == "all" else text.split(";")) if s.strip()]
+    known = available(kind)
+    for s in specs:
+        if s.name not in known:
+            raise InputError(f"no {kind[:-1]} named {s.name!r}; available: {', '.join(known)}")
+    return specs

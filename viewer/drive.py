@@ -23,10 +23,10 @@ import numpy as np
 
 from facegeom import registry
 from facegeom.bench import drive as bench_drive
-from facegeom.bench.common import MethodSpec, parse_methods
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.model import KINDS, layout, named_expression, random_sparse_expression
+from facegeom.registry import MethodSpec, parse_methods
 from viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]

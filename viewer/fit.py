@@ -18,10 +18,10 @@ import numpy as np
 
 from facegeom import registry
 from facegeom.bench import fit as bench_fit
-from facegeom.bench.common import MethodSpec, parse_methods
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
+from facegeom.registry import MethodSpec, parse_methods
 from viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]

@@ -23,13 +23,13 @@ import numpy as np
 
 from facegeom.bench import animate as bench_animate
 from facegeom.bench import retarget as bench_retarget
-from facegeom.bench.common import parse_method, parse_methods
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import layout
 from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
+from facegeom.registry import parse_method, parse_methods
 from viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView"]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.common import format_table, machine_note, write_csv
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import SolveError
@@ -23,6 +23,7 @@ from facegeom.io import atomic_path
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
+from facegeom.registry import MethodSpec
 
 DEFAULT_RETARGETERS = ["copy", "rbf", "tangent"]
 

@@ -25,9 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import MethodSpec, format_table, machine_note, median_time, write_csv
+from facegeom.bench.common import format_table, machine_note, median_time, write_csv
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.model import NAMED, layout, named_expression, random_sparse_expression
+from facegeom.registry import MethodSpec
 
 DEFAULT_METHODS = [
     "markers-only",

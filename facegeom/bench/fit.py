@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom import metrics as fm
-from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.common import format_table, machine_note, write_csv
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
 from facegeom.io import atomic_path
@@ -49,6 +49,7 @@ from facegeom.model import (
     PointCloudTarget,
     look_at_camera,
 )
+from facegeom.registry import MethodSpec
 
 EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
 DEFAULT_METHODS = [

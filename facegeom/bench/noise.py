@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.common import format_table, machine_note, write_csv
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import SolveError
 from facegeom.io import atomic_path
 from facegeom.methods.tangent_retarget import evenly_spread
+from facegeom.registry import MethodSpec
 
 LEVELS_MM = (0.0, 0.1, 0.2, 0.5, 1.0)
 KINDS = ("labels", "source")

@@ -25,12 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
+from facegeom.bench.common import format_table, machine_note, write_csv
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import SolveError
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import layout
 from facegeom.model import performance as sq
+from facegeom.registry import MethodSpec
 
 LABEL_COUNTS = (2, 3, 4, 6, 8, 10, 15, 20, 25, 30)
 REFERENCE_LABELS = 10

@@ -12,8 +12,9 @@ import time
 import igl
 import numpy as np
 
-from facegeom.bench.common import MethodSpec, format_table, machine_note, median_time
+from facegeom.bench.common import format_table, machine_note, median_time
 from facegeom.model import layout
+from facegeom.registry import MethodSpec
 
 DEFAULT_METHODS = ["tangent", "biharmonic", "arap"]
 EXPRESSION = {"jawOpen": 0.6, "mouthSmile_L": 0.7, "browInnerUp_R": 0.5}

@@ -36,24 +36,6 @@ def _common(f):
     return f
 
 
-def _read_input(path: str, polygons: bool = False):
-    """Read IN with facegeom.io.mesh (its checks: empty, NaN, truncated, indices); OBJ polygons kept for clean."""
-    from facegeom.io import read_mesh
-
-    V, F = read_mesh(path)
-    p = Path(path)
-    if polygons and p.suffix.lower() == ".obj":
-        raw = p.read_bytes()
-        n_f = raw.count(b"\nf ") + int(raw.startswith(b"f "))
-        if n_f and n_f != F.shape[0]:  # polygons were fan-triangulated on reading: let clean triangulate them
-            from facegeom.model import read_obj_polygons
-
-            polys = read_obj_polygons(p)
-            if polys and all(min(q) >= 0 and max(q) < V.shape[0] for q in polys):
-                return V, polys
-    return V, F
-
-
 def _prepare_markers(markers, markers_out, n_vertices: int):
     from facegeom.errors import InputError
     from facegeom.io import read_vertex_csv
@@ -137,10 +119,11 @@ def register(cli: click.Group) -> None:
               --markers markers.csv --markers-out markers-clean.csv --map map.csv --report report.json
         """
         from facegeom.pipelines.cleanup import clean, parse_tolerance
+        from facegeom.pipelines.meshinput import read_input_mesh
 
         parse_tolerance(merge_tol)
         _check_outputs(mesh_out, map_path, report_path)
-        V, F = _read_input(mesh_in, polygons=True)
+        V, F = read_input_mesh(mesh_in, polygons=True)
         sources = _prepare_markers(markers, markers_out, V.shape[0])
         V2, F2, imap, report = clean(V, F, merge_tol=merge_tol, largest_component=largest,
                                      non_manifold=non_manifold, orient=not no_orient,
@@ -171,9 +154,10 @@ def register(cli: click.Group) -> None:
         import numpy as np
 
         from facegeom.pipelines.cleanup import decimate
+        from facegeom.pipelines.meshinput import read_input_mesh
 
         _check_outputs(mesh_out, map_path, report_path)
-        V, F = _read_input(mesh_in)
+        V, F = read_input_mesh(mesh_in)
         sources = _prepare_markers(markers, markers_out, V.shape[0])
         keep = np.concatenate([s.ids for s in sources]) if sources else None
         V2, F2, imap, report = decimate(V, F, n_vertices, preserve_boundary=preserve_boundary,
@@ -208,6 +192,7 @@ def register(cli: click.Group) -> None:
 
         from facegeom.errors import InputError
         from facegeom.pipelines.cleanup import crop, parse_id_range
+        from facegeom.pipelines.meshinput import read_input_mesh
 
         if radius is not None and from_vertices is None:
             raise InputError("--radius goes with --from-vertices")
@@ -216,7 +201,7 @@ def register(cli: click.Group) -> None:
         if from_vertices is not None and radius is None:
             raise InputError("--from-vertices needs --radius (geodesic distance in mesh units)")
         _check_outputs(mesh_out, map_path, report_path)
-        V, F = _read_input(mesh_in)
+        V, F = read_input_mesh(mesh_in)
         src = rng = None
         if from_vertices is not None:
             try:

@@ -82,14 +82,14 @@ def methods(kind):
 
 
 def _parse_params(items) -> dict:
-    from facegeom.bench.common import _value
+    from facegeom.registry import parse_value
 
     out = {}
     for item in items:
         if "=" not in item:
             raise click.BadParameter(f"{item!r} must be key=value", param_hint="--param")
         k, v = item.split("=", 1)
-        out[k.strip()] = _value(v)
+        out[k.strip()] = parse_value(v)
     return out
 
 
@@ -152,21 +152,15 @@ def retarget(source, labels, output, method, params, fill_gaps):
     Both files are marker sequences (CSV with header frame,marker,x,y,z, or npz
     with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
     """
-    import numpy as np
-
     from facegeom import registry
-    from facegeom.io import read_retarget_inputs, write_marker_sequence
+    from facegeom.pipelines.single import retarget_files, write_retargeted
 
-    src, P, lab, _ = read_retarget_inputs(source, labels, fill_gaps, echo=click.echo)
-    T = src.n_frames
-    r = registry.create("retargeters", method, **_parse_params(params))
-    t = time.perf_counter()
-    Y = r.fit(P, lab.frames, lab.positions).transform()
-    dt = time.perf_counter() - t
-    dev = float(np.abs(Y[lab.frames] - lab.positions).max())
-    write_marker_sequence(output, Y, names=src.names, extra={"labelled_frames": lab.frames})
-    click.echo(f"{method}: {T} frames x {src.n_markers} markers from {lab.n_frames} labelled frames in "
-               f"{dt * 1e3:.1f} ms (largest deviation from a label {dev:.3g}) -> {output}")
+    res = retarget_files(source, labels, lambda: registry.create("retargeters", method, **_parse_params(params)),
+                         fill_gaps, echo=click.echo)
+    write_retargeted(output, res)
+    click.echo(f"{method}: {res.source.n_frames} frames x {res.source.n_markers} markers from {res.labels.n_frames} "
+               f"labelled frames in {res.seconds * 1e3:.1f} ms (largest deviation from a label "
+               f"{res.label_deviation:.3g}) -> {output}")
 
 
 @cli.command()
@@ -191,23 +185,16 @@ def fit(obj: _Context, target, kind, rig_path, method, params, focal, cx, cy, ou
     import numpy as np
 
     from facegeom import registry
-    from facegeom.io import write_mesh, write_weights
-    from facegeom.model import load_rig, read_fit_target
+    from facegeom.io import write_mesh
+    from facegeom.model import load_rig
+    from facegeom.pipelines.single import fit_file, write_fit
 
     rig = load_rig(rig_path, obj.face_model)
     tp = Path(target)
-    kind, tgt = read_fit_target(tp, rig, kind, focal, cx, cy)
-    fitter = registry.create("fitters", method, **_parse_params(params))
-    t = time.perf_counter()
-    r = fitter.fit(rig, tgt)
-    dt = time.perf_counter() - t
-    active = np.flatnonzero(np.abs(r.weights) > 1e-6)
-    info = {"method": method, "target": str(tp), "kind": kind, "time_s": dt}
-    cam = r.info.get("camera") if isinstance(r.info, dict) else None
-    if cam is not None:
-        info["pose"] = {"R": np.asarray(cam.R).tolist(), "t": np.asarray(cam.t).tolist()}
-    write_weights(output, rig.names, r.weights, info)
-    click.echo(f"{method}: {kind} target, {active.size} active shapes in {dt * 1e3:.1f} ms -> {output}")
+    r = fit_file(rig, tp, lambda: registry.create("fitters", method, **_parse_params(params)), kind, focal, cx, cy)
+    active = r.active
+    write_fit(output, rig.names, r, method, str(tp), time_s=r.seconds)
+    click.echo(f"{method}: {r.kind} target, {active.size} active shapes in {r.seconds * 1e3:.1f} ms -> {output}")
     for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
         click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
     if mesh_out:
@@ -238,7 +225,7 @@ def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, o
     from pathlib import Path
 
     from facegeom.bench import drive as bd
-    from facegeom.bench.common import parse_methods
+    from facegeom.registry import parse_methods
 
     specs = parse_methods(methods, "deformers", bd.DEFAULT_METHODS)
     model = obj.face_model()
@@ -270,8 +257,8 @@ def bench_retarget(obj: _Context, sequences, frames, seed, methods, labels, take
                    layout_seed, out, no_plot, quiet):
     """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
     from facegeom.bench import retarget as br
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         counts = sorted({int(x) for x in labels.split(",") if x.strip()})
@@ -321,8 +308,8 @@ def bench_noise(obj: _Context, sequences, frames, labels, levels, seed, methods,
                 no_plot, quiet):
     """Retargeting with Gaussian noise on the known character frames and on the actor's markers."""
     from facegeom.bench import noise as bn
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         lv = tuple(float(x) for x in levels.split(",") if x.strip())
@@ -357,8 +344,8 @@ def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, d
                   out, quiet):
     """Performance-driven animation over many takes: face error and times per retargeter."""
     from facegeom.bench import animate as ba
-    from facegeom.bench.common import parse_method, parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_method, parse_methods
 
     if labels > frames:
         raise InputError(f"--labels {labels} exceeds --frames {frames}")
@@ -393,8 +380,8 @@ def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_
               takes_path, start, frames, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
     bad = [x for x in ex if x not in bf.EXPERIMENTS]
@@ -428,8 +415,8 @@ def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_
 def bench_scaling(obj: _Context, levels, methods):
     """Fit and deform times on the face subdivided to ~37k and ~150k vertices."""
     from facegeom.bench import scaling as bs
-    from facegeom.bench.common import parse_methods
     from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
 
     try:
         lv = [int(x) for x in levels.split(",") if x.strip()]
@@ -439,52 +426,6 @@ def bench_scaling(obj: _Context, levels, methods):
         raise InputError("--levels must lie in 0..3")
     specs = parse_methods(methods, "deformers", bs.DEFAULT_METHODS)
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
-
-
-def animate_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter, deformer):
-    """``facegeom animate`` on one take -> ``(Animation, Sequence, marker ids)``.
-
-    The window ``start .. start + frames - 1`` of the Live Link Face take at
-    ``path`` plays on a synthetic actor (``seed``) with the 80 ``ict80`` markers,
-    is retargeted (``retargeter()`` builds the retargeter) from ``labels`` known
-    frames of the character of ``seed``, and drives that character's neutral
-    (``deformer()`` builds the deformer); errors over the face area (6706
-    vertices).
-    """
-    from facegeom.constants import FACE_AREA
-    from facegeom.errors import InputError
-    from facegeom.io import ict_weights, read_take
-    from facegeom.model import layout
-    from facegeom.model import performance as sq
-    from facegeom.pipelines.animate import animate as run_animation
-
-    path = Path(path)
-    take = read_take(path)
-    W = ict_weights(take, model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end", path)
-    if labels > frames:
-        raise InputError(f"--labels {labels} exceeds --frames {frames}")
-    ids = layout(model, "ict80")
-    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
-                           f"{path.stem}@{start}")
-    anim = run_animation(model, seq, retargeter(), deformer(), labels, region=FACE_AREA)
-    return anim, seq, ids
-
-
-def write_animation_npz(out, anim, ids) -> Path:
-    """Write an animation as ``facegeom animate`` does (compressed npz, float32 vertices), atomically."""
-    import numpy as np
-
-    from facegeom.io import atomic_path
-
-    out = Path(out)
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
-                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
-                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
-    return out
 
 
 @cli.command()
@@ -502,10 +443,11 @@ def write_animation_npz(out, anim, ids) -> Path:
 @click.pass_obj
 def animate(obj: _Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
-    from facegeom.bench.common import parse_method
     from facegeom.errors import InputError
     from facegeom.io import find_takes, write_mesh
     from facegeom.model import locate_takes
+    from facegeom.pipelines.animate import animate_take, write_animation_npz
+    from facegeom.registry import parse_method
 
     model = obj.face_model()
     path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]

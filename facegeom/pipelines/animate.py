@@ -8,15 +8,23 @@ Pipeline for one sequence (:class:`facegeom.model.performance.Sequence`):
    on it with the marker ids (one factorization; each frame is one ``deform``).
 
 The per-frame error is measured against the character's true faces.
+:func:`animate_take` runs it on a window of a Live Link Face take (``facegeom
+animate`` and the batch ``animate`` operation) and :func:`write_animation_npz`
+writes the result.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from facegeom.constants import FACE_AREA
+from facegeom.errors import InputError
+from facegeom.io import atomic_path, ict_weights, read_take
 from facegeom.methods.tangent_retarget import evenly_spread
+from facegeom.model import layout
 from facegeom.model import performance as sq
 
 
@@ -79,3 +87,84 @@ def animate(model, seq: sq.Sequence, retargeter, deformer, labels: int = 10, reg
     marker_err = np.linalg.norm(markers - seq.target, axis=2).mean(axis=1) * 10.0
     return Animation(out, model.triangles.copy(), markers, lab, frame_err, marker_err,
                      {"retarget_s": t_ret, "deformer_fit_s": t_fit, "drive_s": t_drive})
+
+
+def animate_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter,
+                 deformer) -> tuple[Animation, sq.Sequence, np.ndarray]:
+    """Performance-driven animation of one window of a Live Link Face take.
+
+    The frames ``start .. start + frames - 1`` of the take at ``path`` play on a
+    synthetic actor (``seed``) with the 80 ``ict80`` markers, are retargeted
+    from ``labels`` known frames of the character of ``seed``, and drive that
+    character's neutral; errors over the face area (``FACE_AREA`` vertices).
+
+    Parameters
+    ----------
+    model : FaceModel
+        The face model (``n`` vertices, ``E`` expressions).
+    path : str or Path
+        The take (Live Link Face CSV).
+    start, frames : int
+        The window: first frame and number of frames ``T``.
+    labels : int
+        Known character frames, evenly spread (at most ``frames``).
+    seed : int
+        Seed of the actor and the character.
+    retargeter, deformer : callable
+        ``retargeter()`` and ``deformer()`` build the methods.
+
+    Returns
+    -------
+    anim : Animation
+        Vertices ``(T, n, 3)``, markers ``(T, 80, 3)``, per-frame errors ``(T,)``.
+    seq : Sequence
+        The actor/character sequence of the window.
+    ids : ndarray of int, shape (80,)
+        The marker vertices.
+
+    Raises
+    ------
+    InputError
+        An unreadable take, a window past its end, more labels than frames.
+    """
+    path = Path(path)
+    take = read_take(path)
+    W = ict_weights(take, model.expression_names)
+    if start + frames > W.shape[0]:
+        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
+                         f"runs past its end", path)
+    if labels > frames:
+        raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
+    ids = layout(model, "ict80")
+    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
+                           f"{path.stem}@{start}")
+    anim = animate(model, seq, retargeter(), deformer(), labels, region=FACE_AREA)
+    return anim, seq, ids
+
+
+def write_animation_npz(out, anim: Animation, ids: np.ndarray) -> Path:
+    """Write an animation as ``facegeom animate`` does (compressed npz, float32 vertices), atomically.
+
+    Parameters
+    ----------
+    out : str or Path
+        The ``.npz`` file.
+    anim : Animation
+        Keys written: ``vertices`` (float32, ``(T, n, 3)``), ``faces (m, 3)``,
+        ``markers (T, p, 3)``, ``labelled_frames``, ``frame_error_mm (T,)``,
+        ``marker_error_mm (T,)``.
+    ids : ndarray of int, shape (p,)
+        The marker vertices (key ``marker_ids``).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, vertices=anim.vertices.astype(np.float32), faces=anim.faces,
+                                markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
+                                frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
+    return out

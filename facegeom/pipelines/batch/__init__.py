@@ -1,0 +1,64 @@
+"""Batch processing on Dask: one operation over many scans, landmark files, frames or takes.
+
+A *job* (a TOML file read with :func:`load_job`, or a :class:`Job` built in
+Python) names an operation, its method and parameters, the inputs shared by
+every item (rig, rest mesh, marker layout, camera) and the inputs to process
+(folders or globs). :func:`run_job` writes one result file per input into the
+output folder and a summary CSV (``batch-summary.csv``: per input its status,
+error message, error metrics when ground truth is given, and time).
+
+Operations (each reuses the single-item code of the matching command):
+
+``fit``       blendshape coefficients of targets (landmark CSVs, meshes, point
+              clouds; :func:`facegeom.model.inputs.read_fit_target`) -> ``.json``/``.csv``
+              weights. Landmark files are fitted a chunk at a time through the
+              fitter's vectorised ``fit_landmarks`` when it has one (SEM).
+``drive``     a deformer fitted once on the rest mesh and marker layout, driven
+              by marker frames (``vertex_id,x,y,z`` CSV -> one mesh) or marker
+              sequences (``.npz``/long CSV -> ``.npz`` with float32 ``vertices (T, n, 3)``).
+``retarget``  marker sequences with their labelled character frames (a path
+              template per source) -> retargeted sequences.
+``animate``   Live Link Face takes -> character animation ``.npz`` (as
+              ``facegeom animate``).
+``clean``     meshes through ``clean`` / ``decimate`` / ``crop`` (pymeshlab) ->
+              mesh + JSON report (+ index map, carried marker files).
+
+Engine: Dask ``distributed``. By default a :class:`distributed.LocalCluster`
+sized to the machine (one process per core, one thread each, loopback only);
+``scheduler=ADDRESS`` (or ``$DASK_SCHEDULER_ADDRESS``) runs the same job on an
+existing cluster whose workers have facegeom installed and see the same paths.
+A task carries the job spec (small) and the paths of a chunk of inputs; the
+heavy shared state (rig and Gram matrix, fitted deformer, face model) is built
+once per worker process and kept in a module-level cache keyed by the job's
+hash (:func:`worker_state`). ``inline=True`` runs the very same chunks in this
+process, one after the other (debugging, baselines, the reference in tests).
+
+Safety: every file is written atomically (temporary file, then rename), so an
+output that exists is complete. Before computing an item a task checks its
+outputs: a rerun, or Dask's retry of a task whose worker died, skips what is
+already written, so nothing is lost and nothing is written twice. An input
+that fails (unreadable, malformed, a solver error) fails its own row, never the
+job. A manifest (``batch-job.json``) records what the folder was made with; a
+rerun with other settings is refused unless ``overwrite=True``.
+
+Chunks: inputs are sorted and cut into fixed chunks of ``chunk`` items
+(``[batch] chunk``, default per operation: 64 landmark files, 16 marker frames,
+else 1), independent of the number of workers, so a job gives the same result
+files on any cluster and inline. (The vectorised landmark fit estimates the
+poses of a chunk together; its coefficients depend on the chunk's other
+targets at the 1e-8 level, so a resumed chunk may differ in the last digits
+from an uninterrupted run.)
+"""
+from __future__ import annotations
+
+from facegeom.pipelines.batch.engine import LOCAL_CLUSTER_CONFIG, default_workers, local_cluster
+from facegeom.pipelines.batch.job import OPERATIONS, Job, job_from_dict, load_job
+from facegeom.pipelines.batch.ledger import MANIFEST_NAME, SUMMARY_NAME
+from facegeom.pipelines.batch.operations import OPS as _OPS
+from facegeom.pipelines.batch.plan import plan as _plan
+from facegeom.pipelines.batch.runner import BatchResult, run_job
+from facegeom.pipelines.batch.tasks import _BUILDS, SharedStateError, run_chunk, worker_state
+
+__all__ = ["OPERATIONS", "SUMMARY_NAME", "MANIFEST_NAME", "Job", "BatchResult", "SharedStateError", "load_job",
+           "job_from_dict", "run_job", "run_chunk", "worker_state", "default_workers", "local_cluster",
+           "LOCAL_CLUSTER_CONFIG", "_OPS", "_BUILDS", "_plan"]

@@ -1,0 +1,176 @@
+"""One input, one result: the steps that ``facegeom fit`` / ``retarget`` and the batch operations share.
+
+Each function reads its input files, runs the method and returns what the
+callers print, write or measure; the ``write_*`` functions write the result
+files. The methods are given as functions that build them, called once the
+inputs have been read (a bad input is reported before a bad parameter).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from facegeom.io import MarkerSequence, read_retarget_inputs, write_marker_sequence, write_weights
+from facegeom.model import read_fit_target
+
+__all__ = ["FitOutcome", "fit_file", "write_fit", "Retargeted", "retarget_files", "write_retargeted"]
+
+
+@dataclass
+class FitOutcome:
+    """The blendshape coefficients fitted to one target.
+
+    Attributes
+    ----------
+    kind : str
+        What the target was: ``mesh``, ``landmarks`` or ``points``.
+    weights : ndarray, shape (B,)
+        One coefficient per delta-blendshape of the rig.
+    camera : object or None
+        The estimated camera (with rotation ``R (3, 3)`` and translation
+        ``t (3,)``) of a landmark fit, else None.
+    vertices : ndarray, shape (n, 3), or None
+        The fitted face (None when fitted by a vectorised batch fit).
+    seconds : float
+        Time of the fit itself (not the reading).
+    """
+
+    kind: str
+    weights: np.ndarray
+    camera: object | None = None
+    vertices: np.ndarray | None = None
+    seconds: float = 0.0
+
+    @property
+    def active(self) -> np.ndarray:
+        """Indices of the shapes with a coefficient above 1e-6 in magnitude, shape (k,)."""
+        return np.flatnonzero(np.abs(self.weights) > 1e-6)
+
+
+def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None) -> FitOutcome:
+    """Read the target at ``path`` and fit the rig's coefficients to it.
+
+    Parameters
+    ----------
+    rig : BlendshapeRig
+        ``n`` vertices, ``B`` delta-blendshapes.
+    path : str or Path
+        A mesh, a landmark CSV (``vertex_id,u,v``) or a point cloud
+        (:func:`facegeom.model.read_fit_target`).
+    fitter : callable
+        ``fitter()`` returns the fitter (called after the target is read).
+    kind : str
+        ``auto``, ``mesh``, ``landmarks`` or ``points``.
+    focal, cx, cy : float, optional
+        Camera intrinsics in pixels (landmark targets).
+
+    Returns
+    -------
+    FitOutcome
+        Weights ``(B,)``, vertices ``(n, 3)``, the camera of a landmark fit.
+    """
+    kind, target = read_fit_target(path, rig, kind, focal, cx, cy)
+    method = fitter()
+    t = time.perf_counter()
+    r = method.fit(rig, target)
+    dt = time.perf_counter() - t
+    cam = r.info.get("camera") if isinstance(r.info, dict) else None
+    return FitOutcome(kind, r.weights, cam, r.vertices, dt)
+
+
+def write_fit(path, names: list[str], outcome: FitOutcome, method: str, target: str,
+              time_s: float | None = None) -> None:
+    """Write fitted coefficients by shape name (``.json`` or ``.csv``) with what produced them.
+
+    Parameters
+    ----------
+    path : str or Path
+        The coefficients file.
+    names : list of str, length B
+        The rig's shape names.
+    outcome : FitOutcome
+        Weights ``(B,)`` and the camera (written as ``pose``: ``R (3, 3)``, ``t (3,)``).
+    method, target : str
+        The fitter's name and the target file, recorded in the file.
+    time_s : float, optional
+        The fit's time, recorded when given.
+    """
+    info = {"method": method, "target": target, "kind": outcome.kind}
+    if time_s is not None:
+        info["time_s"] = time_s
+    if outcome.camera is not None:
+        info["pose"] = {"R": np.asarray(outcome.camera.R).tolist(), "t": np.asarray(outcome.camera.t).tolist()}
+    write_weights(path, names, outcome.weights, info)
+
+
+@dataclass
+class Retargeted:
+    """A marker sequence retargeted onto a character.
+
+    Attributes
+    ----------
+    source : MarkerSequence
+        The actor's sequence as read (``T`` frames, ``p`` markers).
+    markers : ndarray, shape (T, p, 3)
+        The character's retargeted markers.
+    labels : MarkerSequence
+        The labelled character frames (``L`` frames, reordered to the source's markers).
+    filled : int
+        Lost source samples filled by interpolation.
+    seconds : float
+        Time of the retargeting itself (not the reading).
+    """
+
+    source: MarkerSequence
+    markers: np.ndarray
+    labels: MarkerSequence
+    filled: int
+    seconds: float
+
+    @property
+    def label_deviation(self) -> float:
+        """Largest coordinate difference between the result and a labelled frame."""
+        return float(np.abs(self.markers[self.labels.frames] - self.labels.positions).max())
+
+
+def retarget_files(source, labels, retargeter, fill_gaps: bool = False, echo=None) -> Retargeted:
+    """Read an actor's marker sequence and a character's labelled frames; retarget the sequence.
+
+    Parameters
+    ----------
+    source, labels : str or Path
+        Marker sequences (CSV ``frame,marker,x,y,z`` or npz); the frames of
+        ``labels`` index ``source`` (:func:`facegeom.io.read_retarget_inputs`).
+    retargeter : callable
+        ``retargeter()`` returns the retargeter (called after the files are read).
+    fill_gaps : bool
+        Interpolate lost source markers over time instead of refusing them.
+    echo : callable, optional
+        Told how many samples were filled.
+
+    Returns
+    -------
+    Retargeted
+        Markers ``(T, p, 3)`` with the inputs they came from.
+    """
+    src, P, lab, n = read_retarget_inputs(source, labels, fill_gaps, echo=echo)
+    r = retargeter()
+    t = time.perf_counter()
+    Y = r.fit(P, lab.frames, lab.positions).transform()
+    return Retargeted(src, Y, lab, n, time.perf_counter() - t)
+
+
+def write_retargeted(path, result: Retargeted) -> None:
+    """Write retargeted markers ``(T, p, 3)`` as a marker sequence (``.csv`` or ``.npz``) with the labelled frames.
+
+    Parameters
+    ----------
+    path : str or Path
+        The output sequence.
+    result : Retargeted
+        Its markers, marker names and labelled frames (npz key ``labelled_frames``).
+    """
+    write_marker_sequence(path, result.markers, names=result.source.names,
+                          extra={"labelled_frames": result.labels.frames})
