@@ -10,6 +10,7 @@ an output folder the report only echoes the table and the note.
 from __future__ import annotations
 
 import csv
+import json
 import os
 import platform
 from pathlib import Path
@@ -18,7 +19,7 @@ from typing import Callable
 from facegeom.errors import InputError
 from facegeom.io import atomic_path
 
-__all__ = ["Report", "write_csv", "format_table", "machine_note"]
+__all__ = ["Report", "write_csv", "write_json", "format_table", "machine_note"]
 
 
 def write_csv(path: str | os.PathLike, rows: list[dict]) -> Path:
@@ -49,6 +50,27 @@ def write_csv(path: str | os.PathLike, rows: list[dict]) -> Path:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
+    return path
+
+
+def write_json(path: str | os.PathLike, data: dict) -> Path:
+    """Write ``data`` as indented JSON (and a final newline), atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        The JSON file; its folder must exist.
+    data : dict
+        JSON-serialisable numbers and lists.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
     return path
 
 
