@@ -11,15 +11,13 @@ time and the time to drive all frames (after the fit), and the fit time.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import format_table, machine_note, write_csv
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import SolveError
-from facegeom.io import atomic_path
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
@@ -80,15 +78,11 @@ def main(model, takes, retargeters, deformer, count, seed, out, labels=10, frame
     echo(f"{len(seqs)} sequences of {frames} frames ({n_real} from real takes), {labels} labelled frames; "
          f"deformer {deformer.label}, fitted once per character")
     rows = run(model, seqs, retargeters, deformer, labels, progress)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "animate.csv", rows)
+    report = Report(out, "animate", echo)
+    report.csv(rows)
     table = summarize(rows, retargeters, frames)
     note = (f"face error = mean vertex error over the face area ({FACE_AREA} vertices) against the character's true "
             f"faces; {len(seqs)} sequences, seed {seed}; {machine_note()}")
-    echo(table)
-    echo(note)
-    with atomic_path(out / "animate-summary.md") as tmp:
-        Path(tmp).write_text(table + "\n\n" + note + "\n")
-    echo(f"wrote {out / 'animate.csv'}, {out / 'animate-summary.md'}")
+    report.summary(table, note)
+    report.done()
     return rows, table

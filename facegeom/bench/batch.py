@@ -23,49 +23,34 @@ model and the fitted deformer), the writes and the summary. The drive job then
 runs ``--repeats`` (5) more times each way, alternating, into other folders:
 the shared state is cached (per process, by job), so those runs measure the
 steady state of a session that drives many takes with one rig (medians). The plain loop runs with one
-BLAS thread as the workers do (``OPENBLAS_NUM_THREADS=1`` is set before numpy is
-imported, unless ``--blas-threads`` says otherwise): a single process that
+BLAS thread as the workers do (``--blas-threads 1``, the default: set in this process
+through threadpoolctl, and as ``OPENBLAS_NUM_THREADS`` & co. for the cluster's worker
+processes, which start after it; ``--blas-threads default`` leaves BLAS alone): a single process that
 leaves BLAS multi-threaded is *slower* on this face's small products (the
 tangent deformer's ``deform`` takes ~9 ms with 2 BLAS threads against ~1.4 ms
 with one), which would flatter Dask. Cluster start-up is timed separately.
 
 Usage::
 
-    python baselines/bench_batch.py                  # 10,000 fits, 2,000 frames, 2 workers
-    python baselines/bench_batch.py --fits 2000 --frames 500 --out bench-out/batch
-    python baselines/bench_batch.py --example data/jobs/out  # inputs for data/jobs/fit-landmarks.toml
+    facegeom bench batch                  # 10,000 fits, 2,000 frames, 2 workers
+    facegeom bench batch --fits 2000 --frames 500 --out bench-out/batch.json
+    facegeom bench batch --example data/jobs/out  # inputs for data/jobs/fit-landmarks.toml
 """
 from __future__ import annotations
 
-import argparse
+import contextlib
+import json
 import os
-import sys
+import shutil
+import tempfile
+import time
+from pathlib import Path
 
+import numpy as np
 
-def _early_blas_threads(argv) -> None:
-    """Pin BLAS threads before numpy loads (the workers of a local cluster run with one)."""
-    n = "1"
-    for k, a in enumerate(argv):
-        if a == "--blas-threads" and k + 1 < len(argv):
-            n = argv[k + 1]
-        elif a.startswith("--blas-threads="):
-            n = a.split("=", 1)[1]
-    if n != "default":
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = n
+from facegeom.bench.report import write_json
 
-
-if __name__ == "__main__":
-    _early_blas_threads(sys.argv[1:])
-
-import json  # noqa: E402
-import shutil  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
-
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 FOCAL, CX, CY = 1000.0, 320.0, 240.0
 
 
@@ -154,6 +139,33 @@ def _noop(x):
 
 def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int, work: Path, echo=print,
           repeats: int = 5) -> dict:
+    """Time the fit and drive jobs as a plain loop and on a local Dask cluster, and the scheduler's overhead.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face.
+    fits : int
+        Landmark files for the SEM fit job.
+    frames, per_file : int
+        Marker frames for the drive job, and frames per sequence file.
+    workers : int
+        Processes of the local cluster (1 thread each).
+    noop : int
+        No-op tasks for the overhead measurement.
+    work : Path
+        Folder for the generated inputs and every job's outputs.
+    echo : callable(str)
+        Prints one line per measurement.
+    repeats : int
+        Warm drive runs each way (medians reported).
+
+    Returns
+    -------
+    dict
+        Times (s), speed-ups, task counts, per-task overhead (ms) and whether
+        both ways drove identical vertices.
+    """
     from distributed import Client
 
     from facegeom.pipelines.batch import job_from_dict, local_cluster
@@ -233,49 +245,92 @@ def bench(model, fits: int, frames: int, per_file: int, workers: int, noop: int,
     return out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--fits", type=int, default=10000)
-    ap.add_argument("--frames", type=int, default=2000)
-    ap.add_argument("--per-file", type=int, default=100, help="Frames per marker sequence file.")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--noop", type=int, default=1000)
-    ap.add_argument("--repeats", type=int, default=5, help="Warm drive runs each way (medians reported).")
-    ap.add_argument("--blas-threads", default="1",
-                    help="BLAS threads of this process (the plain loop): a number, or 'default' (leave it).")
-    ap.add_argument("--work", default=None, help="Folder for the generated inputs and outputs (default: a temporary "
-                                                 "folder, deleted at the end).")
-    ap.add_argument("--out", default=None, help="Also write the numbers as JSON here.")
-    ap.add_argument("--example", default=None, metavar="DIR",
-                    help="Only write inputs for data/jobs/fit-landmarks.toml into DIR (e.g. data/jobs/out): "
-                         "DIR/landmarks/*.csv and DIR/truth/*.json, --fits of them.")
-    ap.add_argument("--data", default=None, help="Face data bundle (default: $FACEGEOM_DATA or ../shared/data).")
-    a = ap.parse_args(argv)
-    from facegeom.model import load_face_model
+@contextlib.contextmanager
+def blas_threads(n: str):
+    """Run the block with ``n`` BLAS threads in this process and in the processes it starts.
 
-    model = load_face_model(a.data)
-    if a.example:
-        lm, truth = make_landmark_inputs(model, a.example, a.fits)
-        print(f"wrote {a.fits} landmark files to {lm} and their true weights to {truth}")
-        return 0
+    numpy is loaded before a ``facegeom`` subcommand runs, so the environment
+    variables alone would come too late for this process: its BLAS pools are
+    limited at run time (threadpoolctl); the variables (``OPENBLAS_NUM_THREADS``,
+    ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``) reach the local cluster's worker
+    processes, started inside the block. Both are restored afterwards.
+
+    Parameters
+    ----------
+    n : str
+        A positive number of threads, or ``'default'`` (change nothing).
+    """
+    if n == "default":
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    saved = {var: os.environ.get(var) for var in BLAS_THREAD_VARIABLES}
+    os.environ.update({var: str(n) for var in BLAS_THREAD_VARIABLES})
+    try:
+        with threadpool_limits(limits=int(n), user_api="blas"):
+            yield
+    finally:
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
+
+
+def main(model, fits: int = 10000, frames: int = 2000, per_file: int = 100, workers: int = 2, noop: int = 1000,
+         repeats: int = 5, blas: str = "1", work=None, out=None, echo=print) -> dict:
+    """``facegeom bench batch``: the three measurements, printed as JSON (and written to ``out``).
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face.
+    fits, frames, per_file, workers, noop, repeats : int
+        See :func:`bench`.
+    blas : str
+        BLAS threads of this process (the plain loop), or ``'default'``; see :func:`blas_threads`.
+    work : path-like, optional
+        Folder for the generated inputs and outputs (default: a temporary folder, deleted at the end).
+    out : path-like, optional
+        Also write the numbers as JSON here.
+    echo : callable(str)
+
+    Returns
+    -------
+    dict
+        The numbers (times in seconds, speed-ups, counts).
+    """
     tmp = None
-    if a.work:
-        work = Path(a.work)
+    if work:
+        work = Path(work)
         work.mkdir(parents=True, exist_ok=True)
     else:
         tmp = tempfile.mkdtemp(prefix="facegeom-bench-batch-")
         work = Path(tmp)
     try:
-        res = bench(model, a.fits, a.frames, a.per_file, a.workers, a.noop, work, repeats=a.repeats)
+        with blas_threads(blas):
+            res = bench(model, fits, frames, per_file, workers, noop, work, echo=echo, repeats=repeats)
     finally:
         if tmp:
             shutil.rmtree(tmp, ignore_errors=True)
-    print(json.dumps(res, indent=2))
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps(res, indent=2) + "\n")
-    return 0
+    echo(json.dumps(res, indent=2))
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        write_json(out, res)
+    return res
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def write_example(model, folder, count: int, echo=print) -> None:
+    """Inputs for ``data/jobs/fit-landmarks.toml``: ``folder/landmarks/*.csv`` and ``folder/truth/*.json``.
+
+    Parameters
+    ----------
+    model : FaceModel
+    folder : path-like
+    count : int
+        Landmark files to write (see :func:`make_landmark_inputs`).
+    echo : callable(str)
+    """
+    lm, truth = make_landmark_inputs(model, folder, count)
+    echo(f"wrote {count} landmark files to {lm} and their true weights to {truth}")

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import format_table, machine_note, median_time, write_csv
+from facegeom.bench.common import median_time
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.model import NAMED, layout, named_expression, random_sparse_expression
 from facegeom.registry import MethodSpec
@@ -124,13 +125,9 @@ def summarize(rows: list[dict], specs: list[MethodSpec]) -> tuple[list[str], lis
     return header, out
 
 
-def plot(rows: list[dict], specs: list[MethodSpec], path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
+def plot(rows: list[dict], specs: list[MethodSpec]):
+    """The Frobenius error of every method per case (log scale): a matplotlib figure."""
     import matplotlib.pyplot as plt
-
-    from facegeom.io import atomic_path
 
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for s in specs:
@@ -142,10 +139,7 @@ def plot(rows: list[dict], specs: list[MethodSpec], path: Path) -> Path:
     ax.set_yscale("log")
     ax.legend(fontsize=8, ncol=2)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    return path
+    return fig
 
 
 def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int, out: Path | None,
@@ -157,16 +151,10 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
     note = (f"{len(cs)} cases, seed {seed}, layout {layout_name}"
             + (f" (seed {layout_seed})" if layout_name.startswith("random") else "")
             + f"; {machine_note()}")
-    echo(table)
-    echo(note)
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        write_csv(out / "drive.csv", rows)
-        from facegeom.io import atomic_path
-
-        with atomic_path(out / "drive-summary.md") as tmp:
-            tmp.write_text(table + "\n\n" + note + "\n")
-        if plot_it:
-            plot(rows, specs, out / "drive.png")
-        echo(f"wrote {out / 'drive.csv'}, {out / 'drive-summary.md'}" + (f", {out / 'drive.png'}" if plot_it else ""))
+    report = Report(out, "drive", echo)
+    report.csv(rows)
+    report.summary(table, note)
+    if plot_it:
+        report.plot(lambda: plot(rows, specs), dpi=120)
+    report.done()
     return rows, table

@@ -29,15 +29,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from facegeom import metrics as fm
-from facegeom.bench.common import format_table, machine_note, write_csv
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
-from facegeom.io import atomic_path
 from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -376,10 +374,8 @@ def summarize(results: dict, specs) -> str:
     return "\n\n".join(parts)
 
 
-def plot(results, specs, fitted, weights, path: Path):
-    import matplotlib
-
-    matplotlib.use("Agg")
+def plot(results, specs, fitted, weights):
+    """Landmark accuracy and redundancy per method, and jawOpen over the take: a matplotlib figure."""
     import matplotlib.pyplot as plt
 
     labels = [s.label for s in specs]
@@ -400,30 +396,27 @@ def plot(results, specs, fitted, weights, path: Path):
         ax[2].set(xlabel="frame", ylabel="coefficient", title="Temporal stability: jawOpen")
         ax[2].legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    return fig
 
 
 def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
          take=None, echo=print, progress=True, plot_it=True):
     specs = available_specs(specs, echo)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    report = Report(out, "fit", echo)
     cases = make_cases(model, count, seed)
-    results, written, fitted, tw = {}, [], None, None
+    results, fitted, tw = {}, None, None
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)
-        written.append(write_csv(out / "fit-landmarks.csv", results["landmarks"]))
+        report.csv(results["landmarks"], "landmarks")
         results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px)
-        written.append(write_csv(out / "fit-landmark-speed.csv", results["landmark_speed"]))
+        report.csv(results["landmark_speed"], "landmark-speed")
     if "clouds" in experiments:
         results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, samplings, points, seed=seed,
                                        progress=progress)
-        written.append(write_csv(out / "fit-clouds.csv", results["clouds"]))
+        report.csv(results["clouds"], "clouds")
     if "meshes" in experiments:
         results["meshes"] = run_meshes(model, cases, specs, seed, progress)
-        written.append(write_csv(out / "fit-meshes.csv", results["meshes"][0]))
+        report.csv(results["meshes"][0], "meshes")
     if "temporal" in experiments and take is not None:
         name, W = take
         tspecs = [s for s in specs if s.name in ("sem", "l1reg")]
@@ -431,17 +424,12 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         j = model.expression_index("jawOpen")
         tw = W[:, [j]]
         fitted = {k: v[:, [j]] for k, v in fitted.items()}
-        written.append(write_csv(out / "fit-temporal.csv", results["temporal"]))
+        report.csv(results["temporal"], "temporal")
     table = summarize(results, specs)
     clouds = f", {cloud_cases} x {samplings} point clouds of {points} points" if "clouds" in results else ""
     note = f"{count} targets (seed {seed}), landmark noise {noise_px} px{clouds}; {machine_note()}"
-    echo(table)
-    echo(note)
-    with atomic_path(out / "fit-summary.md") as tmp:
-        Path(tmp).write_text(table + "\n\n" + note + "\n")
-    written.append(out / "fit-summary.md")
+    report.summary(table, note)
     if plot_it:
-        plot(results, specs, fitted, tw, out / "fit.png")
-        written.append(out / "fit.png")
-    echo("wrote " + ", ".join(str(p) for p in written))
+        report.plot(lambda: plot(results, specs, fitted, tw))
+    report.done()
     return results, table

@@ -14,15 +14,13 @@ sequence ``i``, level ``k`` and kind is drawn from its own seeded stream.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import format_table, machine_note, write_csv
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import SolveError
-from facegeom.io import atomic_path
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.registry import MethodSpec
 
@@ -84,10 +82,8 @@ def summarize(rows, specs, levels) -> str:
     return "\n\n".join(parts)
 
 
-def plot(rows, specs, levels, path: Path):
-    import matplotlib
-
-    matplotlib.use("Agg")
+def plot(rows, specs, levels):
+    """Mean marker error against the noise level, for label noise and source noise: a matplotlib figure."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.4))
@@ -99,9 +95,7 @@ def plot(rows, specs, levels, path: Path):
                      "(sigma per coordinate, mm)", ylabel="mean marker error (mm)", title=f"{kind} noise")
     ax[0].legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    return fig
 
 
 def main(model, takes, specs, count, seed, out, levels=LEVELS_MM, labels=10, frames=100, echo=print, plot_it=True,
@@ -110,19 +104,13 @@ def main(model, takes, specs, count, seed, out, levels=LEVELS_MM, labels=10, fra
     echo(f"{len(seqs)} sequences of {frames} frames, {labels} labelled frames; noise levels {list(levels)} mm; "
          f"character mean marker motion {np.mean([s.mean_motion() for s in seqs]) * CM_TO_MM:.2f} mm")
     rows = run(seqs, specs, levels, labels, seed, progress)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "noise.csv", rows)
+    report = Report(out, "noise", echo)
+    report.csv(rows)
     table = summarize(rows, specs, levels)
     note = (f"mean marker error (mm) against the clean truth; {len(seqs)} sequences, seed {seed}, {labels} labels; "
             f"{machine_note()}")
-    echo(table)
-    echo(note)
-    with atomic_path(out / "noise-summary.md") as tmp:
-        Path(tmp).write_text(table + "\n\n" + note + "\n")
-    written = [out / "noise.csv", out / "noise-summary.md"]
+    report.summary(table, note)
     if plot_it:
-        plot(rows, specs, levels, out / "noise.png")
-        written.append(out / "noise.png")
-    echo("wrote " + ", ".join(str(p) for p in written))
+        report.plot(lambda: plot(rows, specs, levels))
+    report.done()
     return rows, table

@@ -21,11 +21,10 @@ Outputs: ``retarget.csv`` (sequence x labels x method), ``retarget-frames.csv``
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench.common import format_table, machine_note, write_csv
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import SolveError
 from facegeom.methods.tangent_retarget import evenly_spread
@@ -137,13 +136,9 @@ def summarize(rows, specs, counts=(REFERENCE_LABELS, 20)):
     return format_table(header, table)
 
 
-def plot(rows, frame_rows, specs, ref, path: Path):
-    import matplotlib
-
-    matplotlib.use("Agg")
+def plot(rows, frame_rows, specs, ref):
+    """Figs. 6, 7 and 8 side by side (error vs labels, per sequence, per frame): a matplotlib figure."""
     import matplotlib.pyplot as plt
-
-    from facegeom.io import atomic_path
 
     fig, ax = plt.subplots(1, 3, figsize=(17, 4.6))
     counts = sorted({r["labels"] for r in rows})
@@ -164,9 +159,7 @@ def plot(rows, frame_rows, specs, ref, path: Path):
               title=f"Fig. 8: per frame, {ref} labels")
     ax[0].legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    return fig
 
 
 def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed=0, frames=100,
@@ -177,22 +170,14 @@ def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed
          f"{seqs[0].source.shape[1]} markers ({layout_name}); character mean marker motion "
          f"{np.mean([s.mean_motion() for s in seqs]) * CM_TO_MM:.2f} mm")
     rows, frame_rows, ref = run(model, seqs, specs, label_counts, echo, progress)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "retarget.csv", rows)
-    write_csv(out / "retarget-frames.csv", frame_rows)
+    report = Report(out, "retarget", echo)
+    report.csv(rows)
+    report.csv(frame_rows, "frames")
     counts = tuple(c for c in (ref, 20) if c in label_counts) or (ref,)
     table = summarize(rows, specs, counts)
     note = f"{len(seqs)} sequences, seed {seed}, layout {layout_name}; {machine_note()}"
-    echo(table)
-    echo(note)
-    from facegeom.io import atomic_path
-
-    with atomic_path(out / "retarget-summary.md") as tmp:
-        Path(tmp).write_text(table + "\n\n" + note + "\n")
-    written = [out / "retarget.csv", out / "retarget-frames.csv", out / "retarget-summary.md"]
+    report.summary(table, note)
     if plot_it:
-        plot(rows, frame_rows, specs, ref, out / "retarget.png")
-        written.append(out / "retarget.png")
-    echo("wrote " + ", ".join(str(p) for p in written))
+        report.plot(lambda: plot(rows, frame_rows, specs, ref))
+    report.done()
     return rows, table

@@ -12,7 +12,8 @@ import time
 import igl
 import numpy as np
 
-from facegeom.bench.common import format_table, machine_note, median_time
+from facegeom.bench.common import median_time
+from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.model import layout
 from facegeom.registry import MethodSpec
 
@@ -62,6 +63,5 @@ def main(model, specs, levels, echo=print):
     header = ["method", "vertices", "fit (s)", "deform (ms)", "mean error (mm)"]
     table = format_table(header, [[r["method"], r["vertices"], r["fit_s"], r["deform_ms"], r["mean_err_mm"]]
                                   for r in rows])
-    echo(table)
-    echo(machine_note())
+    Report(None, "scaling", echo).summary(table, machine_note())
     return rows, table

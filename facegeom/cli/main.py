@@ -428,6 +428,46 @@ def bench_scaling(obj: _Context, levels, methods):
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
 
 
+@bench.command("batch")
+@click.option("--fits", default=10000, show_default=True, type=int, help="Landmark files fitted by SEM.")
+@click.option("--frames", default=2000, show_default=True, type=int, help="Marker frames driven.")
+@click.option("--per-file", default=100, show_default=True, type=int, help="Frames per marker sequence file.")
+@click.option("--workers", default=2, show_default=True, type=int, help="Processes of the local Dask cluster.")
+@click.option("--noop", default=1000, show_default=True, type=int, help="No-op tasks (scheduler overhead).")
+@click.option("--repeats", default=5, show_default=True, type=int, help="Warm drive runs each way (medians reported).")
+@click.option("--blas-threads", "blas", default="1", show_default=True,
+              help="BLAS threads of this process (the plain loop): a number, or 'default' (leave it).")
+@click.option("--work", default=None, type=click.Path(file_okay=False),
+              help="Folder for the generated inputs and outputs (default: a temporary folder, deleted at the end).")
+@click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the numbers as JSON here.")
+@click.option("--example", default=None, metavar="DIR", type=click.Path(file_okay=False),
+              help="Only write inputs for data/jobs/fit-landmarks.toml into DIR (e.g. data/jobs/out): "
+                   "DIR/landmarks/*.csv and DIR/truth/*.json, --fits of them.")
+@click.option("--data", default=None, type=click.Path(),
+              help="Face data bundle (default: facegeom --data, $FACEGEOM_DATA or ../shared/data).")
+@click.pass_obj
+def bench_batch(obj: _Context, fits, frames, per_file, workers, noop, repeats, blas, work, out, example, data):
+    """Throughput of `facegeom batch` on a local Dask cluster against a plain loop in one process."""
+    from facegeom.bench import batch as bb
+
+    model = _Context(data or obj.data).face_model()
+    if example:
+        bb.write_example(model, example, fits, echo=click.echo)
+        return
+    bb.main(model, fits, frames, per_file, workers, noop, repeats, blas, work, out, echo=click.echo)
+
+
+@bench.command("cleanup")
+@click.option("--vertices", default=100_000, show_default=True, type=int, help="Vertices of the subdivided face.")
+@click.option("--repeats", default=3, show_default=True, type=int, help="Timed runs (median reported).")
+@click.pass_obj
+def bench_cleanup(obj: _Context, vertices, repeats):
+    """`facegeom clean` (with its index map) on a ~100,000-vertex face with injected defects."""
+    from facegeom.bench import cleanup as bc
+
+    bc.main(obj.face_model(), vertices, repeats, echo=click.echo)
+
+
 @cli.command()
 @click.option("--take", "take_path", type=click.Path(), default=None,
               help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")

@@ -1,0 +1,145 @@
+"""``decimate``: quadric edge collapse (pymeshlab) that never moves a vertex."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.native import quiet_native
+from facegeom.pipelines.cleanup.checks import _check_mesh, mesh_problems
+from facegeom.pipelines.cleanup.indexmap import IndexMap
+from facegeom.pipelines.cleanup.meshlab import Progress, _pml, _Run
+from facegeom.pipelines.cleanup.report import Report, StepReport
+
+__all__ = ["decimate"]
+
+
+def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_topology: bool = False,
+             keep=None, progress: Progress = None) -> tuple[np.ndarray, np.ndarray, IndexMap, Report]:
+    """Quadric edge-collapse decimation (pymeshlab) down to about ``vertices`` vertices.
+
+    Vertices are never moved (``optimalplacement=False``): the result's
+    vertices are an exact subset of the input's, so the map is exact. The
+    vertices in ``keep`` (marker ids) are preserved: the faces around them are
+    left out of the selection that pymeshlab simplifies, which makes them (and
+    their one-ring) unwritable; their survival is checked.
+
+    The face target is re-estimated from the vertex count until at most
+    ``vertices`` remain (or no collapse is possible any more).
+
+    Parameters
+    ----------
+    V : (n, 3) float
+        Vertex positions.
+    F : (m, 3) int
+        Triangles (polygons are refused: run :func:`clean` first).
+    vertices : int
+        Target vertex count (at least 4).
+    preserve_boundary, preserve_topology : bool
+        pymeshlab's collapse constraints.
+    keep : (k,) int, optional
+        Vertex ids that must survive (e.g. marker vertices).
+    progress : callable(str), optional
+        Called with a message per step and pass.
+
+    Returns
+    -------
+    V2 : (n2, 3) float
+        A subset of the rows of ``V`` (``V2 == V[index_map.new_to_old]``).
+    F2 : (m2, 3) int
+        The decimated triangles.
+    index_map : IndexMap
+        Input vertex ids -> ids in ``V2``.
+    report : Report
+        Counts per step, with notes when the target was not reached.
+
+    Raises
+    ------
+    InputError
+        Bad arrays, a target below 4, a vertex of ``keep`` out of range or not preserved.
+    """
+    V, F, polygons = _check_mesh(V, F)
+    if polygons:
+        raise InputError("decimate needs a triangle mesh; run clean first to triangulate")
+    target = int(vertices)
+    if target < 4:
+        raise InputError(f"--vertices must be at least 4, got {vertices}")
+    keep = np.unique(np.asarray([] if keep is None else keep, dtype=np.int64))
+    if keep.size and (keep.min() < 0 or keep.max() >= V.shape[0]):
+        raise InputError(f"vertex to preserve out of range: the mesh has {V.shape[0]} vertices")
+    run = _Run("decimate", V, F, progress)
+    if keep.size:
+        _protect(run, keep)
+    nv0, nf0 = int(run.mesh.vertex_number()), int(run.mesh.face_number())
+    t = time.perf_counter()
+    passes = _collapse(run, target, preserve_boundary, preserve_topology, selected=keep.size > 0)
+    details = run._track(len(run.report.steps), None)
+    cm = run.mesh
+    step = StepReport("quadric edge collapse", nv0, int(cm.vertex_number()), nf0, int(cm.face_number()),
+                      {"passes": passes, "preserved_vertices": int(keep.size), **details}, time.perf_counter() - t)
+    run.add_step(step)
+    run.apply("remove unreferenced vertices", "meshing_remove_unreferenced_vertices")
+    V2, F2, imap, _ = run.finish()
+    # vertices are a subset, never moved (split copies included)
+    src = imap.new_to_old
+    if (src < 0).any() or not np.array_equal(V2, V[src]):
+        raise RuntimeError("decimation moved vertices despite optimalplacement=False")  # pragma: no cover
+    lost = keep[imap.old_to_new[keep] < 0]
+    if lost.size:
+        raise InputError(f"decimation could not preserve vertex {int(lost[0])} ({lost.size} lost)")
+    rep = run.close(V2, F2, imap)
+    _add_notes(rep, V2, F2, target)
+    return V2, F2, imap, rep
+
+
+def _protect(run: _Run, keep: np.ndarray) -> None:
+    """Select every face not touching a vertex of ``keep`` (only the selection is simplified)."""
+    flag = np.zeros(run.n_old)
+    flag[keep] = 1.0
+    run.mesh.add_vertex_custom_scalar_attribute(flag, "facegeom_keep")
+    with quiet_native((1, 2)):
+        run.ms.compute_selection_by_condition_per_vertex(condselect="facegeom_keep > 0.5")
+        run.ms.compute_selection_transfer_vertex_to_face(inclusive=False)
+        run.ms.apply_selection_inverse(invfaces=True, invverts=False)
+        run.ms.set_selection_none(allfaces=False, allverts=True)
+
+
+def _collapse(run: _Run, target: int, preserve_boundary: bool, preserve_topology: bool, selected: bool) -> int:
+    """Quadric edge-collapse passes until at most ``target`` vertices remain (at most 8); returns the passes."""
+    passes = 0
+    while run.mesh.vertex_number() > target and passes < 8:
+        cm = run.mesh
+        nv, nf = int(cm.vertex_number()), int(cm.face_number())
+        # one collapse removes one vertex and about two faces (one on the boundary)
+        ratio = nf / max(nv, 1)
+        goal = max(int(round(nf - ratio * (nv - target))), 2)
+        if selected:  # the target counts the selected (simplifiable) faces
+            goal = max(int(cm.selected_face_number()) - (nf - goal), 1)
+        run._say(f"  quadric edge collapse pass {passes + 1}: {nv:,} vertices -> about {target:,}")
+        try:
+            with quiet_native((1, 2)):
+                run.ms.meshing_decimation_quadric_edge_collapse(
+                    targetfacenum=goal, preserveboundary=bool(preserve_boundary),
+                    preservetopology=bool(preserve_topology), optimalplacement=False, selected=selected,
+                    autoclean=True, qualitythr=0.3)
+        except _pml().PyMeshLabException as exc:
+            raise InputError(f"decimation failed in pymeshlab: {exc}") from None
+        passes += 1
+        if run.mesh.vertex_number() >= nv:  # nothing more can collapse
+            break
+    return passes
+
+
+def _add_notes(rep: Report, V2: np.ndarray, F2: np.ndarray, target: int) -> None:
+    """Notes on a result with non-manifold parts or more vertices than asked."""
+    bad = mesh_problems(V2, F2)
+    nm = bad["non_manifold_edges"] + bad["non_manifold_vertices"] + bad["duplicate_faces"]
+    if nm:
+        rep.notes.append(f"the result has {bad['non_manifold_edges']} non-manifold edges, "
+                         f"{bad['non_manifold_vertices']} non-manifold vertices and {bad['duplicate_faces']} "
+                         f"duplicate faces (collapse too aggressive around preserved vertices): ask for more "
+                         f"vertices, add --preserve-topology, or run `facegeom clean` on it")
+    if V2.shape[0] > target:
+        rep.notes.append(f"stopped at {V2.shape[0]:,} vertices (asked {target:,}): no further collapse was possible "
+                         f"under the constraints")
