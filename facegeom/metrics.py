@@ -1,4 +1,4 @@
-"""Similarities and error metrics of blendshape fitting, as defined in the SEM paper.
+"""Error metrics: face-driving vertex errors, and the similarities and errors of blendshape fitting of the SEM paper.
 
 Kang, Song, Lee, Lee, "A Selective Expression Manipulation With Parametric 3D
 Facial Model", IEEE Access.  Equation numbers below are the paper's.
@@ -33,10 +33,12 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import InputError
 from facegeom.interfaces import as_handles, as_vertices
 
 __all__ = [
+    "face_errors_mm",
     "esim",
     "ersim",
     "esim_batch",
@@ -414,3 +416,21 @@ def support_scores(w_fit, w_true, tol: float = 1e-3) -> SupportScores:
     precision = hit / int(sa.sum()) if sa.any() else 1.0
     recall = hit / int(sb.sum()) if sb.any() else 1.0
     return SupportScores(float(precision), float(recall), float(np.mean(np.abs(a - b))))
+
+
+def face_errors_mm(Y: np.ndarray, T: np.ndarray, region: int = FACE_AREA) -> dict:
+    """Vertex errors of a driven face ``Y`` against the truth ``T``, in mm (both ``(n, 3)``, centimetres).
+
+    Returns a dict: ``mean_mm``, ``rms_mm``, ``max_mm`` of the vertex distances
+    over the face area (vertices ``[0, region)``), ``mean_all_mm`` over all
+    vertices, and the paper's Frobenius error ``frobenius_mm`` = ``||Y - T||_F``.
+    """
+    d = np.linalg.norm(Y - T, axis=1) * CM_TO_MM
+    face = d[:region]
+    return {
+        "mean_mm": float(face.mean()),
+        "rms_mm": float(np.sqrt((face ** 2).mean())),
+        "max_mm": float(face.max()),
+        "mean_all_mm": float(d.mean()),
+        "frobenius_mm": float(np.linalg.norm(Y - T) * CM_TO_MM),
+    }

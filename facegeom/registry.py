@@ -22,7 +22,7 @@ from facegeom.errors import InputError
 
 KINDS = ("deformers", "retargeters", "fitters")
 
-__all__ = ["KINDS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method", "parse_methods"]
+__all__ = ["KINDS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method", "parse_methods", "LINEUPS"]
 
 
 def _group(kind: str) -> str:
@@ -176,3 +176,57 @@ def parse_methods(text: str, kind: str, defaults: list[str]) -> list[MethodSpec]
         if s.name not in known:
             raise InputError(f"no {kind[:-1]} named {s.name!r}; available: {', '.join(known)}")
     return specs
+
+
+LINEUPS: dict[str, list[str]] = {
+    "drive": [
+        "markers-only",
+        "rbf",
+        "laplacian",
+        "laplacian-plain=laplacian:mode=plain",
+        "arap",
+        "biharmonic",
+        "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0",
+        "tangent",
+    ],
+    "scaling": [
+        "tangent",
+        "biharmonic",
+        "arap",
+    ],
+    "retarget": [
+        "copy",
+        "rbf",
+        "rbf-frame=rbf:strategy=frame",
+        "laplacian",
+        "tangent-paper=tangent:strategy=marker,window=2,d=1,field=position,smoothness=0,beta=None,ridge=0.0001,"
+        "source_smoothing=0",
+        "tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0",
+        "tangent",
+    ],
+    "noise": [
+        "copy",
+        "rbf",
+        "laplacian",
+        "tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0",
+        "tangent",
+    ],
+    "animate": [
+        "copy",
+        "rbf",
+        "tangent",
+    ],
+    "fit": [
+        "sem",
+        "sem+=sem:clamp=true,stop=ric",
+        "l1reg",
+        "l2reg",
+        "pcaexp",
+        "pcadel",
+        "eos",
+    ],
+}
+"""The method specs that ``all`` stands for in each comparison (``facegeom bench ...`` and the viewer).
+
+Keys are the benchmark protocols; values are specs for :func:`parse_methods`.
+"""

@@ -22,11 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from facegeom import registry
-from facegeom.bench import drive as bench_drive
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
+from facegeom.metrics import face_errors_mm
 from facegeom.model import KINDS, layout, named_expression, random_sparse_expression
-from facegeom.registry import MethodSpec, parse_methods
+from facegeom.model.scenarios import driving_cases
+from facegeom.registry import LINEUPS, MethodSpec, parse_methods
 from viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
@@ -55,7 +56,7 @@ def make_drive_case(model, seed: int = 0, expression: str = "happiness", intensi
     if bench_case is not None:
         if bench_case < 0:
             raise InputError(f"--bench-case must be >= 0, got {bench_case}")
-        c = bench_drive.make_cases(model, bench_case + 1, seed)[bench_case]
+        c = driving_cases(model, bench_case + 1, seed)[bench_case]
         identity, expr = c.identity, c.expression
         desc = f"bench drive case {bench_case} (seed {seed}): {c.kind}"
     else:
@@ -102,7 +103,7 @@ class DriveView(BaseView):
                  bench_case: int | None = None):
         super().__init__()
         self.model = model
-        specs = (parse_methods(methods, "deformers", bench_drive.DEFAULT_METHODS) if isinstance(methods, str)
+        specs = (parse_methods(methods, "deformers", LINEUPS["drive"]) if isinstance(methods, str)
                  else list(methods))
         if not specs:
             raise InputError("no method given: pass at least one deformer, e.g. --methods tangent")
@@ -236,7 +237,7 @@ class DriveView(BaseView):
 
     def errors(self, label: str) -> dict:
         """``facegeom bench drive``'s error summary for one method's current face."""
-        return bench_drive.errors_mm(self.results[label], self.case.target)
+        return face_errors_mm(self.results[label], self.case.target)
 
     # ------------------------------------------------------------------ scene
     def copies(self) -> list[str]:

@@ -1,7 +1,7 @@
 """``facegeom view fit``: a target beside every fitter's fitted face, with each method's coefficients.
 
 The target is one of ``facegeom bench fit``'s random expressions
-(:func:`facegeom.bench.fit.make_cases`: a random identity, 2-6 active shapes)
+(:func:`facegeom.model.scenarios.fitting_cases`: a random identity, 2-6 active shapes)
 given to the fitters as 23 noisy 2-D landmarks seen by an unposed camera (the
 ``landmarks`` experiment) or as the whole mesh in correspondence (``mesh``), or
 a mesh file in correspondence with the generic ICT rig. Row: the true face (with
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from facegeom import registry
-from facegeom.bench import fit as bench_fit
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
-from facegeom.registry import MethodSpec, parse_methods
+from facegeom.model.scenarios import fitting_cases
+from facegeom.registry import LINEUPS, MethodSpec, parse_methods
 from viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]
@@ -75,7 +75,7 @@ def make_fit_case(model, case: int = 0, seed: int = 0, kind: str = "landmarks", 
         raise InputError(f"--case must be >= 0, got {case}")
     if not np.isfinite(noise_px) or noise_px < 0:
         raise InputError(f"--noise-px must be a non-negative number, got {noise_px}")
-    c = bench_fit.make_cases(model, case + 1, seed)[case]
+    c = fitting_cases(model, case + 1, seed)[case]
     rig = BlendshapeRig.from_face_model(model, c.identity)
     V = rig.evaluate(c.weights)
     active = ", ".join(f"{rig.names[i]} {c.weights[i]:.2f}" for i in np.flatnonzero(c.weights))
@@ -110,7 +110,7 @@ class FitView(BaseView):
                  noise_px: float = 1.0, mesh=None):
         super().__init__()
         self.model = model
-        specs = (parse_methods(methods, "fitters", bench_fit.DEFAULT_METHODS) if isinstance(methods, str)
+        specs = (parse_methods(methods, "fitters", LINEUPS["fit"]) if isinstance(methods, str)
                  else list(methods))
         if not specs:
             raise InputError("no fitter given, e.g. --methods sem")

@@ -21,15 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeom.bench import animate as bench_animate
-from facegeom.bench import retarget as bench_retarget
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import layout
 from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
-from facegeom.registry import parse_method, parse_methods
+from facegeom.registry import LINEUPS, parse_method, parse_methods
 from viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView"]
@@ -162,7 +160,7 @@ class RetargetView(PlaybackView):
     def __init__(self, model, seq, methods="copy;rbf;tangent", labels: int = 10, frame: int = 0):
         super().__init__(seq.n_frames, frame)
         self.model, self.seq = model, seq
-        specs = (parse_methods(methods, "retargeters", bench_retarget.DEFAULT_METHODS)
+        specs = (parse_methods(methods, "retargeters", LINEUPS["retarget"])
                  if isinstance(methods, str) else list(methods))
         if not specs:
             raise InputError("no retargeter given, e.g. --methods tangent")
@@ -283,7 +281,7 @@ class AnimateView(PlaybackView):
     def __init__(self, model, seq, retargeters="tangent", deformer="tangent", labels: int = 10, frame: int = 0):
         super().__init__(seq.n_frames, frame)
         self.model, self.seq = model, seq
-        specs = (parse_methods(retargeters, "retargeters", bench_animate.DEFAULT_RETARGETERS)
+        specs = (parse_methods(retargeters, "retargeters", LINEUPS["animate"])
                  if isinstance(retargeters, str) else list(retargeters))
         if not specs:
             raise InputError("no retargeter given, e.g. --retargeters tangent")

@@ -23,8 +23,6 @@ from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
 from facegeom.registry import MethodSpec
 
-DEFAULT_RETARGETERS = ["copy", "rbf", "tangent"]
-
 
 def run(model, seqs, retargeters: list[MethodSpec], deformer: MethodSpec, labels: int = 10, progress=True):
     rows = []

@@ -20,67 +20,19 @@ Protocol (seeded):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from facegeom.bench.common import median_time
 from facegeom.bench.report import Report, format_table, machine_note
-from facegeom.constants import CM_TO_MM, FACE_AREA
-from facegeom.model import NAMED, layout, named_expression, random_sparse_expression
+from facegeom.metrics import face_errors_mm
+from facegeom.model import layout
+from facegeom.model.scenarios import ExpressionCase, driving_cases
 from facegeom.registry import MethodSpec
 
-DEFAULT_METHODS = [
-    "markers-only",
-    "rbf",
-    "laplacian",
-    "laplacian-plain=laplacian:mode=plain",
-    "arap",
-    "biharmonic",
-    "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0",
-    "tangent",
-]
 
-
-@dataclass
-class Case:
-    index: int
-    kind: str
-    identity: np.ndarray
-    expression: dict
-
-
-def make_cases(model, count: int = 50, seed: int = 0) -> list[Case]:
-    """Every 5 cases: 3 named expressions (cycled in :data:`NAMED` order) and 2 random sparse ones."""
-    rng = np.random.default_rng(seed)
-    names = list(NAMED)
-    cases, n_named = [], 0
-    for i in range(count):
-        identity = model.random_identity(rng)
-        if i % 5 in (1, 3):
-            kind, expr = "random-sparse", random_sparse_expression(model.expression_names, rng)
-        else:
-            kind = names[n_named % len(names)]
-            n_named += 1
-            expr = named_expression(kind, float(rng.uniform(0.7, 1.0)))
-        cases.append(Case(i, kind, identity, expr))
-    return cases
-
-
-def errors_mm(Y: np.ndarray, T: np.ndarray) -> dict:
-    d = np.linalg.norm(Y - T, axis=1) * CM_TO_MM
-    face = d[:FACE_AREA]
-    return {
-        "mean_mm": float(face.mean()),
-        "rms_mm": float(np.sqrt((face ** 2).mean())),
-        "max_mm": float(face.max()),
-        "mean_all_mm": float(d.mean()),
-        "frobenius_mm": float(np.linalg.norm(Y - T) * CM_TO_MM),
-    }
-
-
-def run(model, specs: list[MethodSpec], cases: list[Case], layout_name: str = "ict80", layout_seed: int = 0,
+def run(model, specs: list[MethodSpec], cases: list[ExpressionCase], layout_name: str = "ict80", layout_seed: int = 0,
         progress: bool = True, deform_repeat: int = 5) -> list[dict]:
     handles = layout(model, layout_name, layout_seed)
     F = model.triangles
@@ -102,7 +54,7 @@ def run(model, specs: list[MethodSpec], cases: list[Case], layout_name: str = "i
             fit_s = time.perf_counter() - t
             deform_s, Y = median_time(lambda: method.deform(labels), deform_repeat)
             row = {"case": case.index, "kind": case.kind, "method": spec.label}
-            row.update(errors_mm(Y, T))
+            row.update(face_errors_mm(Y, T))
             row.update({"fit_s": fit_s, "deform_ms": deform_s * 1e3})
             rows.append(row)
             if bar:
@@ -144,7 +96,7 @@ def plot(rows: list[dict], specs: list[MethodSpec]):
 
 def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int, out: Path | None,
          progress: bool = True, echo=print, plot_it: bool = True) -> tuple[list[dict], str]:
-    cs = make_cases(model, cases, seed)
+    cs = driving_cases(model, cases, seed)
     rows = run(model, specs, cs, layout_name, layout_seed, progress=progress)
     header, table_rows = summarize(rows, specs)
     table = format_table(header, table_rows)

@@ -28,7 +28,6 @@ expression is fitted), as in the paper's expression-fitting experiments.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,40 +46,11 @@ from facegeom.model import (
     PointCloudTarget,
     look_at_camera,
 )
+from facegeom.model.scenarios import fitting_cases
 from facegeom.registry import MethodSpec
 
 EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
-DEFAULT_METHODS = [
-    "sem",
-    "sem+=sem:clamp=true,stop=ric",
-    "l1reg",
-    "l2reg",
-    "pcaexp",
-    "pcadel",
-    "eos",
-]
 KEY_SHAPES = ("jawOpen", "eyeBlink_L", "eyeBlink_R", "mouthSmile_L", "mouthSmile_R", "browInnerUp_L", "mouthFunnel")
-
-
-@dataclass
-class Case:
-    identity: np.ndarray
-    weights: np.ndarray
-    yaw: float
-    pitch: float
-
-
-def make_cases(model, count: int, seed: int, active=(2, 6)) -> list[Case]:
-    rng = np.random.default_rng([int(seed), 5150])
-    B = model.n_expressions
-    out = []
-    for _ in range(count):
-        ident = model.random_identity(rng)
-        w = np.zeros(B)
-        k = int(rng.integers(active[0], active[1] + 1))
-        w[rng.choice(B, k, replace=False)] = rng.uniform(0.2, 1.0, k)
-        out.append(Case(ident, w, float(rng.uniform(-25, 25)), float(rng.uniform(-15, 15))))
-    return out
 
 
 def available_specs(specs: list[MethodSpec], echo=print) -> list[MethodSpec]:
@@ -164,7 +134,7 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
     once; others are timed one by one on ``one_by_one`` targets.
     """
     rng = np.random.default_rng([int(seed), 57])
-    cases = make_cases(model, count, int(seed) + 1000)
+    cases = fitting_cases(model, count, int(seed) + 1000)
     rig = BlendshapeRig.from_face_model(model, cases[0].identity)
     ids = model.landmarks[list(FIT_LANDMARKS_23)]
     posed, unposed = [], []
@@ -403,7 +373,7 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
          take=None, echo=print, progress=True, plot_it=True):
     specs = available_specs(specs, echo)
     report = Report(out, "fit", echo)
-    cases = make_cases(model, count, seed)
+    cases = fitting_cases(model, count, seed)
     results, fitted, tw = {}, None, None
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)

@@ -26,13 +26,6 @@ from facegeom.registry import MethodSpec
 
 LEVELS_MM = (0.0, 0.1, 0.2, 0.5, 1.0)
 KINDS = ("labels", "source")
-DEFAULT_METHODS = [
-    "copy",
-    "rbf",
-    "laplacian",
-    "tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0",
-    "tangent",
-]
 
 
 def run(seqs, specs: list[MethodSpec], levels=LEVELS_MM, labels: int = 10, seed: int = 0, progress=True):

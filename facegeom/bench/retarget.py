@@ -35,16 +35,6 @@ from facegeom.registry import MethodSpec
 LABEL_COUNTS = (2, 3, 4, 6, 8, 10, 15, 20, 25, 30)
 REFERENCE_LABELS = 10
 
-DEFAULT_METHODS = [
-    "copy",
-    "rbf",
-    "rbf-frame=rbf:strategy=frame",
-    "laplacian",
-    "tangent-paper=tangent:strategy=marker,window=2,d=1,field=position,smoothness=0,beta=None,ridge=0.0001,"
-    "source_smoothing=0",
-    "tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0",
-    "tangent",
-]
 
 
 def build_sequences(model, takes, count: int = 50, frames: int = 100, seed: int = 0, layout_name: str = "ict80",

@@ -17,7 +17,6 @@ from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.model import layout
 from facegeom.registry import MethodSpec
 
-DEFAULT_METHODS = ["tangent", "biharmonic", "arap"]
 EXPRESSION = {"jawOpen": 0.6, "mouthSmile_L": 0.7, "browInnerUp_R": 0.5}
 
 

@@ -225,9 +225,9 @@ def bench_drive(obj: _Context, cases, seed, methods, layout_name, layout_seed, o
     from pathlib import Path
 
     from facegeom.bench import drive as bd
-    from facegeom.registry import parse_methods
+    from facegeom.registry import LINEUPS, parse_methods
 
-    specs = parse_methods(methods, "deformers", bd.DEFAULT_METHODS)
+    specs = parse_methods(methods, "deformers", LINEUPS["drive"])
     model = obj.face_model()
     bd.main(model, specs, cases, seed, layout_name, layout_seed, Path(out), progress=not quiet,
             echo=click.echo, plot_it=not no_plot)
@@ -258,7 +258,7 @@ def bench_retarget(obj: _Context, sequences, frames, seed, methods, labels, take
     """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
     from facegeom.bench import retarget as br
     from facegeom.errors import InputError
-    from facegeom.registry import parse_methods
+    from facegeom.registry import LINEUPS, parse_methods
 
     try:
         counts = sorted({int(x) for x in labels.split(",") if x.strip()})
@@ -266,7 +266,7 @@ def bench_retarget(obj: _Context, sequences, frames, seed, methods, labels, take
         raise InputError(f"--labels must be comma-separated integers, got {labels!r}") from None
     if not counts or counts[0] < 2 or counts[-1] > frames:
         raise InputError(f"--labels must lie in [2, {frames}] (the frames of a sequence)")
-    specs = parse_methods(methods, "retargeters", br.DEFAULT_METHODS)
+    specs = parse_methods(methods, "retargeters", LINEUPS["retarget"])
     model = obj.face_model()
     takes = [] if synthetic_only else _load_takes(model, takes_path)
     br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
@@ -309,7 +309,7 @@ def bench_noise(obj: _Context, sequences, frames, labels, levels, seed, methods,
     """Retargeting with Gaussian noise on the known character frames and on the actor's markers."""
     from facegeom.bench import noise as bn
     from facegeom.errors import InputError
-    from facegeom.registry import parse_methods
+    from facegeom.registry import LINEUPS, parse_methods
 
     try:
         lv = tuple(float(x) for x in levels.split(",") if x.strip())
@@ -319,7 +319,7 @@ def bench_noise(obj: _Context, sequences, frames, labels, levels, seed, methods,
         raise InputError(f"--levels must be non-negative numbers (mm), got {levels!r}")
     if labels > frames:
         raise InputError(f"--labels {labels} exceeds --frames {frames}")
-    specs = parse_methods(methods, "retargeters", bn.DEFAULT_METHODS)
+    specs = parse_methods(methods, "retargeters", LINEUPS["noise"])
     model = obj.face_model()
     takes = [] if synthetic_only else _load_takes(model, takes_path)
     bn.main(model, takes, specs, sequences, seed, out, lv, labels, frames, echo=click.echo, plot_it=not no_plot,
@@ -345,11 +345,11 @@ def bench_animate(obj: _Context, sequences, frames, labels, seed, retargeters, d
     """Performance-driven animation over many takes: face error and times per retargeter."""
     from facegeom.bench import animate as ba
     from facegeom.errors import InputError
-    from facegeom.registry import parse_method, parse_methods
+    from facegeom.registry import LINEUPS, parse_method, parse_methods
 
     if labels > frames:
         raise InputError(f"--labels {labels} exceeds --frames {frames}")
-    specs = parse_methods(retargeters, "retargeters", ba.DEFAULT_RETARGETERS)
+    specs = parse_methods(retargeters, "retargeters", LINEUPS["animate"])
     d_spec = parse_method(deformer)
     model = obj.face_model()
     takes = [] if synthetic_only else _load_takes(model, takes_path)
@@ -381,13 +381,13 @@ def bench_fit(obj: _Context, cases, seed, methods, experiments, noise_px, cloud_
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
     from facegeom.errors import InputError
-    from facegeom.registry import parse_methods
+    from facegeom.registry import LINEUPS, parse_methods
 
     ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
     bad = [x for x in ex if x not in bf.EXPERIMENTS]
     if bad or not ex:
         raise InputError(f"--experiments: unknown {bad[0] if bad else 'empty'!r}; choose from {', '.join(bf.EXPERIMENTS)}")
-    specs = parse_methods(methods, "fitters", bf.DEFAULT_METHODS)
+    specs = parse_methods(methods, "fitters", LINEUPS["fit"])
     model = obj.face_model()
     take = None
     if "temporal" in ex:
@@ -416,7 +416,7 @@ def bench_scaling(obj: _Context, levels, methods):
     """Fit and deform times on the face subdivided to ~37k and ~150k vertices."""
     from facegeom.bench import scaling as bs
     from facegeom.errors import InputError
-    from facegeom.registry import parse_methods
+    from facegeom.registry import LINEUPS, parse_methods
 
     try:
         lv = [int(x) for x in levels.split(",") if x.strip()]
@@ -424,7 +424,7 @@ def bench_scaling(obj: _Context, levels, methods):
         raise InputError(f"--levels must be comma-separated integers, got {levels!r}") from None
     if not lv or min(lv) < 0 or max(lv) > 3:
         raise InputError("--levels must lie in 0..3")
-    specs = parse_methods(methods, "deformers", bs.DEFAULT_METHODS)
+    specs = parse_methods(methods, "deformers", LINEUPS["scaling"])
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
 
 

@@ -1,5 +1,6 @@
 """The model (layer 3): face model and its data, blendshape rig, fitting targets,
-camera and pose, landmark sets, marker layouts, expressions, synthetic performances.
+camera and pose, landmark sets, marker layouts, expressions, synthetic performances,
+and the seeded scenarios of the comparisons.
 """
 from __future__ import annotations
 
@@ -33,9 +34,14 @@ from facegeom.model.landmarks import (
 from facegeom.model.layouts import farthest_points, ict80, layout, random_layout
 from facegeom.model.pose import estimate_pose, estimate_poses, project_many, reprojection_rms
 from facegeom.model.rig import BlendshapeRig
+from facegeom.model.scenarios import ExpressionCase, SparseExpressionCase, driving_cases, fitting_cases
 from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
 
 __all__ = [
+    "ExpressionCase",
+    "SparseExpressionCase",
+    "driving_cases",
+    "fitting_cases",
     "BUNDLE_NAME",
     "ENV_VAR",
     "FaceModel",

@@ -1,0 +1,125 @@
+"""Seeded ground-truth scenarios of the comparisons, shared by ``facegeom bench`` and the viewer.
+
+- Face driving: :func:`driving_cases` -- a random identity (source, neutral)
+  and the same identity with an expression (target).
+- Blendshape fitting: :func:`fitting_cases` -- a random identity with a sparse
+  random expression and a head pose.
+
+The retargeting sequences are built by :mod:`facegeom.model.performance`.
+Every random choice comes from the ``seed``; the same seed gives the same cases.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facegeom.model.expressions import NAMED, named_expression, random_sparse_expression
+
+__all__ = ["ExpressionCase", "driving_cases", "SparseExpressionCase", "fitting_cases"]
+
+
+@dataclass
+class ExpressionCase:
+    """One face-driving case: an identity, neutral and with an expression.
+
+    Attributes
+    ----------
+    index : int
+        Position of the case in its list.
+    kind : str
+        The named expression (a key of :data:`facegeom.model.expressions.NAMED`) or ``"random-sparse"``.
+    identity : (I,) float64
+        Identity coefficients (``FaceModel.random_identity``).
+    expression : dict
+        Expression weights by shape name.
+    """
+
+    index: int
+    kind: str
+    identity: np.ndarray
+    expression: dict
+
+
+def driving_cases(model, count: int = 50, seed: int = 0) -> list[ExpressionCase]:
+    """``count`` driving cases: in every 5, 3 named expressions (cycled in :data:`NAMED` order) and 2 random sparse.
+
+    Named expressions get an intensity ~ U(0.7, 1.0); random sparse ones 2-6
+    shapes with weights ~ U(0.3, 1) (:func:`random_sparse_expression`).
+
+    Parameters
+    ----------
+    model : FaceModel
+        The face model (identities and expression names).
+    count : int
+        Number of cases.
+    seed : int
+        Seed of identities, expressions and intensities.
+
+    Returns
+    -------
+    list of ExpressionCase
+    """
+    rng = np.random.default_rng(seed)
+    names = list(NAMED)
+    cases, n_named = [], 0
+    for i in range(count):
+        identity = model.random_identity(rng)
+        if i % 5 in (1, 3):
+            kind, expr = "random-sparse", random_sparse_expression(model.expression_names, rng)
+        else:
+            kind = names[n_named % len(names)]
+            n_named += 1
+            expr = named_expression(kind, float(rng.uniform(0.7, 1.0)))
+        cases.append(ExpressionCase(i, kind, identity, expr))
+    return cases
+
+
+@dataclass
+class SparseExpressionCase:
+    """One blendshape-fitting case: an identity with a sparse expression, seen under a head pose.
+
+    Attributes
+    ----------
+    identity : (I,) float64
+        Identity coefficients.
+    weights : (B,) float64
+        True expression weights in the model's shape order (2-6 non-zero by default).
+    yaw, pitch : float
+        Head rotation in degrees (yaw ~ U(-25, 25), pitch ~ U(-15, 15)).
+    """
+
+    identity: np.ndarray
+    weights: np.ndarray
+    yaw: float
+    pitch: float
+
+
+def fitting_cases(model, count: int, seed: int, active=(2, 6)) -> list[SparseExpressionCase]:
+    """``count`` fitting cases with ``active[0]..active[1]`` shapes active at weights ~ U(0.2, 1.0).
+
+    Parameters
+    ----------
+    model : FaceModel
+        The face model.
+    count : int
+        Number of cases.
+    seed : int
+        Seed (combined with a fixed stream id, so these cases differ from other uses of the same seed).
+    active : (int, int)
+        Inclusive range of the number of active shapes.
+
+    Returns
+    -------
+    list of SparseExpressionCase
+    """
+    rng = np.random.default_rng([int(seed), 5150])
+    B = model.n_expressions
+    out = []
+    for _ in range(count):
+        ident = model.random_identity(rng)
+        w = np.zeros(B)
+        k = int(rng.integers(active[0], active[1] + 1))
+        w[rng.choice(B, k, replace=False)] = rng.uniform(0.2, 1.0, k)
+        out.append(SparseExpressionCase(ident, w, float(rng.uniform(-25, 25)), float(rng.uniform(-15, 15))))
+    return out
