@@ -5,7 +5,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.facegeom-installed
 
-.PHONY: demo test install bench images clean
+.PHONY: demo test install images clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -51,7 +51,6 @@ from facegeom.model.expressions import NAMED
 _RIGHT_EYE = np.arange(36, 42)
 _LEFT_EYE = np.arange(42, 48)
 _MOUTH = np.arange(48, 68)
-_CHIN = 8
 
 
 @dataclass
