@@ -94,7 +94,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult, as_handles
+from facegeom.interfaces import FitResult, Params, as_handles
 from facegeom.methods.fitting import check_fit_inputs, fit_with_pose
 from facegeom.model import INNER_EYE_CORNERS, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
 
@@ -404,7 +404,7 @@ def _batched_box_qp(H, F, lo=0.0, hi=1.0, max_rounds=60, backup=3):
 # --------------------------------------------------------------------------- the base class
 
 
-class _BaseFitter:
+class _BaseFitter(Params):
     """Shared machinery: model cache, target dispatch, results."""
 
     _name = "base"

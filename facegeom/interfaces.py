@@ -10,9 +10,17 @@ Shapes
 - vertices: ``(n, 3)`` float64, faces: ``(m, 3)`` int64 triangles
 - handles: ``(k,)`` int64 vertex ids, distinct, in ``[0, n)``
 - handle_positions: ``(k, 3)`` float64, finite
+
+Parameters
+----------
+Every method class derives from :class:`Params`: each constructor argument is
+stored under its own name, so ``get_params()`` reads them back from the
+``__init__`` signature, ``set_params(**kw)`` changes some (checked by the
+constructor, as at creation) and ``clone()`` gives a new unfitted copy.
 """
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from typing import Any, Protocol, Self, runtime_checkable
 
@@ -21,6 +29,7 @@ import numpy as np
 from facegeom.errors import InputError
 
 __all__ = [
+    "Params",
     "Deformer",
     "Retargeter",
     "Fitter",
@@ -31,6 +40,54 @@ __all__ = [
     "as_positions",
     "as_sequence",
 ]
+
+
+class Params:
+    """scikit-learn style parameters for a method class (mixin).
+
+    The subclass stores every ``__init__`` argument under the same attribute
+    name (possibly normalised, e.g. ``int(d)``); learned state ends in ``_``
+    and is not a parameter.
+    """
+
+    @classmethod
+    def param_names(cls) -> tuple[str, ...]:
+        """The constructor's parameter names, in signature order."""
+        sig = inspect.signature(cls.__init__)
+        return tuple(name for name, p in sig.parameters.items()
+                     if name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+
+    def get_params(self) -> dict[str, Any]:
+        """Return ``{name: value}`` for every constructor parameter, in signature order."""
+        return {name: getattr(self, name) for name in self.param_names()}
+
+    def set_params(self, **params) -> Self:
+        """Change some parameters and return ``self``.
+
+        The new values go through the constructor's checks (a fresh instance
+        is built with them), so a bad value raises the same
+        :class:`~facegeom.errors.InputError` as at creation. Learned state is
+        kept as it is: call ``fit`` again.
+
+        Raises
+        ------
+        InputError
+            A name that is not a constructor parameter (the message names it
+            and lists the valid ones), or a bad value.
+        """
+        valid = self.param_names()
+        for name in params:
+            if name not in valid:
+                raise InputError(f"{type(self).__name__} has no parameter {name!r}; "
+                                 f"valid parameters: {', '.join(valid) or 'none'}")
+        checked = type(self)(**{**self.get_params(), **params})
+        for name in params:
+            setattr(self, name, getattr(checked, name))
+        return self
+
+    def clone(self) -> Self:
+        """Return a new, unfitted instance with the same parameters."""
+        return type(self)(**self.get_params())
 
 
 @runtime_checkable

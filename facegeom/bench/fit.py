@@ -230,8 +230,8 @@ def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, s
         target = PointCloudTarget(P)
         for spec in specs:
             m = spec.build("fitters")
-            if hasattr(m, "region"):
-                m.region = region
+            if "region" in m.param_names():
+                m.set_params(region=region)
             t = time.perf_counter()
             try:
                 r = m.fit(rig, target)

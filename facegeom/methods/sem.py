@@ -57,7 +57,7 @@ from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult
+from facegeom.interfaces import FitResult, Params
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
 
@@ -163,7 +163,7 @@ def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = T
     return sem_gram(M @ d, M @ M.T, float(d @ d), exclusion, upper)
 
 
-class SEMFitter:
+class SEMFitter(Params):
     """Selective Expression Manipulation as a :class:`~facegeom.interfaces.Fitter`.
 
     Parameters
@@ -218,10 +218,6 @@ class SEMFitter:
         self.exclusion, self.clamp, self.refit = bool(exclusion), bool(clamp), bool(refit)
         self.alternations, self.max_points = int(alternations), int(max_points)
         self.region = None if region is None else np.asarray(region, dtype=np.int64)
-
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points",
-                                              "select", "covered_only", "stop")}
 
     def __repr__(self) -> str:
         return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"

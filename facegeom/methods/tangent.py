@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import as_faces, as_handles, as_positions, as_vertices, check_fitted
+from facegeom.interfaces import Params, as_faces, as_handles, as_positions, as_vertices, check_fitted
 from facegeom.linalg import SPDSolver, factorize_spd
 
 __all__ = [
@@ -345,7 +345,7 @@ class _Config:
     smoothness: float
 
 
-class TangentDeformer:
+class TangentDeformer(Params):
     """Face driving with the tangent framework (a :class:`~facegeom.interfaces.Deformer`).
 
     Data points are the mesh vertices, neighbourhoods are mesh rings, labels
@@ -412,10 +412,6 @@ class TangentDeformer:
         self.d, self.beta, self.field, self.align = int(d), beta, field, align
         self.smoothness = float(smoothness)
         self.solver_ = None
-
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in
-                ("neighbourhood", "rings", "radius", "d", "beta", "field", "align", "smoothness")}
 
     def __repr__(self) -> str:
         return "TangentDeformer(" + ", ".join(f"{k}={v!r}" for k, v in self.get_params().items()) + ")"
