@@ -445,7 +445,7 @@ class _BaseFitter(Params):
         ``weights`` are in the rig's shape order, ``vertices`` the fitted face;
         ``info``: ``method``, ``energy`` (eq. 7, normalised), ``data_energy``,
         ``scale`` (the normaliser ``s``), ``iterations`` (optimizer iterations,
-        summed), ``converged``, ``time`` (s); ``camera`` for landmarks,
+        summed), ``converged``, ``time_s`` (seconds); ``camera`` for landmarks,
         ``icp_iterations`` for point clouds.
         """
         t0 = time.perf_counter()
@@ -459,7 +459,7 @@ class _BaseFitter(Params):
         else:
             x, info_t = self._fit_cloud(model, target)
         info.update(info_t)
-        info["time"] = time.perf_counter() - t0
+        info["time_s"] = time.perf_counter() - t0
         return FitResult(weights=model.to_weights(x), vertices=model.vertices(x), info=info)
 
     def _fit_mesh(self, model: _Model, target: MeshTarget):

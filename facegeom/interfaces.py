@@ -127,7 +127,8 @@ class FitResult:
     vertices : (n,3) float64
         The fitted face: neutral + deltas weighted by ``weights``.
     info : dict
-        Method-specific extras (selected shapes, iterations, pose...).
+        ``time_s`` (float, seconds spent on this target) for every fitter, then
+        method-specific extras (selected shapes, iterations, camera...).
     """
 
     weights: np.ndarray

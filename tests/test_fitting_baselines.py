@@ -55,7 +55,7 @@ def test_defaults_protocol_and_result(cls):
     res = f.fit(rig, MeshTarget(rig.evaluate(np.full(5, 0.3))))
     assert isinstance(res, FitResult)
     assert res.weights.shape == (5,) and res.vertices.shape == (12, 3)
-    for key in ("energy", "data_energy", "scale", "iterations", "time", "converged", "method"):
+    for key in ("energy", "data_energy", "scale", "iterations", "time_s", "converged", "method"):
         assert key in res.info
 
 
