@@ -37,6 +37,7 @@ from facegeom import metrics as fm
 from facegeom.bench.common import MethodSpec, format_table, machine_note, write_csv
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
+from facegeom.interfaces import batched_targets, fit_many
 from facegeom.io import atomic_path
 from facegeom.model import (
     EVAL_LANDMARKS_26,
@@ -161,8 +162,10 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
 def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10):
     """Landmark fits per second on one rig: known pose and estimated pose.
 
-    A method with a batched path (``fit_landmarks``) fits ``count`` targets at
-    once; others are timed one by one on ``one_by_one`` targets.
+    A method that solves landmark targets together (``"landmarks"`` in
+    :func:`~facegeom.interfaces.batched_targets`) fits ``count`` targets in one
+    :func:`~facegeom.interfaces.fit_many`; others are timed one by one on
+    ``one_by_one`` targets.
     """
     rng = np.random.default_rng([int(seed), 57])
     cases = make_cases(model, count, int(seed) + 1000)
@@ -185,9 +188,9 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
             except FacegeomError:
                 row[key] = float("nan")
                 continue
-            if hasattr(m, "fit_landmarks"):
+            if "landmarks" in batched_targets(m):
                 t = time.perf_counter()
-                m.fit_landmarks(rig, targets)
+                fit_many(m, rig, targets)
                 n, row["path"] = len(targets), "batched"
             else:
                 n, row["path"] = min(one_by_one, len(targets)), "one by one"
@@ -273,11 +276,10 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
             m.fit(rig, MeshTarget(T[0]))
         except FacegeomError:
             continue
-        many = getattr(m, "fit_meshes", None) or getattr(m, "fit_many", None)  # a batched path
-        if many is not None:
-            many(rig, T[:10])
+        if "mesh" in batched_targets(m):
+            fit_many(m, rig, T[:10])
             t = time.perf_counter()
-            many(rig, T)
+            fit_many(m, rig, T)
             n, dt, how = len(T), time.perf_counter() - t, "batched"
         else:
             n = 100

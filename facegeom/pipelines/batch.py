@@ -12,7 +12,7 @@ Operations (each reuses the single-item code of the matching command):
 ``fit``       blendshape coefficients of targets (landmark CSVs, meshes, point
               clouds; :func:`facegeom.model.inputs.read_fit_target`) -> ``.json``/``.csv``
               weights. Landmark files are fitted a chunk at a time through the
-              fitter's vectorised ``fit_landmarks`` when it has one (SEM).
+              fitter's batched ``fit_many`` when it solves landmarks together (SEM).
 ``drive``     a deformer fitted once on the rest mesh and marker layout, driven
               by marker frames (``vertex_id,x,y,z`` CSV -> one mesh) or marker
               sequences (``.npz``/long CSV -> ``.npz`` with float32 ``vertices (T, n, 3)``).
@@ -523,8 +523,10 @@ class _Fit(_Op):
             raise _fail(job.source, "landmark targets need the camera: set shared.focal, shared.cx and shared.cy "
                                     "(pixels)")
         fitter = _check_method(job, "fitters")
+        from facegeom.interfaces import batched_targets
+
         spec["shared"] = {"rig": rig, "kind": kind, "camera": cam,
-                          "vectorised": hasattr(fitter, "fit_landmarks")}
+                          "vectorised": "landmarks" in batched_targets(fitter)}
         spec["stamp"] = _stamp([rig] if rig else [spec.get("data")])
 
     def outputs(self, job, spec, src, stem):
@@ -548,6 +550,7 @@ class _Fit(_Op):
         return {"rig": rig, "fitter": registry.create("fitters", spec["method"], **spec["params"])}
 
     def compute(self, state, spec, items):
+        from facegeom.interfaces import fit_many
         from facegeom.model import read_fit_target
 
         rig, fitter = state["rig"], state["fitter"]
@@ -566,13 +569,13 @@ class _Fit(_Op):
             if targets:
                 t0 = time.perf_counter()
                 try:
-                    E, cams = fitter.fit_landmarks(rig, targets)
+                    res = fit_many(fitter, rig, targets)
                 except Exception:  # noqa: BLE001 - one target broke the batch: fit them one by one to find it
                     single = [it for it, _ in good] + single
                 else:
                     share = (time.perf_counter() - t0) / len(targets)
                     for k, (it, dt) in enumerate(good):
-                        yield it, ("landmarks", E[k], cams[k]), dt + share
+                        yield it, ("landmarks", res[k].weights, res[k].info["camera"]), dt + share
 
         def one(it):
             kind, tgt = read_fit_target(it["input"], rig, spec["shared"]["kind"], *cam)
