@@ -441,13 +441,24 @@ class _BaseFitter(Params):
 
     # ----------------------------------------------------------------- fit
     def fit(self, rig, target) -> FitResult:
-        """Fit ``rig`` to ``target`` (MeshTarget, LandmarkTarget or PointCloudTarget) -> FitResult.
+        """Fit the rig's coefficients to one target.
 
-        ``weights`` are in the rig's shape order, ``vertices`` the fitted face;
-        ``info``: ``method``, ``energy`` (eq. 7, normalised), ``data_energy``,
-        ``scale`` (the normaliser ``s``), ``iterations`` (optimizer iterations,
-        summed), ``converged``, ``time_s`` (seconds); ``camera`` for landmarks,
-        ``icp_iterations`` for point clouds.
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            Neutral ``(n, 3)`` and ``B`` delta-blendshapes ``(B, n, 3)``.
+        target : MeshTarget, LandmarkTarget or PointCloudTarget
+            A mesh ``(n, 3)`` in correspondence (optional weights ``(n,)``),
+            landmarks ``(L, 2)`` of vertices ``(L,)`` with a camera, or points ``(N, 3)``.
+
+        Returns
+        -------
+        FitResult
+            ``weights (B,)`` in the rig's shape order, ``vertices (n, 3)`` the
+            fitted face; ``info``: ``method``, ``energy`` (eq. 7, normalised),
+            ``data_energy``, ``scale`` (the normaliser ``s``), ``iterations``
+            (optimizer iterations, summed), ``converged``, ``time_s`` (seconds);
+            ``camera`` for landmarks, ``icp_iterations`` for point clouds.
         """
         t0 = time.perf_counter()
         rig, target = check_fit_inputs(rig, target)

@@ -9,7 +9,11 @@ Shapes
 ------
 - vertices: ``(n, 3)`` float64, faces: ``(m, 3)`` int64 triangles
 - handles: ``(k,)`` int64 vertex ids, distinct, in ``[0, n)``
-- handle_positions: ``(k, 3)`` float64, finite
+- handle_positions: ``(k, 3)`` float64, finite; ``(F, k, 3)`` for ``F`` frames
+  (:func:`deform_many`, result ``(F, n, 3)``)
+- fitting: a rig of ``B`` delta-blendshapes on ``n`` vertices; ``fit`` gives one
+  :class:`FitResult` (``weights (B,)``, ``vertices (n, 3)``), :func:`fit_many`
+  a list of them, one per target
 
 Parameters
 ----------
@@ -143,11 +147,25 @@ class Retargeter(Protocol):
     """Expression retargeting: map a source marker sequence onto a target character."""
 
     def fit(self, source: np.ndarray, labelled_frames: np.ndarray, target_labels: np.ndarray) -> Self:
-        """``source (T,p,3)``, ``labelled_frames (L,)`` frame ids, ``target_labels (L,p,3)``."""
+        """Learn the map from the source sequence and the labelled target frames.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            Distinct frame ids in ``[0, T)`` whose target markers are known.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+        """
         ...
 
     def transform(self) -> np.ndarray:
-        """Return the target sequence ``(T,p,3)``."""
+        """Return the retargeted sequence ``(T, p, 3)`` (the character's markers per frame)."""
         ...
 
 

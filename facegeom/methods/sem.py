@@ -229,6 +229,24 @@ class SEMFitter(Params):
 
     # ------------------------------------------------------------------ dispatch
     def fit(self, rig: BlendshapeRig, target) -> FitResult:
+        """Fit the rig's coefficients to one target by greedy selection.
+
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            Neutral ``(n, 3)`` and ``B`` delta-blendshapes ``(B, n, 3)``.
+        target : MeshTarget, LandmarkTarget or PointCloudTarget
+            A mesh ``(n, 3)`` in correspondence (optional weights ``(n,)``),
+            landmarks ``(L, 2)`` of vertices ``(L,)`` with a camera, or points ``(N, 3)``.
+
+        Returns
+        -------
+        FitResult
+            ``weights (B,)``, ``vertices (n, 3)``; ``info``: ``order`` (selected
+            shape ids in selection order), ``selected`` (their names, non-zero
+            weights), ``time_s``; landmarks add ``camera`` and
+            ``pose_estimated``, point clouds ``points_used`` and ``queries``.
+        """
         rig, target = check_fit_inputs(rig, target)
         t0 = time.perf_counter()
         if isinstance(target, MeshTarget):
