@@ -31,5 +31,5 @@ def require_handle_per_component(F, n: int, H, method: str) -> None:
         raise SolveError(
             f"{method}: {count} mesh component(s) have no marker (e.g. the one holding vertex "
             f"{example}, {size} vertices); "
-            "put a marker on every component or remove it (facegeom clean --largest)"
+            "put a marker on every component or remove it (clean the mesh with largest_component=True)"
         )

@@ -41,7 +41,7 @@ import time
 import numpy as np
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import FitResult
+from facegeom.interfaces import FitResult, Params
 from facegeom.methods.fitting import check_fit_inputs, result
 from facegeom.model import BlendshapeRig, LandmarkTarget
 
@@ -60,7 +60,7 @@ def _import_eos():
     return eos
 
 
-class EosFitter:
+class EosFitter(Params):
     """Landmark blendshape fitting with eos (``eos.fitting.fit_expressions`` + eos's affine camera).
 
     Parameters
@@ -86,9 +86,6 @@ class EosFitter:
         self.compact = bool(compact)
         self._cache_key = None
         self._cache = None
-
-    def get_params(self) -> dict:
-        return {"iterations": self.iterations, "compact": self.compact}
 
     def __repr__(self) -> str:
         return f"EosFitter(iterations={self.iterations}, compact={self.compact})"

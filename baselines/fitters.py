@@ -78,7 +78,7 @@ Fast path
 ``fit`` solves one target with scipy's ``minimize(method="L-BFGS-B", jac=True)``
 (bounds ``[0, 1]`` for L1Reg / L2Reg, none for the PCA fitters; the PCA fitters
 solve the quadratic mesh / point-cloud cases in closed form).  For many mesh
-targets ``fit_many(rig, targets)`` returns the ``(T, B)`` weights: one BLAS
+targets ``fit_many(rig, targets)`` (the results in one call): one BLAS
 product gives every ``D^T dT``; the bounded quadratic programs are then solved
 *exactly* together by a batched primal-dual active-set method (KKT conditions
 checked; a target that does not converge in ``max_active_set`` rounds is handed
@@ -87,6 +87,7 @@ to L-BFGS-B).  The PCA fitters' mesh solution is a closed form for all targets.
 from __future__ import annotations
 
 import time
+from functools import partial
 from numbers import Integral, Real
 
 import numpy as np
@@ -94,7 +95,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult, as_handles
+from facegeom.interfaces import FitResult, Params, as_handles
 from facegeom.methods.fitting import check_fit_inputs, fit_with_pose
 from facegeom.model import INNER_EYE_CORNERS, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
 
@@ -404,7 +405,7 @@ def _batched_box_qp(H, F, lo=0.0, hi=1.0, max_rounds=60, backup=3):
 # --------------------------------------------------------------------------- the base class
 
 
-class _BaseFitter:
+class _BaseFitter(Params):
     """Shared machinery: model cache, target dispatch, results."""
 
     _name = "base"
@@ -440,13 +441,24 @@ class _BaseFitter:
 
     # ----------------------------------------------------------------- fit
     def fit(self, rig, target) -> FitResult:
-        """Fit ``rig`` to ``target`` (MeshTarget, LandmarkTarget or PointCloudTarget) -> FitResult.
+        """Fit the rig's coefficients to one target.
 
-        ``weights`` are in the rig's shape order, ``vertices`` the fitted face;
-        ``info``: ``method``, ``energy`` (eq. 7, normalised), ``data_energy``,
-        ``scale`` (the normaliser ``s``), ``iterations`` (optimizer iterations,
-        summed), ``converged``, ``time`` (s); ``camera`` for landmarks,
-        ``icp_iterations`` for point clouds.
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            Neutral ``(n, 3)`` and ``B`` delta-blendshapes ``(B, n, 3)``.
+        target : MeshTarget, LandmarkTarget or PointCloudTarget
+            A mesh ``(n, 3)`` in correspondence (optional weights ``(n,)``),
+            landmarks ``(L, 2)`` of vertices ``(L,)`` with a camera, or points ``(N, 3)``.
+
+        Returns
+        -------
+        FitResult
+            ``weights (B,)`` in the rig's shape order, ``vertices (n, 3)`` the
+            fitted face; ``info``: ``method``, ``energy`` (eq. 7, normalised),
+            ``data_energy``, ``scale`` (the normaliser ``s``), ``iterations``
+            (optimizer iterations, summed), ``converged``, ``time_s`` (seconds);
+            ``camera`` for landmarks, ``icp_iterations`` for point clouds.
         """
         t0 = time.perf_counter()
         rig, target = check_fit_inputs(rig, target)
@@ -459,7 +471,7 @@ class _BaseFitter:
         else:
             x, info_t = self._fit_cloud(model, target)
         info.update(info_t)
-        info["time"] = time.perf_counter() - t0
+        info["time_s"] = time.perf_counter() - t0
         return FitResult(weights=model.to_weights(x), vertices=model.vertices(x), info=info)
 
     def _fit_mesh(self, model: _Model, target: MeshTarget):
@@ -518,31 +530,44 @@ class _BaseFitter:
                        iterations=state["nit"], converged=state["ok"], camera=camera)
 
     # ----------------------------------------------------------------- many mesh targets
-    def fit_many(self, rig, targets, chunk: int = 1024) -> np.ndarray:
-        """Weights ``(T, B)`` (rig's shape order) for many targets, the same as ``fit(...).weights``.
+    batched_targets = frozenset({"mesh"})
 
-        ``targets``: an array ``(T, n, 3)`` of target meshes in correspondence,
-        or a sequence of targets.  Unweighted mesh targets are solved together
-        (one BLAS product for all ``D^T dT``, then a batched exact solve);
-        other targets go through :meth:`fit` one by one.  The fitted faces are
-        ``rig.evaluate(w)`` (for the PCA fitters that is the PCA
-        reconstruction, up to rounding).
+    def fit_many(self, rig, targets, chunk: int = 1024) -> list[FitResult]:
+        """Fit ``K`` targets at once: :func:`facegeom.interfaces.fit_many`'s fast path for meshes.
+
+        Unweighted mesh targets are solved together (one BLAS product for all
+        ``D^T dT``, then a batched exact solve); other targets go through
+        :meth:`fit` one by one.
+
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            ``B`` delta-blendshapes on ``n`` vertices.
+        targets : sequence of K targets, or (K, n, 3) array
+            Targets of any kind, or the meshes of ``K`` unweighted mesh targets.
+        chunk : int
+            Meshes per BLAS product.
+
+        Returns
+        -------
+        list of K FitResult
+            ``weights (B,)`` (the same as ``fit(...).weights`` up to the solver's
+            tolerance); ``vertices (n, 3)`` evaluated on first read (for the PCA
+            fitters the PCA reconstruction, as :meth:`fit`); ``info``: ``method``
+            and ``time_s`` (the target's share of the batch's time) for the
+            batched meshes, :meth:`fit`'s ``info`` for the others.
         """
         if not isinstance(rig, BlendshapeRig):
             raise InputError(f"rig must be a BlendshapeRig, got {type(rig).__name__}")
         chunk = _check_count(chunk, "chunk")
         n = rig.n_vertices
         if isinstance(targets, np.ndarray):
-            A = np.asarray(targets, dtype=np.float64)
-            if A.ndim == 2:
-                A = A[None]
-            if A.ndim != 3 or A.shape[1:] != (n, 3):
-                raise InputError(f"target meshes must have shape (T, {n}, 3), got {A.shape}")
-            arrays, others = A, []
-            rows = np.arange(A.shape[0])
+            arrays = np.asarray(targets, dtype=np.float64)
+            if arrays.ndim != 3 or arrays.shape[1:] != (n, 3):
+                raise InputError(f"target meshes must have shape (T, {n}, 3), got {arrays.shape}")
+            others = []
+            rows = np.arange(arrays.shape[0])
         else:
-            if isinstance(targets, (MeshTarget, LandmarkTarget, PointCloudTarget)):
-                targets = [targets]
             targets = list(targets)
             rows, meshes, others = [], [], []
             for i, t in enumerate(targets):
@@ -554,20 +579,26 @@ class _BaseFitter:
                     others.append(i)
             rows = np.asarray(rows, dtype=np.int64)
             arrays = np.stack(meshes) if meshes else np.zeros((0, n, 3))
+        t0 = time.perf_counter()
         model = self._model(rig)
-        T = arrays.shape[0] + len(others)
-        W = np.empty((T, rig.n_shapes))
+        X = np.empty((arrays.shape[0], model.P))
+        W = np.empty((arrays.shape[0], rig.n_shapes))
         for start in range(0, arrays.shape[0], chunk):
             block = arrays[start:start + chunk].reshape(-1, 3 * n)
             Bm = block @ model.M - model.Mt_base[None]
             if not np.all(np.isfinite(Bm)):  # a NaN / inf coordinate spreads to its row of D^T T
                 bad = start + int(np.flatnonzero(~np.isfinite(Bm).all(axis=1))[0])
                 raise InputError(f"target mesh {int(rows[bad])} contains NaN or inf")
-            X = self._solve_mesh_batch(model, Bm)
-            W[rows[start:start + chunk]] = X @ model.wmap.T + model.w0 if model.wmap is not None else X
+            Xc = self._solve_mesh_batch(model, Bm)
+            X[start:start + chunk] = Xc
+            W[start:start + chunk] = Xc @ model.wmap.T + model.w0 if model.wmap is not None else Xc
+        info = {"method": self._name, "time_s": (time.perf_counter() - t0) / max(arrays.shape[0], 1)}
+        out: list = [None] * (arrays.shape[0] + len(others))
+        for j, i in enumerate(rows):
+            out[i] = FitResult(W[j], partial(model.vertices, X[j]), dict(info))
         for i in others:
-            W[i] = self.fit(rig, targets[i]).weights
-        return W
+            out[i] = self.fit(rig, targets[i])
+        return out
 
     def _solve_mesh_batch(self, model: _Model, Bm: np.ndarray) -> np.ndarray:
         s = _scale3d(model.rig)

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from baselines._common import fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
 from facegeom.geometry import adjacency, cotangent_laplacian
-from facegeom.interfaces import as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted
 from facegeom.methods.tangent import TangentSolver
 
 
@@ -74,7 +74,7 @@ def similarity_operator(V: np.ndarray, L: sp.csr_matrix) -> sp.csr_matrix:
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
 
 
-class LaplacianDeformer:
+class LaplacianDeformer(Params):
     """Laplacian surface editing behind the Deformer interface.
 
     Parameters

@@ -6,7 +6,7 @@ import numpy as np
 
 from baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
-from facegeom.interfaces import as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted
 
 ENERGIES = {
     "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,
@@ -15,7 +15,7 @@ ENERGIES = {
 }
 
 
-class ARAPDeformer:
+class ARAPDeformer(Params):
     """As-rigid-as-possible deformation (Sorkine & Alexa 2007), libigl's implementation.
 
     ``fit`` runs ``arap_precomputation`` (the factorization); every ``deform``
@@ -54,7 +54,7 @@ class ARAPDeformer:
         return np.asarray(igl.arap_solve(P, self.data_, self.vertices_.copy()))
 
 
-class BiharmonicDeformer:
+class BiharmonicDeformer(Params):
     """k-harmonic interpolation of the marker displacements (libigl ``harmonic``).
 
     ``k = 2`` (biharmonic) is the classic smooth deformation of Botsch & Kobbelt /

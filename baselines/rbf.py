@@ -6,13 +6,13 @@ from scipy.interpolate import RBFInterpolator
 
 from baselines._common import apply_displacement_map, fit_inputs
 from facegeom.errors import InputError
-from facegeom.interfaces import as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
            "inverse_quadratic", "gaussian")
 
 
-class RBFDeformer:
+class RBFDeformer(Params):
     """Scattered-data interpolation of the marker displacements over Euclidean distance.
 
     ``d(x) = sum_j c_j phi(|x - m_j|) + p(x)``, fitted so that ``d(m_j)`` is

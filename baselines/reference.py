@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 from baselines._common import fit_inputs
-from facegeom.interfaces import as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted
 
 
-class MarkersOnly:
+class MarkersOnly(Params):
     """Return the rest mesh with only the marker vertices moved to their positions.
 
     The floor every deformer must beat: it shows how much of the error is the

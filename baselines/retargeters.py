@@ -6,14 +6,14 @@ import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 
 from facegeom.errors import InputError
-from facegeom.interfaces import check_fitted
+from facegeom.interfaces import Params, check_fitted
 from facegeom.methods.tangent import TangentSolver
 from facegeom.methods.tangent_retarget import check_retarget_inputs, temporal_windows
 
 __all__ = ["CopyRetargeter", "RBFRetargeter", "LaplacianRetargeter"]
 
 
-class CopyRetargeter:
+class CopyRetargeter(Params):
     """Reference: the actor's motion copied onto the character.
 
     ``Y_t = X_t + o`` with the per-marker offset ``o`` (character minus actor)
@@ -23,9 +23,6 @@ class CopyRetargeter:
 
     def __init__(self):
         self.result_ = None
-
-    def get_params(self) -> dict:
-        return {}
 
     def fit(self, source, labelled_frames, target_labels) -> "CopyRetargeter":
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
@@ -49,7 +46,7 @@ def _principal_frame(P: np.ndarray, rel_tol: float, abs_tol: float):
     return c, Vt[:r], scale
 
 
-class RBFRetargeter:
+class RBFRetargeter(Params):
     """Scattered-data map from actor marker positions to character marker positions.
 
     Trained on the labelled frames with scipy's :class:`~scipy.interpolate.RBFInterpolator`
@@ -89,9 +86,6 @@ class RBFRetargeter:
         self.smoothing, self.rel_tol = float(smoothing), float(rel_tol)
         self.result_ = None
 
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in ("strategy", "kernel", "degree", "smoothing", "rel_tol")}
-
     def _map(self, P_train, Q_train, P_all, abs_tol):
         c, axes, scale = _principal_frame(P_train, self.rel_tol, abs_tol)
         if axes.shape[0] == 0:
@@ -128,7 +122,7 @@ class RBFRetargeter:
         return self.result_.copy()
 
 
-class LaplacianRetargeter:
+class LaplacianRetargeter(Params):
     """Temporal Laplacian editing: keep the actor's differential coordinates in time.
 
     Every marker trajectory keeps its temporal differential coordinates
@@ -148,9 +142,6 @@ class LaplacianRetargeter:
             raise InputError(f"window must be a positive integer, got {window!r}")
         self.window = int(window)
         self.result_ = None
-
-    def get_params(self) -> dict:
-        return {"window": self.window}
 
     def fit(self, source, labelled_frames, target_labels) -> "LaplacianRetargeter":
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)

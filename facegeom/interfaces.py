@@ -9,22 +9,37 @@ Shapes
 ------
 - vertices: ``(n, 3)`` float64, faces: ``(m, 3)`` int64 triangles
 - handles: ``(k,)`` int64 vertex ids, distinct, in ``[0, n)``
-- handle_positions: ``(k, 3)`` float64, finite
+- handle_positions: ``(k, 3)`` float64, finite; ``(F, k, 3)`` for ``F`` frames
+  (:func:`deform_many`, result ``(F, n, 3)``)
+- fitting: a rig of ``B`` delta-blendshapes on ``n`` vertices; ``fit`` gives one
+  :class:`FitResult` (``weights (B,)``, ``vertices (n, 3)``), :func:`fit_many`
+  a list of them, one per target
+
+Parameters
+----------
+Every method class derives from :class:`Params`: each constructor argument is
+stored under its own name, so ``get_params()`` reads them back from the
+``__init__`` signature, ``set_params(**kw)`` changes some (checked by the
+constructor, as at creation) and ``clone()`` gives a new unfitted copy.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Protocol, Self, runtime_checkable
+import inspect
+from typing import Any, Callable, Protocol, Self, runtime_checkable
 
 import numpy as np
 
 from facegeom.errors import InputError
 
 __all__ = [
+    "Params",
     "Deformer",
     "Retargeter",
     "Fitter",
     "FitResult",
+    "deform_many",
+    "fit_many",
+    "batched_targets",
     "as_vertices",
     "as_faces",
     "as_handles",
@@ -33,16 +48,97 @@ __all__ = [
 ]
 
 
+class Params:
+    """scikit-learn style parameters for a method class (mixin).
+
+    The subclass stores every ``__init__`` argument under the same attribute
+    name (possibly normalised, e.g. ``int(d)``); learned state ends in ``_``
+    and is not a parameter.
+    """
+
+    @classmethod
+    def param_names(cls) -> tuple[str, ...]:
+        """The constructor's parameter names, in signature order."""
+        sig = inspect.signature(cls.__init__)
+        return tuple(name for name, p in sig.parameters.items()
+                     if name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+
+    def get_params(self) -> dict[str, Any]:
+        """Return ``{name: value}`` for every constructor parameter, in signature order."""
+        return {name: getattr(self, name) for name in self.param_names()}
+
+    def set_params(self, **params) -> Self:
+        """Change some parameters and return ``self``.
+
+        The new values go through the constructor's checks (a fresh instance
+        is built with them), so a bad value raises the same
+        :class:`~facegeom.errors.InputError` as at creation. Learned state is
+        kept as it is: call ``fit`` again.
+
+        Raises
+        ------
+        InputError
+            A name that is not a constructor parameter (the message names it
+            and lists the valid ones), or a bad value.
+        """
+        valid = self.param_names()
+        for name in params:
+            if name not in valid:
+                raise InputError(f"{type(self).__name__} has no parameter {name!r}; "
+                                 f"valid parameters: {', '.join(valid) or 'none'}")
+        checked = type(self)(**{**self.get_params(), **params})
+        for name in params:
+            setattr(self, name, getattr(checked, name))
+        return self
+
+    def clone(self) -> Self:
+        """Return a new, unfitted instance with the same parameters."""
+        return type(self)(**self.get_params())
+
+
 @runtime_checkable
 class Deformer(Protocol):
-    """Face driving: deform a rest mesh so that handle vertices reach new positions."""
+    """Face driving: deform a rest mesh so that handle vertices reach new positions.
+
+    Optional batched method (use the module function :func:`deform_many`,
+    which falls back to :meth:`deform` frame by frame)::
+
+        deform_many(handle_positions: (F, k, 3)) -> (F, n, 3)
+
+    equal to stacking :meth:`deform` of every frame, up to rounding.
+    """
 
     def fit(self, vertices: np.ndarray, faces: np.ndarray, handles: np.ndarray) -> Self:
-        """Precompute on the rest shape ``vertices (n,3)``, ``faces (m,3)`` with handle ids ``(k,)``."""
+        """Precompute everything that does not depend on the handle positions.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct vertex ids of the handles (markers).
+
+        Returns
+        -------
+        self
+        """
         ...
 
     def deform(self, handle_positions: np.ndarray) -> np.ndarray:
-        """Return the deformed vertices ``(n,3)`` for handle positions ``(k,3)``."""
+        """Deform the rest shape so that the handles reach ``handle_positions``.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per handle, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices.
+        """
         ...
 
 
@@ -51,15 +147,28 @@ class Retargeter(Protocol):
     """Expression retargeting: map a source marker sequence onto a target character."""
 
     def fit(self, source: np.ndarray, labelled_frames: np.ndarray, target_labels: np.ndarray) -> Self:
-        """``source (T,p,3)``, ``labelled_frames (L,)`` frame ids, ``target_labels (L,p,3)``."""
+        """Learn the map from the source sequence and the labelled target frames.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            Distinct frame ids in ``[0, T)`` whose target markers are known.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+        """
         ...
 
     def transform(self) -> np.ndarray:
-        """Return the target sequence ``(T,p,3)``."""
+        """Return the retargeted sequence ``(T, p, 3)`` (the character's markers per frame)."""
         ...
 
 
-@dataclass
 class FitResult:
     """What a :class:`Fitter` returns.
 
@@ -68,22 +177,130 @@ class FitResult:
     weights : (B,) float64
         Blendshape coefficients, one per delta-blendshape of the rig.
     vertices : (n,3) float64
-        The fitted face: neutral + deltas weighted by ``weights``.
+        The fitted face: neutral + deltas weighted by ``weights``. It may be
+        given to the constructor as a function of no argument, called on the
+        first read (a batched fit returns thousands of results; a face is
+        evaluated only when someone reads it).
     info : dict
-        Method-specific extras (selected shapes, iterations, pose...).
+        ``time_s`` (float, seconds spent on this target) for every fitter, then
+        method-specific extras (selected shapes, iterations, camera...).
     """
 
-    weights: np.ndarray
-    vertices: np.ndarray
-    info: dict[str, Any] = field(default_factory=dict)
+    __slots__ = ("weights", "_vertices", "info")
+
+    def __init__(self, weights: np.ndarray, vertices: np.ndarray | Callable[[], np.ndarray],
+                 info: dict[str, Any] | None = None):
+        self.weights = weights
+        self._vertices = vertices
+        self.info = {} if info is None else info
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """The fitted face ``(n, 3)`` (evaluated on first read when given as a function)."""
+        if callable(self._vertices):
+            self._vertices = self._vertices()
+        return self._vertices
+
+    def __repr__(self) -> str:
+        return f"FitResult(weights=<{np.shape(self.weights)}>, info keys={sorted(self.info)})"
 
 
 @runtime_checkable
 class Fitter(Protocol):
-    """Blendshape fitting: find rig coefficients that reproduce a target."""
+    """Blendshape fitting: find rig coefficients that reproduce a target.
+
+    Optional batched method (use the module function :func:`fit_many`, which
+    falls back to :meth:`fit` target by target)::
+
+        fit_many(rig, targets: sequence of K targets) -> list of K FitResult
+
+    in the order of ``targets``, each equal to ``fit(rig, target)`` up to the
+    solver's tolerance. A fitter with ``fit_many`` lists in the class attribute
+    ``batched_targets`` the target kinds (``"mesh"``, ``"landmarks"``,
+    ``"points"``) it solves together, faster than one by one (see
+    :func:`batched_targets`); the others go through :meth:`fit`.
+    """
 
     def fit(self, rig: Any, target: Any) -> FitResult:
+        """Fit the rig's coefficients to one target.
+
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            Neutral ``(n, 3)`` and ``B`` delta-blendshapes ``(B, n, 3)``.
+        target : MeshTarget, LandmarkTarget or PointCloudTarget
+            A mesh ``(n, 3)`` in correspondence, ``L`` landmarks ``(L, 2)`` (pixels)
+            of given vertices with a camera, or a point cloud ``(N, 3)``.
+
+        Returns
+        -------
+        FitResult
+            ``weights (B,)``, ``vertices (n, 3)``, ``info`` (with ``time_s``).
+        """
         ...
+
+
+def deform_many(deformer: Deformer, handle_positions) -> np.ndarray:
+    """Deform a fitted deformer for ``F`` frames of handle positions at once.
+
+    Uses the deformer's own ``deform_many`` when it has one, else calls
+    ``deform`` frame by frame.
+
+    Parameters
+    ----------
+    deformer : Deformer
+        A fitted deformer with ``k`` handles on an ``n``-vertex mesh.
+    handle_positions : (F, k, 3) float64
+        Handle positions per frame.
+
+    Returns
+    -------
+    (F, n, 3) float64
+        The deformed vertices per frame (possibly a strided view).
+    """
+    many = getattr(deformer, "deform_many", None)
+    if many is not None:
+        return many(handle_positions)
+    P = np.asarray(handle_positions, dtype=np.float64)
+    if P.ndim != 3 or P.shape[0] == 0:
+        raise InputError(f"handle_positions must have shape (F, k, 3) with F >= 1, got {P.shape}")
+    return np.stack([deformer.deform(p) for p in P])
+
+
+def fit_many(fitter: Fitter, rig: Any, targets) -> list[FitResult]:
+    """Fit ``K`` targets with one rig.
+
+    Uses the fitter's own ``fit_many`` when it has one (its fast paths), else
+    calls ``fit`` target by target.
+
+    Parameters
+    ----------
+    fitter : Fitter
+    rig : BlendshapeRig
+        ``B`` delta-blendshapes on ``n`` vertices.
+    targets : sequence of K targets
+        MeshTarget, LandmarkTarget or PointCloudTarget, freely mixed. Fitters
+        with a batched mesh path (``"mesh"`` in :func:`batched_targets`) also
+        take an array ``(K, n, 3)`` of meshes in correspondence (``K``
+        unweighted mesh targets, without building the target objects).
+
+    Returns
+    -------
+    list of K FitResult
+        In the order of ``targets``: ``weights (B,)``, ``vertices (n, 3)``,
+        ``info`` with ``time_s`` (for a batched path, the target's share of the
+        batch's time).
+    """
+    many = getattr(fitter, "fit_many", None)
+    if many is not None:
+        return many(rig, targets)
+    return [fitter.fit(rig, t) for t in targets]
+
+
+def batched_targets(fitter: Fitter) -> frozenset[str]:
+    """The target kinds (``"mesh"``, ``"landmarks"``, ``"points"``) that ``fitter``'s
+    :func:`fit_many` solves together, faster than one by one (empty: none)."""
+    return frozenset(getattr(fitter, "batched_targets", ()))
 
 
 # --------------------------------------------------------------------------- checks

@@ -55,7 +55,7 @@ def test_defaults_protocol_and_result(cls):
     res = f.fit(rig, MeshTarget(rig.evaluate(np.full(5, 0.3))))
     assert isinstance(res, FitResult)
     assert res.weights.shape == (5,) and res.vertices.shape == (12, 3)
-    for key in ("energy", "data_energy", "scale", "iterations", "time", "converged", "method"):
+    for key in ("energy", "data_energy", "scale", "iterations", "time_s", "converged", "method"):
         assert key in res.info
 
 
@@ -125,7 +125,7 @@ def test_weights_in_unit_box(ict):
         for t in targets:
             res = f.fit(ict, t)
             assert res.weights.min() >= 0.0 and res.weights.max() <= 1.0
-        W = f.fit_many(ict, V[None])
+        W = f.fit_many(ict, V[None])[0].weights
         assert W.min() >= 0.0 and W.max() <= 1.0
 
 
@@ -148,12 +148,16 @@ def test_fit_many_matches_fit(ict, cls):
     Vs = np.stack([ict.evaluate(sparse_weights(ict.n_shapes, rng)) + rng.normal(scale=0.05, size=(ict.n_vertices, 3))
                    for _ in range(4)])
     f = cls(icp_iterations=3)
-    W = f.fit_many(ict, Vs)
-    for V, w in zip(Vs, W):
-        np.testing.assert_allclose(f.fit(ict, MeshTarget(V)).weights, w, atol=2e-5)
+    res = f.fit_many(ict, Vs)
+    W = np.stack([r.weights for r in res])
+    for V, r in zip(Vs, res):
+        one = f.fit(ict, MeshTarget(V))
+        np.testing.assert_allclose(one.weights, r.weights, atol=2e-5)
+        np.testing.assert_allclose(one.vertices, r.vertices, atol=1e-3)
+        assert r.info["method"] == one.info["method"] and r.info["time_s"] >= 0
     # a mixed list: a weighted mesh and a point cloud go through fit()
     mixed = [MeshTarget(Vs[0]), MeshTarget(Vs[1], weights=np.ones(ict.n_vertices)), PointCloudTarget(Vs[2][::5])]
-    W2 = f.fit_many(ict, mixed)
+    W2 = np.stack([r.weights for r in f.fit_many(ict, mixed)])
     np.testing.assert_allclose(W2[:2], W[:2], atol=2e-5)
 
 

@@ -55,7 +55,7 @@ def test_batched_equals_single(face_model):
     W = np.where(rng.random((6, rig.n_shapes)) < 0.1, rng.random((6, rig.n_shapes)), 0)
     T = rig.neutral[None] + np.tensordot(W, rig.deltas, 1)
     f = SEMFitter()
-    E = f.fit_meshes(rig, T)
+    E = np.stack([r.weights for r in f.fit_many(rig, T)])
     for k in range(6):
         np.testing.assert_allclose(E[k], f.fit(rig, MeshTarget(T[k])).weights, atol=1e-10)
 
@@ -132,7 +132,7 @@ def test_landmarks_unknown_pose(landmark_case):
 
 
 def test_landmarks_batched_equals_single(face_model, landmark_case):
-    """fit_landmarks (vectorised over targets, mixed known / unknown poses) gives fit()'s result per target."""
+    """fit_many on landmarks (vectorised over targets, mixed known / unknown poses) gives fit()'s result per target."""
     rig, _, _, ids, _ = landmark_case
     rng = np.random.default_rng(5)
     targets = []
@@ -143,13 +143,16 @@ def test_landmarks_batched_equals_single(face_model, landmark_case):
         uv = cam.project(V[ids]) + rng.normal(size=(ids.size, 2))
         targets.append(LandmarkTarget(uv, ids, cam if k % 2 else PinholeCamera(cam.focal, cam.cx, cam.cy)))
     for fitter in (SEMFitter(), SEMFitter(clamp=True, stop="ric")):
-        E, cams = fitter.fit_landmarks(rig, targets, chunk=2)
+        res = fitter.fit_many(rig, targets, chunk=2)
         for k, tg in enumerate(targets):
             r = fitter.fit(rig, tg)
-            np.testing.assert_allclose(E[k], r.weights, atol=1e-6)
-            np.testing.assert_allclose(cams[k].t, r.info["camera"].t, atol=1e-6)
-    with pytest.raises(InputError, match="target 1 is a MeshTarget"):
-        SEMFitter().fit_landmarks(rig, [targets[0], MeshTarget(rig.neutral)])
+            np.testing.assert_allclose(res[k].weights, r.weights, atol=1e-6)
+            np.testing.assert_allclose(res[k].info["camera"].t, r.info["camera"].t, atol=1e-6)
+            np.testing.assert_allclose(res[k].vertices, r.vertices, atol=1e-6)
+    # a mixed list: the mesh goes through the mesh path, the landmarks through theirs
+    mixed = SEMFitter().fit_many(rig, [targets[0], MeshTarget(rig.neutral)])
+    np.testing.assert_allclose(mixed[0].weights, SEMFitter().fit(rig, targets[0]).weights, atol=1e-6)
+    assert not mixed[1].weights.any() and "time_s" in mixed[1].info
 
 
 def test_zero_coefficient_candidate_is_not_excluded_by_rounding(landmark_case):
@@ -193,4 +196,4 @@ def test_registry_and_bad_input(face_model):
     with pytest.raises(InputError, match="exclusion"):
         SEMFitter(exclusion="yes")
     with pytest.raises(InputError, match=r"shape \(K, 30, 3\)"):
-        f.fit_meshes(rig, np.zeros((2, 29, 3)))
+        f.fit_many(rig, np.zeros((2, 29, 3)))

@@ -7,7 +7,7 @@ deleted afterwards; nothing derived from the face data is kept):
    of the 23 fit landmarks of random expressions on the generic face, seen by a
    pinhole camera (focal 1000 px, 640 x 480) turned by a random yaw / pitch, with
    1 px noise; the pose is estimated (the fitter gets the intrinsics only). The
-   job fits them with ``sem`` in chunks of 64 (``SEMFitter.fit_landmarks``).
+   job fits them with ``sem`` in chunks of 64 (``SEMFitter.fit_many``).
 2. **Driving**: ``--frames`` (2,000) frames of the 80-marker ``ict80`` layout
    (marker positions of random sparse expressions), in marker sequences of
    ``--per-file`` (100) frames, driving the tangent deformer fitted once per

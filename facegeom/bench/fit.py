@@ -35,6 +35,7 @@ from facegeom import metrics as fm
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
+from facegeom.interfaces import batched_targets, fit_many
 from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -130,8 +131,10 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
 def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10):
     """Landmark fits per second on one rig: known pose and estimated pose.
 
-    A method with a batched path (``fit_landmarks``) fits ``count`` targets at
-    once; others are timed one by one on ``one_by_one`` targets.
+    A method that solves landmark targets together (``"landmarks"`` in
+    :func:`~facegeom.interfaces.batched_targets`) fits ``count`` targets in one
+    :func:`~facegeom.interfaces.fit_many`; others are timed one by one on
+    ``one_by_one`` targets.
     """
     rng = np.random.default_rng([int(seed), 57])
     cases = fitting_cases(model, count, int(seed) + 1000)
@@ -154,9 +157,9 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
             except FacegeomError:
                 row[key] = float("nan")
                 continue
-            if hasattr(m, "fit_landmarks"):
+            if "landmarks" in batched_targets(m):
                 t = time.perf_counter()
-                m.fit_landmarks(rig, targets)
+                fit_many(m, rig, targets)
                 n, row["path"] = len(targets), "batched"
             else:
                 n, row["path"] = min(one_by_one, len(targets)), "one by one"
@@ -199,8 +202,8 @@ def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, s
         target = PointCloudTarget(P)
         for spec in specs:
             m = spec.build("fitters")
-            if hasattr(m, "region"):
-                m.region = region
+            if "region" in m.param_names():
+                m.set_params(region=region)
             t = time.perf_counter()
             try:
                 r = m.fit(rig, target)
@@ -242,11 +245,10 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
             m.fit(rig, MeshTarget(T[0]))
         except FacegeomError:
             continue
-        many = getattr(m, "fit_meshes", None) or getattr(m, "fit_many", None)  # a batched path
-        if many is not None:
-            many(rig, T[:10])
+        if "mesh" in batched_targets(m):
+            fit_many(m, rig, T[:10])
             t = time.perf_counter()
-            many(rig, T)
+            fit_many(m, rig, T)
             n, dt, how = len(T), time.perf_counter() - t, "batched"
         else:
             n = 100

@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 
 from facegeom import __version__
+from facegeom.cli.flags import as_flags
 from facegeom.errors import FacegeomError
 
 DEPENDENCIES = ("numpy", "scipy", "libigl", "pymeshlab", "polyscope", "click", "tqdm", "matplotlib", "cholespy")
@@ -594,8 +595,8 @@ def main(argv=None):
     except click.exceptions.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except FacegeomError as exc:
-        click.echo(f"facegeom: error: {exc}", err=True)
+    except FacegeomError as exc:  # library messages name Python arguments: print them as flags
+        click.echo(f"facegeom: error: {as_flags(str(exc))}", err=True)
         sys.exit(2)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         click.echo(f"facegeom: error: {exc.filename}: {exc.strerror}", err=True)

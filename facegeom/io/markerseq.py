@@ -273,7 +273,7 @@ def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, f
         f, j = (int(x) for x in np.argwhere(miss)[0])
         if not fill:
             raise InputError(f"frame {f}: marker {src.names[j]!r} is lost (empty or NaN) in {int(miss.sum())} "
-                             f"marker samples; pass --fill-gaps to interpolate them over time", source)
+                             f"marker samples; pass fill=True to interpolate them over time", source)
         try:
             P, n = fill_gaps(src.positions)
         except InputError as exc:

@@ -51,13 +51,14 @@ shapes' coefficients on the data.
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult
+from facegeom.interfaces import FitResult, Params
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
 
@@ -163,7 +164,7 @@ def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = T
     return sem_gram(M @ d, M @ M.T, float(d @ d), exclusion, upper)
 
 
-class SEMFitter:
+class SEMFitter(Params):
     """Selective Expression Manipulation as a :class:`~facegeom.interfaces.Fitter`.
 
     Parameters
@@ -219,10 +220,6 @@ class SEMFitter:
         self.alternations, self.max_points = int(alternations), int(max_points)
         self.region = None if region is None else np.asarray(region, dtype=np.int64)
 
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in ("exclusion", "clamp", "refit", "alternations", "region", "max_points",
-                                              "select", "covered_only", "stop")}
-
     def __repr__(self) -> str:
         return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
 
@@ -232,6 +229,24 @@ class SEMFitter:
 
     # ------------------------------------------------------------------ dispatch
     def fit(self, rig: BlendshapeRig, target) -> FitResult:
+        """Fit the rig's coefficients to one target by greedy selection.
+
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            Neutral ``(n, 3)`` and ``B`` delta-blendshapes ``(B, n, 3)``.
+        target : MeshTarget, LandmarkTarget or PointCloudTarget
+            A mesh ``(n, 3)`` in correspondence (optional weights ``(n,)``),
+            landmarks ``(L, 2)`` of vertices ``(L,)`` with a camera, or points ``(N, 3)``.
+
+        Returns
+        -------
+        FitResult
+            ``weights (B,)``, ``vertices (n, 3)``; ``info``: ``order`` (selected
+            shape ids in selection order), ``selected`` (their names, non-zero
+            weights), ``time_s``; landmarks add ``camera`` and
+            ``pose_estimated``, point clouds ``points_used`` and ``queries``.
+        """
         rig, target = check_fit_inputs(rig, target)
         t0 = time.perf_counter()
         if isinstance(target, MeshTarget):
@@ -243,6 +258,65 @@ class SEMFitter:
         info["time_s"] = time.perf_counter() - t0
         info["selected"] = [rig.names[i] for i in np.flatnonzero(e > 0)]
         return result(rig, e, **info)
+
+    batched_targets = frozenset({"mesh", "landmarks"})
+
+    def fit_many(self, rig: BlendshapeRig, targets, chunk: int = 256) -> list[FitResult]:
+        """Fit ``K`` targets at once: :func:`facegeom.interfaces.fit_many`'s fast paths.
+
+        Unweighted mesh targets are solved together on the Gram matrix (one
+        product for every ``D^T T``, then :func:`sem_gram` vectorised over the
+        targets); landmark targets sharing their landmark vertices and
+        posed-ness are solved together, ``chunk`` at a time (unknown poses in
+        one batched Levenberg-Marquardt); other targets go through :meth:`fit`.
+
+        Parameters
+        ----------
+        rig : BlendshapeRig
+            ``B`` delta-blendshapes on ``n`` vertices.
+        targets : sequence of K targets, or (K, n, 3) array
+            Targets of any kind, or the meshes of ``K`` unweighted mesh targets.
+        chunk : int
+            Landmark targets solved together at most (keeps the ``(chunk, B, L, 3)``
+            work arrays in cache).
+
+        Returns
+        -------
+        list of K FitResult
+            ``weights (B,)``; ``vertices (n, 3)`` evaluated on first read; ``info``:
+            ``time_s`` (the target's share of its batch's time), for landmarks
+            also ``order``, ``camera`` and ``pose_estimated``. Targets fitted one
+            by one carry :meth:`fit`'s ``info``.
+        """
+        if not isinstance(rig, BlendshapeRig):
+            raise InputError(f"rig must be a BlendshapeRig, got {type(rig).__name__}")
+        if isinstance(targets, np.ndarray):
+            return self._mesh_results(rig, targets)
+        targets = [check_fit_inputs(rig, tg)[1] for tg in targets]
+        out: list = [None] * len(targets)
+        meshes = [k for k, tg in enumerate(targets) if isinstance(tg, MeshTarget) and tg.weights is None]
+        if meshes:
+            for k, r in zip(meshes, self._mesh_results(rig, np.stack([targets[k].vertices for k in meshes]))):
+                out[k] = r
+        marks = [k for k, tg in enumerate(targets) if isinstance(tg, LandmarkTarget)]
+        if marks:
+            t0 = time.perf_counter()
+            E, cams, orders = self._landmark_batches(rig, [targets[k] for k in marks], chunk)
+            share = (time.perf_counter() - t0) / len(marks)
+            for j, k in enumerate(marks):
+                out[k] = FitResult(E[j], partial(rig.evaluate, E[j]),
+                                   {"order": orders[j], "camera": cams[j],
+                                    "pose_estimated": not targets[k].camera.posed, "time_s": share})
+        for k, tg in enumerate(targets):
+            if out[k] is None:
+                out[k] = self.fit(rig, tg)
+        return out
+
+    def _mesh_results(self, rig: BlendshapeRig, meshes: np.ndarray) -> list[FitResult]:
+        t0 = time.perf_counter()
+        E = self._mesh_batch(rig, meshes)
+        info = {"time_s": (time.perf_counter() - t0) / max(len(E), 1)}
+        return [FitResult(e, partial(rig.evaluate, e), dict(info)) for e in E]
 
     # ------------------------------------------------------------------ meshes
     def _fit_mesh(self, rig, target: MeshTarget):
@@ -266,7 +340,7 @@ class SEMFitter:
             e = self._refit_linear(rig.delta_matrix(), dT.ravel(), e, target.weights)
         return e, {"order": [int(i) for i in order if i >= 0]}
 
-    def fit_meshes(self, rig: BlendshapeRig, targets) -> np.ndarray:
+    def _mesh_batch(self, rig: BlendshapeRig, targets) -> np.ndarray:
         """Coefficients ``(K, B)`` for ``K`` corresponding target meshes ``(K, n, 3)`` at once (fast path)."""
         T = np.asarray(targets, dtype=np.float64)
         if T.ndim != 3 or T.shape[1:] != (rig.n_vertices, 3):
@@ -323,31 +397,27 @@ class SEMFitter:
         e, cams, orders = self._landmarks_batch(rig, [target])
         return e[0], {"order": orders[0], "camera": cams[0], "pose_estimated": not target.camera.posed}
 
-    def fit_landmarks(self, rig: BlendshapeRig, targets, chunk: int = 256) -> tuple[np.ndarray, list[PinholeCamera]]:
-        """Coefficients ``(K, B)`` and the (estimated) cameras for ``K`` landmark targets at once (fast path).
+    def _landmark_batches(self, rig: BlendshapeRig, targets, chunk: int):
+        """Coefficients ``(K, B)``, (estimated) cameras and selection orders for ``K`` checked landmark targets.
 
         The same computation as :meth:`fit` on each target, vectorised over the
         targets: targets sharing a set of landmark vertices are fitted together
         (their cameras may differ; unknown poses are estimated in one batched
         Levenberg-Marquardt, :func:`facegeom.model.pose.estimate_poses`).
         """
-        targets = list(targets)
-        for k, tg in enumerate(targets):
-            if not isinstance(tg, LandmarkTarget):
-                raise InputError(f"target {k} is a {type(tg).__name__}, not a LandmarkTarget")
-            tg.check(rig)
         E = np.zeros((len(targets), rig.n_shapes))
         cams: list = [None] * len(targets)
+        orders: list = [None] * len(targets)
         groups: dict = {}
         for k, tg in enumerate(targets):
             groups.setdefault((tg.vertex_ids.tobytes(), tg.camera.posed), []).append(k)
         # chunks keep the (K, B, n, 3) work arrays in cache
         for rows in (g[c0:c0 + chunk] for g in groups.values() for c0 in range(0, len(g), chunk)):
-            e, cs, _ = self._landmarks_batch(rig, [targets[k] for k in rows])
+            e, cs, os_ = self._landmarks_batch(rig, [targets[k] for k in rows])
             E[rows] = e
-            for k, c in zip(rows, cs):
-                cams[k] = c
-        return E, cams
+            for k, c, o in zip(rows, cs, os_):
+                cams[k], orders[k] = c, o
+        return E, cams, orders
 
     def _landmarks_batch(self, rig, targets):
         """Targets sharing vertex ids and posed-ness -> (e (K, B), cameras, selection orders)."""

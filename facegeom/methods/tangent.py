@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import as_faces, as_handles, as_positions, as_vertices, check_fitted
+from facegeom.interfaces import Params, as_faces, as_handles, as_positions, as_vertices, check_fitted
 from facegeom.linalg import SPDSolver, factorize_spd
 
 __all__ = [
@@ -345,7 +345,7 @@ class _Config:
     smoothness: float
 
 
-class TangentDeformer:
+class TangentDeformer(Params):
     """Face driving with the tangent framework (a :class:`~facegeom.interfaces.Deformer`).
 
     Data points are the mesh vertices, neighbourhoods are mesh rings, labels
@@ -413,10 +413,6 @@ class TangentDeformer:
         self.smoothness = float(smoothness)
         self.solver_ = None
 
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in
-                ("neighbourhood", "rings", "radius", "d", "beta", "field", "align", "smoothness")}
-
     def __repr__(self) -> str:
         return "TangentDeformer(" + ", ".join(f"{k}={v!r}" for k, v in self.get_params().items()) + ")"
 
@@ -431,6 +427,26 @@ class TangentDeformer:
         return (R + geometry.k_ring(F, V.shape[0], 1)).astype(bool).tocsr()
 
     def fit(self, vertices, faces, handles) -> "TangentDeformer":
+        """Build and factorize the tangent-alignment system on the rest shape.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct marker vertex ids (``k >= 3`` with ``align="rigid"``).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad arrays, too few markers, or vertices of zero area (with ``smoothness > 0``).
+        """
         V = as_vertices(vertices)
         F = as_faces(faces, V.shape[0])
         H = as_handles(handles, V.shape[0])
@@ -453,6 +469,18 @@ class TangentDeformer:
 
     # ---------------------------------------------------------------- deform
     def deform(self, handle_positions) -> np.ndarray:
+        """Drive the rest shape with one frame of marker positions.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per marker, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices (markers exact when ``beta`` is None).
+        """
         check_fitted(self, "solver_")
         P = as_positions(handle_positions, self.handles_.size)
         X, H = self.vertices_, self.handles_
@@ -468,12 +496,22 @@ class TangentDeformer:
         return Y
 
     def deform_many(self, handle_positions) -> np.ndarray:
-        """:meth:`deform` of every frame of ``handle_positions (T, k, 3)`` -> ``(T, n, 3)`` (a transposed view).
+        """:meth:`deform` of every frame at once (the batched method of :class:`~facegeom.interfaces.Deformer`).
 
         One product with the precomputed marker-to-vertex map for all frames
         (or one multi-right-hand-side solve) instead of one per frame: the map is
         read from memory once per call, not once per frame. Equal to stacking
         :meth:`deform` up to rounding (~1e-15 relative).
+
+        Parameters
+        ----------
+        handle_positions : (F, k, 3) float64
+            Marker positions per frame.
+
+        Returns
+        -------
+        (F, n, 3) float64
+            The deformed vertices per frame (a transposed view of a ``(F, 3, n)`` array).
         """
         check_fitted(self, "solver_")
         P = np.asarray(handle_positions, dtype=np.float64)

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeom.errors import InputError
-from facegeom.interfaces import as_handles, as_sequence, check_fitted
+from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted
 from facegeom.methods.tangent import TangentSolver, alignment_matrix
 
 
@@ -165,7 +165,7 @@ def marker_affine_fit(S, lab, Yh, ridge: float | str = 1e-4, return_loo: bool = 
     return (out, loo) if return_loo else out
 
 
-class TangentRetargeter:
+class TangentRetargeter(Params):
     """Expression retargeting with the tangent framework (a :class:`~facegeom.interfaces.Retargeter`).
 
     Parameters
@@ -236,10 +236,6 @@ class TangentRetargeter:
             raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
         self.source_smoothing = source_smoothing
         self.result_ = None
-
-    def get_params(self) -> dict:
-        return {k: getattr(self, k) for k in ("strategy", "window", "d", "beta", "field", "smoothness", "rank_tol", "ridge",
-                                            "source_smoothing")}
 
     def __repr__(self) -> str:
         return "TangentRetargeter(" + ", ".join(f"{k}={v!r}" for k, v in self.get_params().items()) + ")"

@@ -80,7 +80,6 @@ def locate_data(path: str | os.PathLike | None = None) -> Path:
         found = _as_bundle_file(Path(path))
         if found:
             return found
-        tried.append(f"--data {path}")
         # an explicit path that is wrong is an error even if another place would work
         raise DataNotFoundError(
             f"face data not found at the given path {path} (expected a folder holding {BUNDLE_NAME}, or the file)"
@@ -99,9 +98,9 @@ def locate_data(path: str | os.PathLike | None = None) -> Path:
         return found
     tried.append(str(default))
     raise DataNotFoundError(
-        f"face data ({BUNDLE_NAME}) not found; looked at: the --data option (not given), "
+        f"face data ({BUNDLE_NAME}) not found; looked at: the path argument (not given), "
         + ", ".join(tried)
-        + ". Pass --data PATH or set FACEGEOM_DATA."
+        + f". Pass path=PATH or set {ENV_VAR}."
     )
 
 
@@ -502,7 +501,7 @@ def locate_takes(path: str | os.PathLike | None = None) -> Path:
     if default.is_dir():
         return default
     raise DataNotFoundError(
-        "ARKit takes not found; looked at: the --takes option (not given), "
+        "ARKit takes not found; looked at: the path argument (not given), "
         + (f"${TAKES_ENV_VAR}={env}" if env else f"${TAKES_ENV_VAR} (not set)")
-        + f", {default}. Pass --takes PATH or set {TAKES_ENV_VAR}."
+        + f", {default}. Pass path=PATH or set {TAKES_ENV_VAR}."
     )

@@ -57,7 +57,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             kind = "points"
     if kind == "landmarks":
         if focal is None or cx is None or cy is None:
-            raise InputError("landmark targets need the camera: --focal, --cx and --cy (pixels)", tp)
+            raise InputError("landmark targets need the camera: focal, cx and cy (pixels)", tp)
         ids, uv = read_landmarks(tp)
         if ids.max() >= rig.n_vertices:
             raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
@@ -65,7 +65,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     elif kind == "mesh":
         V, _ = read_mesh(tp)
         if V.shape[0] != rig.n_vertices:
-            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use --kind points "
+            raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use kind='points' "
                              f"for a scan without correspondence", tp)
         tgt = MeshTarget(V)
     else:

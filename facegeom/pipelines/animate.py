@@ -22,6 +22,7 @@ import numpy as np
 
 from facegeom.constants import FACE_AREA
 from facegeom.errors import InputError
+from facegeom.interfaces import deform_many
 from facegeom.io import atomic_path, ict_weights, read_take
 from facegeom.methods.tangent_retarget import evenly_spread
 from facegeom.model import layout
@@ -44,19 +45,18 @@ def drive_frames(deformer, markers: np.ndarray, progress=None, block: int = 32,
                  dtype=np.float64) -> tuple[np.ndarray, float]:
     """Drive a fitted deformer with every frame of ``markers (T, p, 3)``; returns ``(T, n, 3)`` and seconds.
 
-    A deformer with ``deform_many`` (the tangent deformer) gets ``block`` frames
-    per call; any other is called frame by frame. ``progress`` wraps the
-    iterable of blocks (or frames). ``dtype`` is the result's (float32 for a
-    mesh cache: rounded once, in the copy into the result).
+    ``block`` frames per :func:`facegeom.interfaces.deform_many` call (one
+    product for a deformer with a batched path, such as the tangent deformer;
+    frame by frame for the others). ``progress`` wraps the iterable of block
+    starts. ``dtype`` is the result's (float32 for a mesh cache: rounded once,
+    in the copy into the result).
     """
     T = markers.shape[0]
-    many = getattr(deformer, "deform_many", None)
-    step = block if many is not None else 1
-    starts = range(0, T, step)
+    starts = range(0, T, block)
     out = None
     t0 = time.perf_counter()
     for s in (starts if progress is None else progress(starts)):
-        v = many(markers[s:s + step]) if many is not None else deformer.deform(markers[s])[None]
+        v = deform_many(deformer, markers[s:s + block])
         if out is None:
             out = np.empty((T,) + v.shape[1:], dtype=dtype)
         out[s:s + v.shape[0]] = v

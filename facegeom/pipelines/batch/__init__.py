@@ -12,7 +12,7 @@ Operations (each reuses the single-item code of the matching command):
 ``fit``       blendshape coefficients of targets (landmark CSVs, meshes, point
               clouds; :func:`facegeom.model.inputs.read_fit_target`) -> ``.json``/``.csv``
               weights. Landmark files are fitted a chunk at a time through the
-              fitter's vectorised ``fit_landmarks`` when it has one (SEM).
+              fitter's batched ``fit_many`` when it solves landmarks together (SEM).
 ``drive``     a deformer fitted once on the rest mesh and marker layout, driven
               by marker frames (``vertex_id,x,y,z`` CSV -> one mesh) or marker
               sequences (``.npz``/long CSV -> ``.npz`` with float32 ``vertices (T, n, 3)``).

@@ -6,6 +6,7 @@ import time
 import numpy as np
 
 from facegeom.errors import InputError
+from facegeom.interfaces import batched_targets, fit_many
 from facegeom.pipelines.batch.cache import load_model, stamp
 from facegeom.pipelines.batch.job import job_error
 from facegeom.pipelines.batch.operations.base import (
@@ -48,7 +49,7 @@ class FitOperation(Operation):
                                         "(pixels)")
         fitter = check_method(job, "fitters")
         spec["shared"] = {"rig": rig, "kind": kind, "camera": cam,
-                          "vectorised": hasattr(fitter, "fit_landmarks")}
+                          "vectorised": "landmarks" in batched_targets(fitter)}
         spec["stamp"] = stamp([rig] if rig else [spec.get("data")])
 
     def outputs(self, job, spec, src, stem):
@@ -91,13 +92,13 @@ class FitOperation(Operation):
             if targets:
                 t0 = time.perf_counter()
                 try:
-                    E, cams = fitter.fit_landmarks(rig, targets)
+                    res = fit_many(fitter, rig, targets)
                 except Exception:  # noqa: BLE001 - one target broke the batch: fit them one by one to find it
                     single = [it for it, _ in good] + single
                 else:
                     share = (time.perf_counter() - t0) / len(targets)
                     for k, (it, dt) in enumerate(good):
-                        yield it, FitOutcome("landmarks", E[k], cams[k]), dt + share
+                        yield it, FitOutcome("landmarks", res[k].weights, res[k].info["camera"]), dt + share
 
         yield from timed(lambda it: fit_file(rig, it["input"], lambda: fitter, spec["shared"]["kind"], *cam), single)
 

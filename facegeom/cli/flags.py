@@ -1,0 +1,45 @@
+"""Library messages in command-line words: one table from Python arguments to flags.
+
+Code below the front ends raises errors that name the Python argument a caller
+can change (``pass fill=True ...``, ``Pass path=PATH or set FACEGEOM_DATA``).
+The command line prints every :class:`~facegeom.errors.FacegeomError` through
+:func:`as_flags`, which rewrites those phrases into the flags that set the
+same arguments, so a CLI user reads ``pass --fill-gaps ...``.
+
+A library message that should show a flag on the command line uses one of the
+phrases below verbatim (or adds its own entry here); the phrases are specific
+enough not to occur in other text.
+"""
+from __future__ import annotations
+
+__all__ = ["ARGUMENT_FLAGS", "as_flags"]
+
+#: phrase of a library message -> the same phrase on the command line
+ARGUMENT_FLAGS: dict[str, str] = {
+    "pass fill=True": "pass --fill-gaps",  # io.read_retarget_inputs(fill=) / retarget --fill-gaps
+    "use kind='points'": "use --kind points",  # model.read_fit_target(kind=) / fit --kind
+    "the camera: focal, cx and cy": "the camera: --focal, --cx and --cy",  # read_fit_target / fit
+    "clean the mesh with largest_component=True": "facegeom clean --largest",  # pipelines.cleanup.clean
+    "the path argument (not given), $FACEGEOM_DATA": "the --data option (not given), $FACEGEOM_DATA",
+    "Pass path=PATH or set FACEGEOM_DATA": "Pass --data PATH or set FACEGEOM_DATA",  # model.locate_data(path)
+    "the path argument (not given), $FACEGEOM_TAKES": "the --takes option (not given), $FACEGEOM_TAKES",
+    "Pass path=PATH or set FACEGEOM_TAKES": "Pass --takes PATH or set FACEGEOM_TAKES",  # model.locate_takes(path)
+}
+
+
+def as_flags(message: str) -> str:
+    """Return ``message`` with every argument phrase of :data:`ARGUMENT_FLAGS` replaced by its flags.
+
+    Parameters
+    ----------
+    message : str
+        An error message of the library.
+
+    Returns
+    -------
+    str
+        The message as the command line prints it.
+    """
+    for phrase, flags in ARGUMENT_FLAGS.items():
+        message = message.replace(phrase, flags)
+    return message
