@@ -24,6 +24,8 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "Pass path=PATH or set FACEGEOM_DATA": "Pass --data PATH or set FACEGEOM_DATA",  # model.locate_data(path)
     "the path argument (not given), $FACEGEOM_TAKES": "the --takes option (not given), $FACEGEOM_TAKES",
     "Pass path=PATH or set FACEGEOM_TAKES": "Pass --takes PATH or set FACEGEOM_TAKES",  # model.locate_takes(path)
+    "pass drop_lost=True": "pass --drop-lost-markers",  # pipelines.cleanup.carry_vertex_csv(drop_lost=)
+    "the vertex target must be": "--vertices must be",  # pipelines.cleanup.decimate(vertices=)
 }
 
 

@@ -81,7 +81,7 @@ def carry_vertex_csv(markers: VertexCSV, index_map: IndexMap, *, drop_lost: bool
         step = index_map.step[markers.ids[k]] or operation
         more = f" ({lost.size} markers lost in all)" if lost.size > 1 else ""
         raise InputError(f"{markers.label(k)} is lost: {operation} removed its vertex (step '{step}'){more}; "
-                         f"pass --drop-lost-markers to drop lost markers", markers.path)
+                         f"pass drop_lost=True to drop lost markers", markers.path)
     kept = np.flatnonzero(new >= 0)
     uniq, inv, cnt = np.unique(new[kept], return_inverse=True, return_counts=True)
     if (cnt > 1).any():

@@ -64,7 +64,7 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
         raise InputError("decimate needs a triangle mesh; run clean first to triangulate")
     target = int(vertices)
     if target < 4:
-        raise InputError(f"--vertices must be at least 4, got {vertices}")
+        raise InputError(f"the vertex target must be at least 4, got {vertices}")
     keep = np.unique(np.asarray([] if keep is None else keep, dtype=np.int64))
     if keep.size and (keep.min() < 0 or keep.max() >= V.shape[0]):
         raise InputError(f"vertex to preserve out of range: the mesh has {V.shape[0]} vertices")
