@@ -103,6 +103,36 @@ class LaplacianDeformer(Params):
         self.solver_ = None
 
     def fit(self, vertices, faces, handles) -> "LaplacianDeformer":
+        """Build and factorize the Laplacian-editing system of the rest shape.
+
+        The Laplacian (``weights``) is normalised to a unit diagonal. ``plain``:
+        factorizes ``L^T L``, one system shared by the three coordinates, with the
+        markers as hard constraints (and a dense marker-to-vertex map when it is
+        small enough). ``similarity``: builds the ``(3n, 3n)`` operator
+        ``K = L (x) I_3 - T`` (``T`` the linearised similarity fit of every 1-ring,
+        coordinates coupled) and factorizes ``K^T K`` with the ``3k`` marker
+        coordinates constrained.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct marker vertex ids (``k >= 3`` with ``mode="similarity"``).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad arrays, too few markers, or a vertex without a valid neighbour.
+        SolveError
+            A mesh component without a marker, or a singular system.
+        """
         V, F, H = fit_inputs(vertices, faces, handles, min_handles=3 if self.mode == "similarity" else 1)
         n = V.shape[0]
         require_handle_per_component(F, n, H, "laplacian")
@@ -118,6 +148,28 @@ class LaplacianDeformer(Params):
         return self
 
     def deform(self, handle_positions) -> np.ndarray:
+        """Move the markers to ``handle_positions``; the other vertices follow the Laplacian energy.
+
+        Solves the factorized system for the displacement field whose marker values
+        are ``handle_positions - vertices[handles]`` (the energy vanishes on the rest
+        shape) and adds it to the rest shape.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per marker, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices (markers exact).
+
+        Raises
+        ------
+        InputError
+            A wrong shape, NaN or inf; :class:`~facegeom.interfaces.NotFittedError`
+            before :meth:`fit`.
+        """
         check_fitted(self, "solver_")
         P = as_positions(handle_positions, self.handles_.size)
         D = P - self.vertices_[self.handles_]  # the energy vanishes on the rest shape: solve for displacements

@@ -39,6 +39,31 @@ class ARAPDeformer(Params):
         self.data_ = None
 
     def fit(self, vertices, faces, handles) -> "ARAPDeformer":
+        """Run libigl's ``arap_precomputation`` on the rest shape with the markers as fixed vertices.
+
+        ``energy`` and ``iterations`` are set on an ``igl.ARAPData``, which keeps
+        the factorization of the global step (3-D deformation).
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct marker vertex ids.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad arrays.
+        SolveError
+            A mesh component without a marker.
+        """
         V, F, H = fit_inputs(vertices, faces, handles)
         require_handle_per_component(F, V.shape[0], H, "arap")
         data = igl.ARAPData()
@@ -49,6 +74,27 @@ class ARAPDeformer(Params):
         return self
 
     def deform(self, handle_positions) -> np.ndarray:
+        """Run ``iterations`` ARAP local/global steps from the rest shape with the markers at ``handle_positions``.
+
+        Every call starts from a copy of the rest vertices, so the result does not
+        depend on earlier calls.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per marker, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices (markers at their positions).
+
+        Raises
+        ------
+        InputError
+            A wrong shape, NaN or inf; :class:`~facegeom.interfaces.NotFittedError`
+            before :meth:`fit`.
+        """
         check_fitted(self, "data_")
         P = as_positions(handle_positions, self.handles_.size)
         return np.asarray(igl.arap_solve(P, self.data_, self.vertices_.copy()))
@@ -70,6 +116,32 @@ class BiharmonicDeformer(Params):
         self.map_ = None
 
     def fit(self, vertices, faces, handles) -> "BiharmonicDeformer":
+        """Solve libigl's ``harmonic`` of order ``self.k`` once, for unit data at the markers.
+
+        Column ``j`` of the solution is the k-harmonic field equal to 1 at marker
+        ``j`` and 0 at the others; the solution is stored transposed, as the
+        ``(k, n)`` map ``map_`` (``k`` markers).
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct marker vertex ids.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad arrays, or libigl's solve giving NaN or inf (degenerate mesh).
+        SolveError
+            A mesh component without a marker.
+        """
         V, F, H = fit_inputs(vertices, faces, handles)
         require_handle_per_component(F, V.shape[0], H, "biharmonic")
         W = igl.harmonic(V, F, H, np.eye(H.size), self.k)
@@ -80,6 +152,24 @@ class BiharmonicDeformer(Params):
         return self
 
     def deform(self, handle_positions) -> np.ndarray:
+        """Interpolate the marker displacements: ``V + W (handle_positions - V[handles])``, one dense product.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per marker, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices (markers set exactly to their positions).
+
+        Raises
+        ------
+        InputError
+            A wrong shape, NaN or inf; :class:`~facegeom.interfaces.NotFittedError`
+            before :meth:`fit`.
+        """
         check_fitted(self, "map_")
         P = as_positions(handle_positions, self.handles_.size)
         Y = apply_displacement_map(self.vertices_, self.handles_, self.map_, P)

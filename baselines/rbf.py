@@ -51,6 +51,32 @@ class RBFDeformer(Params):
         self.map_ = None
 
     def fit(self, vertices, faces, handles) -> "RBFDeformer":
+        """Fit scipy's ``RBFInterpolator`` on the markers' rest positions for unit data and evaluate it at every vertex.
+
+        The interpolant is linear in the data, so its values at the vertices, stored
+        as the ``(k, n)`` map ``map_``, give any displacement with one product. For
+        a scale-dependent kernel without ``epsilon``, ``epsilon`` is 1 / the mean
+        distance from a marker to its nearest marker. ``faces`` are only validated.
+
+        Parameters
+        ----------
+        vertices : (n, 3) float64
+            The rest shape.
+        faces : (m, 3) int64
+            Triangles indexing ``vertices``.
+        handles : (k,) int64
+            Distinct marker vertex ids (``k >= 4`` with ``degree >= 1``).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad arrays, too few markers, or markers scipy cannot interpolate from
+            (e.g. a singular system).
+        """
         V, _, H = fit_inputs(vertices, faces, handles, min_handles=4 if self.degree >= 1 else 1)
         M = V[H]
         eps = self.epsilon
@@ -71,6 +97,24 @@ class RBFDeformer(Params):
         return self
 
     def deform(self, handle_positions) -> np.ndarray:
+        """Move every vertex by the interpolated marker displacement: ``V + map_^T (handle_positions - V[handles])``.
+
+        Parameters
+        ----------
+        handle_positions : (k, 3) float64
+            One position per marker, in the order of ``handles``.
+
+        Returns
+        -------
+        (n, 3) float64
+            The deformed vertices (markers exact when ``smoothing`` is 0).
+
+        Raises
+        ------
+        InputError
+            A wrong shape, NaN or inf; :class:`~facegeom.interfaces.NotFittedError`
+            before :meth:`fit`.
+        """
         check_fitted(self, "map_")
         P = as_positions(handle_positions, self.handles_.size)
         Y = apply_displacement_map(self.vertices_, self.handles_, self.map_, P)

@@ -25,12 +25,48 @@ class CopyRetargeter(Params):
         self.result_ = None
 
     def fit(self, source, labelled_frames, target_labels) -> "CopyRetargeter":
+        """Place the actor's motion on the character: ``Y_t = X_t + o``, stored in ``result_``.
+
+        ``o (p, 3)`` is the mean over the labelled frames of
+        ``target_labels - source[labelled_frames]``.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            At least two distinct frame ids in ``[0, T)``.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad shapes, NaN or inf, fewer than two labelled frames, repeated or
+            out-of-range frame ids.
+        """
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         offset = (Yh - S[lab]).mean(axis=0)
         self.result_ = S + offset[None]
         return self
 
     def transform(self) -> np.ndarray:
+        """Return the character sequence computed by :meth:`fit`.
+
+        Returns
+        -------
+        (T, p, 3) float64
+            A copy of ``result_``.
+
+        Raises
+        ------
+        NotFittedError
+            Called before :meth:`fit` (an :class:`~facegeom.errors.InputError`).
+        """
         check_fitted(self, "result_")
         return self.result_.copy()
 
@@ -103,6 +139,35 @@ class RBFRetargeter(Params):
         return f(Z_all)
 
     def fit(self, source, labelled_frames, target_labels) -> "RBFRetargeter":
+        """Train the RBF map(s) on the labelled frames and apply them to every frame (stored in ``result_``).
+
+        ``strategy="marker"``: one map per marker, from its 3-D positions to the
+        character's; ``"frame"``: one map from the whole frame (``3p`` numbers).
+        Inputs are expressed in their significant principal axes (``rel_tol``, with
+        an absolute floor of ``1e-6`` times the sequence's RMS spread times
+        ``sqrt(L)``); an input that does not move maps to the mean of its labels,
+        and the polynomial falls back to degree 0 when there are too few labelled
+        frames for an affine part.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            At least two distinct frame ids in ``[0, T)``.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad shapes, NaN or inf, fewer than two labelled frames, repeated or
+            out-of-range frame ids, or a kernel ``RBFInterpolator`` rejects (e.g. one that needs ``epsilon``).
+        """
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         spread = float(np.sqrt(((S - S.mean(axis=(0, 1))) ** 2).sum(axis=2).mean()))
@@ -118,6 +183,18 @@ class RBFRetargeter(Params):
         return self
 
     def transform(self) -> np.ndarray:
+        """Return the character sequence computed by :meth:`fit`.
+
+        Returns
+        -------
+        (T, p, 3) float64
+            A copy of ``result_``.
+
+        Raises
+        ------
+        NotFittedError
+            Called before :meth:`fit` (an :class:`~facegeom.errors.InputError`).
+        """
         check_fitted(self, "result_")
         return self.result_.copy()
 
@@ -144,6 +221,36 @@ class LaplacianRetargeter(Params):
         self.result_ = None
 
     def fit(self, source, labelled_frames, target_labels) -> "LaplacianRetargeter":
+        """Add to the actor's motion the offset field, smooth in time, that meets the labelled frames exactly.
+
+        Minimises ``||L Y - L X||^2`` (``X`` the source) with ``Y = Y_hat`` on the labelled
+        frames. Builds the temporal Laplacian ``L = I - D^-1 A`` (``A``: the ``window``
+        frames on each side, clipped at the ends), factorizes ``L^T L`` with the
+        labelled frames as hard constraints and solves once for the offsets
+        ``target_labels - source[labelled_frames]`` of all ``3p`` coordinates;
+        ``result_ = source + offsets``.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            At least two distinct frame ids in ``[0, T)``.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad shapes, NaN or inf, fewer than two labelled frames, repeated or
+            out-of-range frame ids.
+        SolveError
+            The system cannot be solved with these labels.
+        """
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         A = temporal_windows(T, self.window).astype(np.float64)
@@ -157,5 +264,17 @@ class LaplacianRetargeter(Params):
         return self
 
     def transform(self) -> np.ndarray:
+        """Return the character sequence computed by :meth:`fit`.
+
+        Returns
+        -------
+        (T, p, 3) float64
+            A copy of ``result_``.
+
+        Raises
+        ------
+        NotFittedError
+            Called before :meth:`fit` (an :class:`~facegeom.errors.InputError`).
+        """
         check_fitted(self, "result_")
         return self.result_.copy()

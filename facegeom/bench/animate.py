@@ -25,6 +25,41 @@ from facegeom.registry import MethodSpec
 
 
 def run(model, seqs, retargeters: list[MethodSpec], deformer: MethodSpec, labels: int = 10, progress=True):
+    """Retarget every sequence with every retargeter and drive the character's mesh with each result.
+
+    For each sequence a fresh deformer is fitted once on the character's neutral
+    face with the sequence's marker ids; each retargeter then maps the actor's
+    markers onto the character from ``labels`` evenly spread known frames, and
+    its markers drive that deformer frame by frame. A retargeter that raises
+    :class:`~facegeom.errors.SolveError` gets a row of NaN (with the deformer's
+    fit time).
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (``n`` vertices, positions in cm).
+    seqs : list of Sequence
+        Actor/character sequences with ground truth, markers ``(T, p, 3)``
+        float64 in cm (:func:`~facegeom.bench.retarget.build_sequences`).
+    retargeters : list of MethodSpec
+        The retargeters (each built once beforehand, so plugin import time is
+        not counted as retarget time).
+    deformer : MethodSpec
+        The deformer that drives the character.
+    labels : int
+        Known character frames per sequence, evenly spread.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    list of dict
+        One row per sequence and retargeter: ``sequence`` (index), ``name``,
+        ``retargeter`` (label), ``face_mm`` (mean over frames of the mean vertex
+        error over the face area ``[0, FACE_AREA)``, mm), ``marker_mm`` (mean
+        marker error, mm), ``retarget_ms``, ``drive_s`` (driving all frames,
+        after the fit) and ``deformer_fit_s``.
+    """
     rows = []
     for spec in retargeters:  # load every plugin once, so that import time is not counted as retarget time
         spec.build("retargeters")
@@ -59,6 +94,24 @@ def run(model, seqs, retargeters: list[MethodSpec], deformer: MethodSpec, labels
 
 
 def summarize(rows, retargeters, frames) -> str:
+    """The Markdown summary table: one line per retargeter, failed (NaN) rows left out.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows of :func:`run`.
+    retargeters : list of MethodSpec
+        The retargeters, in table order (matched by ``label``).
+    frames : int
+        Frames per sequence (only named in the drive-time column title).
+
+    Returns
+    -------
+    str
+        Columns: mean face error and mean marker error (mm, means over
+        sequences), then the medians of the retarget time (ms), the time to drive
+        all frames (s) and the deformer's fit time (s).
+    """
     header = ["retargeter", "face error (mm)", "marker error (mm)", "retarget (ms, median)",
               f"drive {frames} frames (s, median)", "deformer fit (s, median)"]
     table = []
@@ -71,6 +124,42 @@ def summarize(rows, retargeters, frames) -> str:
 
 
 def main(model, takes, retargeters, deformer, count, seed, out, labels=10, frames=100, echo=print, progress=True):
+    """Run the animation benchmark: build the sequences, run them, write the report.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    takes : list of (str, ndarray)
+        Named takes of ICT-ordered weights ``(T, E)``; windows of ``frames``
+        frames are cut from them (:func:`~facegeom.bench.retarget.build_sequences`).
+    retargeters : list of MethodSpec
+        The retargeters to compare.
+    deformer : MethodSpec
+        The deformer, fitted once per sequence on the character's neutral.
+    count : int
+        Number of sequences (every fifth synthetic).
+    seed : int
+        Seed of the windows, actors and characters.
+    out : path-like or None
+        Output folder; ``None`` only echoes the summary.
+    labels : int
+        Known character frames per sequence.
+    frames : int
+        Frames per sequence.
+    echo : callable(str)
+        Receives the protocol line, the table and the list of files written.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows of :func:`run`, written to ``out/animate.csv``.
+    table : str
+        The table of :func:`summarize`, written with a note on the protocol and
+        the machine to ``out/animate-summary.md``.
+    """
     seqs = build_sequences(model, takes, count, frames, seed)
     n_real = sum(not s.name.startswith("synthetic") for s in seqs)
     echo(f"{len(seqs)} sequences of {frames} frames ({n_real} from real takes), {labels} labelled frames; "

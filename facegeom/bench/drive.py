@@ -34,6 +34,44 @@ from facegeom.registry import MethodSpec
 
 def run(model, specs: list[MethodSpec], cases: list[ExpressionCase], layout_name: str = "ict80", layout_seed: int = 0,
         progress: bool = True, deform_repeat: int = 5) -> list[dict]:
+    """Fit and apply every deformer on every driving case; one row of errors and times per pair.
+
+    The markers of layout ``layout_name`` on the case's neutral face (its
+    identity, no expression) are moved to their positions on the true
+    expression face; each method is fitted on the neutral with those marker ids
+    and deforms it.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    specs : list of MethodSpec
+        The deformers (a fresh instance per case).
+    cases : list of ExpressionCase
+        Identity and expression of every case
+        (:func:`~facegeom.model.scenarios.driving_cases`).
+    layout_name : str
+        Marker layout: ``ict80``, ``landmarks68`` or ``random<k>``.
+    layout_seed : int
+        Seed of a ``random<k>`` layout.
+    progress : bool
+        Show a progress bar (one step per fit).
+    deform_repeat : int
+        ``deform`` calls timed per pair (the median is reported).
+
+    Returns
+    -------
+    list of dict
+        One row per case and method: ``case``, ``kind``, ``method``, the errors
+        of :func:`~facegeom.metrics.face_errors_mm` in mm (``mean_mm``,
+        ``rms_mm``, ``max_mm`` over the face area, ``mean_all_mm`` over all
+        vertices, ``frobenius_mm``), ``fit_s`` and ``deform_ms`` (median).
+
+    Raises
+    ------
+    InputError
+        An unknown layout name, or inputs a method refuses.
+    """
     handles = layout(model, layout_name, layout_seed)
     F = model.triangles
     rows = []
@@ -65,6 +103,24 @@ def run(model, specs: list[MethodSpec], cases: list[ExpressionCase], layout_name
 
 
 def summarize(rows: list[dict], specs: list[MethodSpec]) -> tuple[list[str], list[list]]:
+    """Per-method aggregates of the rows of :func:`run`, for :func:`~facegeom.bench.report.format_table`.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows of :func:`run`.
+    specs : list of MethodSpec
+        The methods, in table order (matched by ``label``).
+
+    Returns
+    -------
+    header : list of str
+        The column titles.
+    table_rows : list of list
+        One line per method: the means over cases of ``mean_mm``, ``max_mm``,
+        ``mean_all_mm`` and ``frobenius_mm``, the RMS over cases of ``rms_mm``
+        (all mm), and the medians of ``fit_s`` and ``deform_ms``.
+    """
     header = ["method", "mean (mm)", "RMS (mm)", "max (mm)", "mean all (mm)", "Frobenius (mm)",
               "fit (s)", "deform (ms)"]
     out = []
@@ -96,6 +152,40 @@ def plot(rows: list[dict], specs: list[MethodSpec]):
 
 def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int, out: Path | None,
          progress: bool = True, echo=print, plot_it: bool = True) -> tuple[list[dict], str]:
+    """Run the face-driving benchmark and write its report.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    specs : list of MethodSpec
+        The deformers.
+    cases : int
+        Number of cases (:func:`~facegeom.model.scenarios.driving_cases`).
+    seed : int
+        Seed of the cases.
+    layout_name : str
+        Marker layout (``ict80``, ``landmarks68``, ``random<k>``).
+    layout_seed : int
+        Seed of a ``random<k>`` layout.
+    out : Path or None
+        Output folder; ``None`` only echoes the summary.
+    progress : bool
+        Show a progress bar.
+    echo : callable(str)
+        Receives the table, the note and the list of files written.
+    plot_it : bool
+        Also write the plot of the Frobenius error per case.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows of :func:`run`, written to ``out/drive.csv``.
+    table : str
+        The Markdown table of :func:`summarize`, written with a protocol and
+        machine note to ``out/drive-summary.md``; the plot goes to
+        ``out/drive.png``.
+    """
     cs = driving_cases(model, cases, seed)
     rows = run(model, specs, cs, layout_name, layout_seed, progress=progress)
     header, table_rows = summarize(rows, specs)

@@ -103,6 +103,42 @@ def _fit(spec, rig, target):
 
 # --------------------------------------------------------------------------- landmarks
 def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
+    """The landmark experiment: fit the 23 noisy landmarks of every case with every method, pose unknown.
+
+    Each case's face (its identity's rig at its true weights) is seen by a
+    pinhole camera turned by the case's yaw and pitch; the 23 fit landmarks get
+    Gaussian pixel noise and are given with the intrinsics only (every method
+    estimates the pose). Landmark errors are measured through each fit's own
+    camera.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    cases : list of SparseExpressionCase
+        Identity, true weights ``(B,)``, yaw and pitch of every target
+        (:func:`~facegeom.model.scenarios.fitting_cases`).
+    specs : list of MethodSpec
+        The fitters.
+    noise_px : float
+        Standard deviation of the landmark noise per coordinate, pixels.
+    seed : int
+        Seed of the noise.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    list of dict
+        One row per case and method: ``case``, ``method``, ``time_ms``,
+        ``ne_eval`` (NE of the 26 unused landmarks against their clean
+        projections) and ``ne_fit`` (NE of the 23 used ones against the noisy
+        input), both fractions of the true projected inner-eye-corner distance;
+        ``ersim``; ``corr``, ``corr_pos``, ``corr_neg`` (cm^2); ``vertex_mm``
+        (mean vertex error over the face area, mm); ``n_active``,
+        ``precision``, ``recall`` (support of the weights above 1e-3) and
+        ``coef_mae``.
+    """
     rng = np.random.default_rng([int(seed), 99])
     lm = model.landmarks
     fit_ids, eval_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
@@ -173,6 +209,18 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
 
 # --------------------------------------------------------------------------- point clouds
 def face_area_triangles(model) -> np.ndarray:
+    """The triangles of the face area: those whose three vertices lie in ``[0, FACE_AREA)``.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model.
+
+    Returns
+    -------
+    (m', 3) int64
+        The matching rows of ``model.triangles``, in their order.
+    """
     T = model.triangles
     return T[(T < FACE_AREA).all(axis=1)]
 
@@ -189,6 +237,43 @@ def sample_surface(V, tris, count, rng) -> np.ndarray:
 
 
 def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, seed=0, progress=True):
+    """The point-cloud experiment: fit noisy surface samples of every case's face with every method.
+
+    For each case and sampling, ``points`` points are drawn uniformly by area on
+    the face-area triangles of the true face, plus Gaussian noise. A fitter with
+    a ``region`` parameter is restricted to the face area; a fitter that refuses
+    point clouds (a :class:`~facegeom.errors.FacegeomError`, e.g. eos) gets no
+    row.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    cases : list of SparseExpressionCase
+        The targets.
+    specs : list of MethodSpec
+        The fitters.
+    samplings : int
+        Point clouds per case.
+    points : int
+        Points per cloud.
+    noise_cm : float
+        Standard deviation of the noise per coordinate, cm.
+    seed : int
+        Seed of the sampling and the noise.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    list of dict
+        One row per case, sampling and method: ``case``, ``sampling``,
+        ``method``, ``time_ms``, ``ne`` (eq. 32 over the face-area vertices, a
+        fraction of the fitted inner-eye-corner distance), and the columns
+        shared with :func:`run_landmarks` (``corr``, ``corr_pos``,
+        ``corr_neg``, ``vertex_mm``, ``n_active``, ``precision``, ``recall``,
+        ``coef_mae``).
+    """
     rng = np.random.default_rng([int(seed), 4711])
     tris = face_area_triangles(model)
     eye_ids = model.landmarks[list(INNER_EYE_CORNERS)]
@@ -219,6 +304,34 @@ def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, s
 
 # --------------------------------------------------------------------------- meshes
 def run_meshes(model, cases, specs, seed=0, progress=True):
+    """The mesh experiment: fit every case's true face in correspondence, then measure fit throughput.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    cases : list of SparseExpressionCase
+        The targets; at least one (the throughput uses the first case's rig).
+    specs : list of MethodSpec
+        The fitters; one that refuses mesh targets (a
+        :class:`~facegeom.errors.FacegeomError`) gets no row.
+    seed : int
+        Seed of the throughput targets.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        One row per case and method: ``case``, ``method``, ``time_ms``,
+        ``ersim`` and the columns shared with :func:`run_landmarks`.
+    throughput : list of dict
+        Per method: ``method``, ``fits_per_s`` and ``path``, on 2000 random
+        sparse targets of the first rig (each shape active with probability
+        0.08, weight U(0.2, 1)): all in one :func:`~facegeom.interfaces.fit_many`
+        after a 10-target warm-up (``"batched"``) when the method batches mesh
+        targets, else the first 100 one by one (``"one by one"``).
+    """
     rows, throughput = [], []
     rigs = {}
     for ci, c in enumerate(_progress(cases, "meshes", progress)):
@@ -301,6 +414,24 @@ def _median(rows, method, key):
 
 
 def summarize(results: dict, specs) -> str:
+    """The Markdown summary: one titled table per experiment present in ``results``.
+
+    Parameters
+    ----------
+    results : dict
+        Any of ``landmarks``, ``landmark_speed``, ``clouds`` and ``temporal``
+        (lists of rows) and ``meshes`` (the rows and throughput of
+        :func:`run_meshes`).
+    specs : list of MethodSpec
+        The methods, in table order; a method without rows in an experiment is
+        left out of its table.
+
+    Returns
+    -------
+    str
+        The tables separated by blank lines: means over the rows (NaN ignored;
+        NE in percent) and median times.
+    """
     parts = []
     labels = [s.label for s in specs]
     if "landmarks" in results:
@@ -373,6 +504,54 @@ def plot(results, specs, fitted, weights):
 
 def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
          take=None, echo=print, progress=True, plot_it=True):
+    """Run the selected fitting experiments and write their report.
+
+    Fitters whose plugin cannot be built (an optional peer such as eos) are
+    skipped with a message.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    specs : list of MethodSpec
+        The fitters.
+    experiments : collection of str
+        Any of ``landmarks``, ``clouds``, ``meshes``, ``temporal``.
+    count : int
+        Number of targets (:func:`~facegeom.model.scenarios.fitting_cases`).
+    seed : int
+        Seed of the targets and the noise.
+    out : path-like or None
+        Output folder; ``None`` only echoes the summary.
+    noise_px : float
+        Landmark noise, pixels.
+    cloud_cases : int
+        The point clouds use the first ``cloud_cases`` targets.
+    samplings : int
+        Point clouds per target.
+    points : int
+        Points per cloud.
+    take : (str, ndarray) or None
+        A named take of ICT-ordered weights ``(T, E)`` for ``temporal``, which
+        runs only with one, on the fitters named ``sem`` and ``l1reg``.
+    echo : callable(str)
+        Receives the messages, the summary and the list of files written.
+    progress : bool
+        Show progress bars.
+    plot_it : bool
+        Also write the plot.
+
+    Returns
+    -------
+    results : dict
+        The rows per experiment (keys as in :func:`summarize`).
+    table : str
+        The summary of :func:`summarize`. Files written into ``out``:
+        ``fit-landmarks.csv`` and ``fit-landmark-speed.csv``,
+        ``fit-clouds.csv``, ``fit-meshes.csv`` (per case; the throughput is only
+        in the summary), ``fit-temporal.csv`` (for the experiments run),
+        ``fit-summary.md`` and ``fit.png``.
+    """
     specs = available_specs(specs, echo)
     report = Report(out, "fit", echo)
     cases = fitting_cases(model, count, seed)

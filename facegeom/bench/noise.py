@@ -29,6 +29,32 @@ KINDS = ("labels", "source")
 
 
 def run(seqs, specs: list[MethodSpec], levels=LEVELS_MM, labels: int = 10, seed: int = 0, progress=True):
+    """Retarget every sequence at every noise level and kind with every method.
+
+    Parameters
+    ----------
+    seqs : list of Sequence
+        Actor/character sequences, markers ``(T, p, 3)`` float64 in cm.
+    specs : list of MethodSpec
+        The retargeters.
+    levels : sequence of float
+        Noise standard deviations per coordinate, mm.
+    labels : int
+        Known character frames, evenly spread.
+    seed : int
+        Seed of the noise (one stream per sequence, kind and level).
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    list of dict
+        One row per sequence, kind (``labels``: noise on the known character
+        frames only; ``source``: on every frame of the actor's markers), level
+        and method: ``sequence``, ``name``, ``kind``, ``sigma_mm``, ``method``,
+        ``mean_mm`` (mean marker error against the clean truth, mm; NaN when the
+        method raised :class:`~facegeom.errors.SolveError`) and ``time_ms``.
+    """
     rows = []
     try:
         from tqdm import tqdm
@@ -66,6 +92,23 @@ def _mean(rows, **where) -> float:
 
 
 def summarize(rows, specs, levels) -> str:
+    """Two Markdown tables (label noise, then source noise): mean marker error per method and level.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows of :func:`run`.
+    specs : list of MethodSpec
+        The methods, one line each (matched by ``label``).
+    levels : sequence of float
+        The noise levels (mm), one column each.
+
+    Returns
+    -------
+    str
+        The two tables separated by a blank line; each cell is the mean of
+        ``mean_mm`` over the sequences (NaN ignored).
+    """
     parts = []
     for kind in KINDS:
         header = ["method"] + [f"{kind} sigma={s:g} mm" for s in levels]
@@ -93,6 +136,44 @@ def plot(rows, specs, levels):
 
 def main(model, takes, specs, count, seed, out, levels=LEVELS_MM, labels=10, frames=100, echo=print, plot_it=True,
          progress=True):
+    """Run the label-noise and source-noise study and write its report.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    takes : list of (str, ndarray)
+        Named takes of ICT-ordered weights ``(T, E)``.
+    specs : list of MethodSpec
+        The retargeters.
+    count : int
+        Number of sequences (:func:`~facegeom.bench.retarget.build_sequences`,
+        the same as ``bench retarget`` for the same seed).
+    seed : int
+        Seed of the sequences and the noise.
+    out : path-like or None
+        Output folder; ``None`` only echoes the summary.
+    levels : sequence of float
+        Noise levels, mm.
+    labels : int
+        Known character frames per sequence.
+    frames : int
+        Frames per sequence.
+    echo : callable(str)
+        Receives the protocol line, the tables and the list of files written.
+    plot_it : bool
+        Also write the plot.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows of :func:`run`, written to ``out/noise.csv``.
+    table : str
+        The tables of :func:`summarize`, written to ``out/noise-summary.md``;
+        the plot goes to ``out/noise.png``.
+    """
     seqs = build_sequences(model, takes, count, frames, seed)
     echo(f"{len(seqs)} sequences of {frames} frames, {labels} labelled frames; noise levels {list(levels)} mm; "
          f"character mean marker motion {np.mean([s.mean_motion() for s in seqs]) * CM_TO_MM:.2f} mm")

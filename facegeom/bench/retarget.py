@@ -70,6 +70,38 @@ def _nanmean(values) -> float:
 
 
 def run(model, seqs, specs: list[MethodSpec], label_counts=LABEL_COUNTS, echo=print, progress=True):
+    """Retarget every sequence with every method, for every number of labelled frames.
+
+    Parameters
+    ----------
+    model : FaceModel
+        Not used.
+    seqs : list of Sequence
+        Actor/character sequences, markers ``(T, p, 3)`` float64 in cm.
+    specs : list of MethodSpec
+        The retargeters.
+    label_counts : sequence of int
+        Numbers of known character frames, evenly spread.
+    echo : callable(str)
+        Not used.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        One row per sequence, label count and method: ``sequence``, ``name``,
+        ``labels`` (distinct labelled frames), ``method``, ``frobenius_mm``
+        (over the whole sequence), ``mean_mm`` (mean marker error),
+        ``relative_pct`` (``mean_mm`` in percent of the character's mean marker
+        motion), ``motion_mm`` and ``time_ms``; errors are NaN when the method
+        raised :class:`~facegeom.errors.SolveError`.
+    frame_rows : list of dict
+        At the reference count only: ``sequence``, ``method``, ``frame`` and
+        the frame's ``frobenius_mm``.
+    ref : int
+        The reference count: 10 when in ``label_counts``, else its middle entry.
+    """
     rows, frame_rows = [], []
     ref = REFERENCE_LABELS if REFERENCE_LABELS in label_counts else label_counts[len(label_counts) // 2]
     try:
@@ -154,6 +186,47 @@ def plot(rows, frame_rows, specs, ref):
 
 def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed=0, frames=100,
          label_counts=LABEL_COUNTS, echo=print, plot_it=True, progress=True):
+    """Run the retargeting benchmark and write its report.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (positions in cm).
+    takes : list of (str, ndarray)
+        Named takes of ICT-ordered weights ``(T, E)``.
+    specs : list of MethodSpec
+        The retargeters.
+    count : int
+        Number of sequences (every fifth synthetic).
+    seed : int
+        Seed of the windows, actors and characters.
+    out : path-like or None
+        Output folder; ``None`` only echoes the summary.
+    layout_name : str
+        Marker layout.
+    layout_seed : int
+        Seed of a ``random<k>`` layout.
+    frames : int
+        Frames per sequence.
+    label_counts : sequence of int
+        Numbers of labelled frames to run.
+    echo : callable(str)
+        Receives the protocol line, the table and the list of files written.
+    plot_it : bool
+        Also write the plot (Figs. 6-8).
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows of :func:`run`, written to ``out/retarget.csv`` (the per-frame
+        rows go to ``out/retarget-frames.csv``).
+    table : str
+        The summary at the reference label count and at 20 labels (when run),
+        written to ``out/retarget-summary.md``; the plot goes to
+        ``out/retarget.png``.
+    """
     seqs = build_sequences(model, takes, count, frames, seed, layout_name, layout_seed)
     n_real = sum(not s.name.startswith("synthetic") for s in seqs)
     echo(f"{len(seqs)} sequences of {frames} frames ({n_real} from real takes, {len(seqs) - n_real} synthetic), "

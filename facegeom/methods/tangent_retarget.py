@@ -241,6 +241,41 @@ class TangentRetargeter(Params):
         return "TangentRetargeter(" + ", ".join(f"{k}={v!r}" for k, v in self.get_params().items()) + ")"
 
     def fit(self, source, labelled_frames, target_labels) -> "TangentRetargeter":
+        """Solve the tangent-alignment system for the whole character sequence.
+
+        Smooths the source first when ``source_smoothing`` asks (the value used is
+        stored in ``source_smoothing_``); builds the alignment matrix ``B`` of the
+        temporal windows (the ``p`` marker trajectories as one block-diagonal system
+        for ``strategy="marker"``, frames as points in ``3p`` dimensions for
+        ``"frame"``), plus the second-difference energy when ``smoothness > 0``;
+        takes the base field (none, the source, or the per-marker affine map of
+        :func:`marker_affine_fit`, per ``field``) and the label weight (``beta``, or
+        chosen by leave-one-label-out for ``"auto"``; stored in ``beta_``); then
+        solves once for the labels' residual against the base (no solve when the
+        chosen weight is 0: the base field is kept). The sequence is stored in
+        ``result_``.
+
+        Parameters
+        ----------
+        source : (T, p, 3) float64
+            The actor's markers per frame.
+        labelled_frames : (L,) int64
+            At least two distinct frame ids in ``[0, T)``.
+        target_labels : (L, p, 3) float64
+            The character's markers on those frames.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        InputError
+            Bad shapes, NaN or inf, fewer than two labelled frames, repeated or
+            out-of-range frame ids.
+        SolveError
+            The system cannot be solved with these labels.
+        """
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         self.source_smoothing_ = 0.0
@@ -291,6 +326,18 @@ class TangentRetargeter(Params):
         return self
 
     def transform(self) -> np.ndarray:
+        """Return the character sequence computed by :meth:`fit`.
+
+        Returns
+        -------
+        (T, p, 3) float64
+            A copy of ``result_`` (the labelled frames exact when ``beta`` is None).
+
+        Raises
+        ------
+        NotFittedError
+            Called before :meth:`fit` (an :class:`~facegeom.errors.InputError`).
+        """
         check_fitted(self, "result_")
         return self.result_.copy()
 

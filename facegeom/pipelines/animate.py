@@ -31,6 +31,27 @@ from facegeom.model import performance as sq
 
 @dataclass
 class Animation:
+    """The result of :func:`animate`: the driven character sequence with its errors.
+
+    Attributes
+    ----------
+    vertices : (T, n, 3) float64
+        The driven character mesh per frame, cm.
+    faces : (m, 3) int64
+        The model's triangles.
+    markers : (T, p, 3) float64
+        The retargeted character markers per frame, cm.
+    labelled_frames : (L,) int64
+        The known character frames, evenly spread.
+    frame_error_mm : (T,) float64
+        Mean vertex error per frame against the character's true faces, mm,
+        over vertices ``[0, region)`` (all by default; the face area in
+        :func:`animate_take`).
+    marker_error_mm : (T,) float64
+        Mean marker error per frame against the character's true markers, mm.
+    times : dict
+        Seconds: ``retarget_s``, ``deformer_fit_s`` and ``drive_s``.
+    """
     vertices: np.ndarray  # (T, n, 3) the driven character mesh
     faces: np.ndarray  # (m, 3)
     markers: np.ndarray  # (T, p, 3) retargeted character markers

@@ -52,6 +52,19 @@ class AnimateOperation(Operation):
     name = "animate"
 
     def prepare(self, job, spec, files):
+        """Client side: check the animation settings and both methods, and resolve them into the task spec.
+
+        ``spec['shared']`` gets the job's ``shared`` over the defaults ``start=0``,
+        ``frames=100``, ``labels=10``, ``seed=0``, ``deformer="tangent"``;
+        ``spec['data']`` the face data bundle and ``spec['stamp']`` its stamp.
+
+        Raises
+        ------
+        InputError
+            Naming the job: ``start < 0``, ``frames`` or ``labels`` below 2, more
+            labels than frames, no face data, or a retargeter (the job's method) or
+            ``shared.deformer`` that cannot be built.
+        """
         from facegeom.registry import parse_method
 
         s = {"start": 0, "frames": 100, "labels": 10, "seed": 0, "deformer": "tangent", **job.shared}
@@ -69,15 +82,45 @@ class AnimateOperation(Operation):
         spec["stamp"] = stamp([spec["data"]])
 
     def outputs(self, job, spec, src, stem):
+        """One output per take: the animation ``<stem>.npz``; no extra item data."""
         return [stem.with_name(stem.name + ".npz")], {}
 
     def state(self, spec):
+        """The worker's face model and deformer, built once per process and job.
+
+        The deformer skips ``fit`` when called again with the same rest mesh and
+        markers: every take of a job drives the character of ``shared.seed``, so it
+        is factorized once per worker.
+
+        Returns
+        -------
+        dict
+            ``model`` (FaceModel) and ``deformer``.
+        """
         from facegeom.registry import parse_method
 
         return {"model": load_model(spec),
                 "deformer": _FitOnce(parse_method(spec["shared"]["deformer"]).build("deformers"))}
 
     def one(self, state, spec, item):
+        """Animate a window of the take ``item['input']`` (:func:`~facegeom.pipelines.animate.animate_take`).
+
+        The window is frames ``start .. start + frames - 1``; a new retargeter
+        (the job's method and params) per take, the worker's deformer.
+
+        Returns
+        -------
+        anim : Animation
+            Vertices ``(T, n, 3)`` float64 (cm), markers ``(T, 80, 3)``, per-frame
+            errors ``(T,)`` in mm.
+        ids : (80,) int64
+            The ``ict80`` marker vertices.
+
+        Raises
+        ------
+        InputError
+            An unreadable take, or a window past its end.
+        """
         from facegeom import registry
         from facegeom.pipelines.animate import animate_take
 
@@ -88,6 +131,14 @@ class AnimateOperation(Operation):
         return anim, ids
 
     def write(self, state, spec, item, result):
+        """Write the animation npz (float32 vertices, :func:`~facegeom.pipelines.animate.write_animation_npz`).
+
+        Returns
+        -------
+        dict
+            ``face_err_mm_mean`` and ``face_err_mm_max`` (mean and largest of the
+            per-frame face-area errors, mm) and ``marker_err_mm_mean`` (mm).
+        """
         from facegeom.pipelines.animate import write_animation_npz
 
         anim, ids = result

@@ -24,6 +24,20 @@ class CleanOperation(Operation):
     name = "clean"
 
     def prepare(self, job, spec, files):
+        """Client side: check the clean method and its params, and record the shared options in ``spec['shared']``.
+
+        ``job.method`` is ``clean``, ``decimate`` or ``crop``, each with its own
+        params. ``spec['shared']`` gets ``markers`` (whether ``shared.markers`` is
+        given), ``drop_lost_markers`` and ``map`` (``"csv"``, ``"npz"`` or None).
+
+        Raises
+        ------
+        InputError
+            Naming the job: an unknown method or param, a bad ``merge_tol``,
+            ``decimate`` without an integer ``vertices >= 4``, ``crop`` without
+            exactly one of ``from_vertices`` (with ``radius``) and ``id_range``, or
+            a ``shared.map`` other than csv or npz.
+        """
         from facegeom.pipelines.cleanup import parse_tolerance
 
         if job.method not in _CLEAN_PARAMS:
@@ -53,6 +67,20 @@ class CleanOperation(Operation):
                           bool(job.shared.get("drop_lost_markers", False)), "map": m}
 
     def outputs(self, job, spec, src, stem):
+        """The output files of mesh ``src``: the mesh, [the index map], [the carried markers], the report.
+
+        In this order: ``<stem>.<format>`` (the input's suffix when the job sets no
+        format), ``<stem>.map.<csv|npz>`` with ``shared.map``,
+        ``<stem>.markers.csv`` with ``shared.markers``, and ``<stem>.report.json``.
+
+        Returns
+        -------
+        paths : list of Path
+            The outputs.
+        extra : dict
+            ``markers``: the input's marker CSV (``shared.markers`` resolved for
+            ``src``), when given.
+        """
         fmt = spec["format"] or src.suffix.lower().lstrip(".")
         outs = [stem.with_name(stem.name + "." + fmt)]
         extra = {}
@@ -65,6 +93,28 @@ class CleanOperation(Operation):
         return outs, extra
 
     def one(self, state, spec, item):
+        """Read the mesh (and its marker CSV) and run ``clean``, ``decimate`` or ``crop`` on it.
+
+        ``decimate`` keeps the marker vertices; the markers are carried through the
+        index map (a lost marker is dropped with ``shared.drop_lost_markers``, else
+        an error).
+
+        Returns
+        -------
+        tuple
+            ``(V, F, V2, F2, index_map, report, carried)``: the input vertices
+            ``(n, 3)`` float64 and faces (triangles ``(m, 3)`` int64, or an OBJ's
+            polygons for ``clean``), the result ``V2 (n2, 3)`` and ``F2 (m2, 3)``,
+            the :class:`~facegeom.pipelines.cleanup.IndexMap`, the report, and the
+            carried marker files (none or one).
+
+        Raises
+        ------
+        InputError
+            An unreadable mesh or marker file, ``from_vertices`` out of range, a bad
+            ``id_range``, a lost marker without ``drop_lost_markers``, or a mesh the
+            operation refuses.
+        """
         from facegeom.io import read_vertex_csv
         from facegeom.pipelines import cleanup
         from facegeom.pipelines.meshinput import read_input_mesh
@@ -95,6 +145,14 @@ class CleanOperation(Operation):
         return V, F, V2, F2, imap, report, carried
 
     def write(self, state, spec, item, result):
+        """Write the item's outputs all or nothing (the mesh last), the carried markers' summaries in the report.
+
+        Returns
+        -------
+        dict
+            ``vertices_in``, ``vertices_out``, ``faces_in``, ``faces_out`` and
+            ``markers_dropped``.
+        """
         from facegeom.io import all_or_nothing, write_mesh
         from facegeom.pipelines.cleanup import write_vertex_csv
 

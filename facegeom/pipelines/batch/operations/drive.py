@@ -49,6 +49,20 @@ class DriveOperation(Operation):
         return "sequence" if _peek_header(src).startswith("frame") else "frame"
 
     def prepare(self, job, spec, files):
+        """Client side: resolve the rest mesh and the marker layout, check the deformer; record them in the spec.
+
+        The rest mesh is ``shared.mesh``, else the ICT neutral (face data in
+        ``spec['data']``). The marker vertex ids come from ``shared.markers`` (a CSV
+        with a ``vertex_id`` column, or a layout name of the ICT face), else from the
+        first readable input. ``spec['shared']`` gets ``mesh`` (path or None),
+        ``ids`` (list of int) and ``fill_gaps``.
+
+        Raises
+        ------
+        InputError
+            Naming the job: a bad ``shared.input``, an unreadable mesh, no face
+            data, no usable marker layout, or a deformer that cannot be built.
+        """
         from facegeom.io import read_mesh
 
         if job.shared.get("input", "auto") not in ("auto", "frames", "sequences"):
@@ -107,14 +121,35 @@ class DriveOperation(Operation):
                                     "name (ict80, landmarks68, random<k>) giving the marker vertices")
 
     def outputs(self, job, spec, src, stem):
+        """One output for input ``src``: ``<stem>.npz`` for a marker sequence, a mesh ``<stem>.<format>`` for a frame.
+
+        The type is ``shared.input`` when forced, else a sequence for an ``.npz`` or
+        a CSV whose header starts with ``frame``, else a frame.
+
+        Returns
+        -------
+        paths : list of Path
+            The output.
+        extra : dict
+            ``type``: ``"frame"`` or ``"sequence"``.
+        """
         t = self._type(job, src)
         suffix = "npz" if t == "sequence" else spec["format"]
         return [stem.with_name(stem.name + "." + suffix)], {"type": t}
 
     def default_chunk(self, job, spec, items):
+        """16 items per task when every input is a single frame, else 1."""
         return 16 if all(it["extra"]["type"] == "frame" for it in items) else 1
 
     def state(self, spec):
+        """Load the rest mesh and fit the deformer on it, once per worker (the factorization).
+
+        Returns
+        -------
+        dict
+            ``V (n, 3)`` float64, ``F (m, 3)`` int64, ``ids (k,)`` int64 and the
+            fitted ``deformer``.
+        """
         from facegeom import registry
         from facegeom.io import read_mesh
 
@@ -129,6 +164,26 @@ class DriveOperation(Operation):
         return {"V": V, "F": F, "ids": ids, "deformer": d}
 
     def one(self, state, spec, item):
+        """Drive the deformer with one marker frame, or with every frame of one marker sequence.
+
+        A frame (CSV ``vertex_id,x,y,z``) must hold exactly the layout's vertex ids,
+        in any order. A sequence's markers are matched to the layout by name when
+        the names are its vertex ids, else taken in file order (same count); lost
+        samples are interpolated over time only with ``shared.fill_gaps``.
+
+        Returns
+        -------
+        tuple
+            ``("frame", V)`` with ``V (n, 3)`` float64, or
+            ``("sequence", Y, frames)`` with ``Y (T, n, 3)`` float32 and the
+            sequence's frame numbers ``(T,)`` int64.
+
+        Raises
+        ------
+        InputError
+            An unreadable input, markers that differ from the layout, or lost
+            markers without ``fill_gaps`` (or that cannot be filled).
+        """
         from facegeom.io import fill_gaps, read_marker_sequence, read_markers
         from facegeom.pipelines.animate import drive_frames
 
@@ -165,6 +220,15 @@ class DriveOperation(Operation):
         return "sequence", Y, seq.frames
 
     def write(self, state, spec, item, result):
+        """Write a frame's mesh, or a sequence's npz (``vertices``, ``faces``, ``frames``, ``marker_ids``).
+
+        The npz's ``vertices`` are ``(T, n, 3)`` float32.
+
+        Returns
+        -------
+        dict
+            ``{}`` for a frame, ``{"frames": T}`` for a sequence.
+        """
         from facegeom.io import atomic_path, write_mesh
 
         out = item["outputs"][0]
@@ -179,6 +243,19 @@ class DriveOperation(Operation):
         return {"frames": int(Y.shape[0])}
 
     def evaluate(self, state, spec, item, result, truth):
+        """Vertex errors against the truth: a mesh for a frame, an npz with ``vertices (T, n, 3)`` for a sequence.
+
+        Returns
+        -------
+        dict
+            ``err_mean`` and ``err_max``: mean and largest vertex distance, in the
+            mesh's units (cm for the ICT face).
+
+        Raises
+        ------
+        InputError
+            An unreadable truth, or one whose shape differs from the result.
+        """
         from facegeom.io import read_mesh
 
         if result[0] == "frame":

@@ -26,6 +26,21 @@ class FitOperation(Operation):
     name = "fit"
 
     def prepare(self, job, spec, files):
+        """Client side: resolve the rig and the camera, check the fitter, and record them in ``spec['shared']``.
+
+        The rig is the ICT face (face data in ``spec['data']``) unless
+        ``shared.rig`` names one, which is loaded once to check it. Landmark targets
+        (``shared.kind`` ``landmarks``, or ``auto`` with a ``.csv`` input) need
+        ``shared.focal``, ``cx`` and ``cy``. ``spec['shared']`` gets ``rig`` (path or
+        None), ``kind``, ``camera`` (``[focal, cx, cy]``) and ``vectorised`` (the
+        fitter solves landmark targets together).
+
+        Raises
+        ------
+        InputError
+            Naming the job: an unknown kind, a missing or broken rig, no face data,
+            a missing camera, or a fitter that cannot be built.
+        """
         from facegeom.io import TARGET_KINDS
         from facegeom.model import load_rig
 
@@ -53,6 +68,7 @@ class FitOperation(Operation):
         spec["stamp"] = stamp([rig] if rig else [spec.get("data")])
 
     def outputs(self, job, spec, src, stem):
+        """One output per target: the weights file ``<stem>.<format>`` (``json`` or ``csv``); no extra item data."""
         return [stem.with_name(stem.name + "." + spec["format"])], {}
 
     def _is_landmarks(self, spec, path: str) -> bool:
@@ -60,10 +76,18 @@ class FitOperation(Operation):
         return kind == "landmarks" or (kind == "auto" and path.lower().endswith(".csv"))
 
     def default_chunk(self, job, spec, items):
+        """64 items per task when the fitter batches landmark targets and every item is a landmark file, else 1."""
         lm = spec["shared"]["vectorised"] and all(self._is_landmarks(spec, it["input"]) for it in items)
         return 64 if lm else 1
 
     def state(self, spec):
+        """Load the rig once per worker (its Gram and delta matrices precomputed) and build the fitter.
+
+        Returns
+        -------
+        dict
+            ``rig`` (BlendshapeRig) and ``fitter``.
+        """
         from facegeom import registry
         from facegeom.model import load_rig
 
@@ -73,6 +97,20 @@ class FitOperation(Operation):
         return {"rig": rig, "fitter": registry.create("fitters", spec["method"], **spec["params"])}
 
     def compute(self, state, spec, items):
+        """Fit a chunk: the landmark files together when the fitter batches them, the others one by one.
+
+        The batch is one :func:`~facegeom.interfaces.fit_many`; a batched item's
+        time is its reading time plus an equal share of the batch fit. When the
+        batch fit raises, its items are fitted one by one, so only the bad one
+        fails.
+
+        Yields
+        ------
+        tuple of (dict, FitOutcome or Exception, float)
+            The item, its :class:`~facegeom.pipelines.single.FitOutcome` (weights
+            ``(B,)`` float64; no vertices from a batch fit) or the exception, and
+            seconds.
+        """
         from facegeom.model import read_fit_target
         from facegeom.pipelines.single import FitOutcome, fit_file
 
@@ -103,12 +141,29 @@ class FitOperation(Operation):
         yield from timed(lambda it: fit_file(rig, it["input"], lambda: fitter, spec["shared"]["kind"], *cam), single)
 
     def write(self, state, spec, item, result):
+        """Write the item's coefficients by shape name, with the method, the target and a landmark fit's pose.
+
+        Returns
+        -------
+        dict
+            ``active``: the number of coefficients above 1e-6 in magnitude.
+        """
         from facegeom.pipelines.single import write_fit
 
         write_fit(item["outputs"][0], state["rig"].names, result, spec["method"], item["input"])
         return {"active": int(result.active.size)}
 
     def evaluate(self, state, spec, item, result, truth):
+        """Coefficient and face errors of one fit against its truth weights file (:meth:`evaluate_many` of one pair).
+
+        Returns
+        -------
+        dict or Exception
+            ``coef_mae`` and ``coef_max`` (coefficients), ``err_mean`` and
+            ``err_max`` (vertex distances between the fitted and the true face over
+            all vertices, in the rig's units: cm for the ICT face). A truth file that
+            cannot be read gives its exception, returned rather than raised.
+        """
         return self.evaluate_many(state, spec, [(item, result)])[0]
 
     def evaluate_many(self, state, spec, pairs):
