@@ -386,7 +386,7 @@ def test_cli_batch_on_a_scheduler(client, landmarks, tmp_path):
 
 
 def test_demo_batch_step_with_a_relative_folder(tmp_path, monkeypatch, face_model, capsys):
-    from facegeom.cli.main import _demo_batch
+    from facegeom.cli.demo import _demo_batch
 
     monkeypatch.chdir(tmp_path)
     _demo_batch(face_model, Path("bench-out/demo/batch"), count=6)

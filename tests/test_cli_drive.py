@@ -1,6 +1,5 @@
 """End-to-end: `facegeom drive` and `facegeom bench drive` on the real ICT face."""
 import csv
-import os
 import subprocess
 import sys
 

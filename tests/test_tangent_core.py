@@ -1,7 +1,6 @@
 """The tangent-framework core and TangentDeformer on small synthetic meshes."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation

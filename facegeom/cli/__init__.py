@@ -1,8 +1,16 @@
 """The ``facegeom`` command line (also ``python -m facegeom``): one module per command group.
 
-``main`` holds the group and the single-item commands (drive, retarget, fit,
-animate, bench, demo); ``cleanup``, ``view`` and ``batch`` register their
-commands on it. Only this layer speaks of command-line flags.
+- ``main``: the ``facegeom`` group, ``info``, ``methods`` and the entry point ``main`` (errors as one line).
+- ``context``: the group's context object (``--data``, the face model) and shared option parsing.
+- ``single``: ``drive``, ``retarget``, ``fit`` and ``animate``, one method run on one input.
+- ``bench``: the ``bench`` group, the benchmarks that reproduce the papers' experiments.
+- ``demo``: ``demo``, the main job in one command.
+- ``cleanup``: ``clean``, ``decimate`` and ``crop``, mesh clean-up with index maps.
+- ``view``: the ``view`` group, the interactive polyscope viewer.
+- ``batch``: ``batch``, one operation over many inputs on Dask.
+- ``flags``: library messages rewritten with command-line flag names.
+
+Only this layer speaks of command-line flags.
 """
 from facegeom.cli.main import cli, main
 

@@ -92,133 +92,132 @@ def _finish(operation: str, out, V, F, imap, report, sources, markers_out, drop_
     click.echo(f"wrote {', '.join(str(t) for t in targets)}")
 
 
-def register(cli: click.Group) -> None:
-    """Add ``clean``, ``decimate`` and ``crop`` to the ``facegeom`` group."""
+@click.command("clean")
+@click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
+@click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--merge-tol", default="0", show_default=True, metavar="DIST|PCT%",
+              help="Also merge vertices closer than this: an absolute distance (mesh units) or a percentage of "
+                   "the bounding-box diagonal, e.g. 0.001%. 0 merges exact duplicates only.")
+@click.option("--largest-component", "--largest", "largest", is_flag=True,
+              help="Keep only the connected component with the most faces.")
+@click.option("--non-manifold", type=click.Choice(["split", "remove"]), default="split", show_default=True,
+              help="Non-manifold edges: split their vertices (no face lost; a fin becomes its own component) "
+                   "or remove faces (may open holes).")
+@click.option("--no-orient", is_flag=True, help="Leave face orientation as it is.")
+@_common
+def clean_cmd(mesh_in, mesh_out, merge_tol, largest, non_manifold, no_orient, map_path, markers, markers_out,
+              drop_lost_markers, report_path, progress):
+    """Repair IN into OUT: triangulate, merge duplicate vertices, remove unreferenced vertices, duplicate and
+    zero-area faces, repair non-manifold edges and vertices, orient faces (pymeshlab filters).
 
-    @cli.command("clean")
-    @click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
-    @click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
-    @click.option("--merge-tol", default="0", show_default=True, metavar="DIST|PCT%",
-                  help="Also merge vertices closer than this: an absolute distance (mesh units) or a percentage of "
-                       "the bounding-box diagonal, e.g. 0.001%. 0 merges exact duplicates only.")
-    @click.option("--largest-component", "--largest", "largest", is_flag=True,
-                  help="Keep only the connected component with the most faces.")
-    @click.option("--non-manifold", type=click.Choice(["split", "remove"]), default="split", show_default=True,
-                  help="Non-manifold edges: split their vertices (no face lost; a fin becomes its own component) "
-                       "or remove faces (may open holes).")
-    @click.option("--no-orient", is_flag=True, help="Leave face orientation as it is.")
-    @_common
-    def clean_cmd(mesh_in, mesh_out, merge_tol, largest, non_manifold, no_orient, map_path, markers, markers_out,
-                  drop_lost_markers, report_path, progress):
-        """Repair IN into OUT: triangulate, merge duplicate vertices, remove unreferenced vertices, duplicate and
-        zero-area faces, repair non-manifold edges and vertices, orient faces (pymeshlab filters).
+    \b
+    Example:
+      facegeom clean scan.obj scan-clean.obj --largest-component --merge-tol 0.001% \\
+          --markers markers.csv --markers-out markers-clean.csv --map map.csv --report report.json
+    """
+    from facegeom.pipelines.cleanup import clean, parse_tolerance
+    from facegeom.pipelines.meshinput import read_input_mesh
 
-        \b
-        Example:
-          facegeom clean scan.obj scan-clean.obj --largest-component --merge-tol 0.001% \\
-              --markers markers.csv --markers-out markers-clean.csv --map map.csv --report report.json
-        """
-        from facegeom.pipelines.cleanup import clean, parse_tolerance
-        from facegeom.pipelines.meshinput import read_input_mesh
+    parse_tolerance(merge_tol)
+    _check_outputs(mesh_out, map_path, report_path)
+    V, F = read_input_mesh(mesh_in, polygons=True)
+    sources = _prepare_markers(markers, markers_out, V.shape[0])
+    V2, F2, imap, report = clean(V, F, merge_tol=merge_tol, largest_component=largest,
+                                 non_manifold=non_manifold, orient=not no_orient,
+                                 progress=_progress(progress, V.shape[0]))
+    _finish("clean", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
+            report_path)
 
-        parse_tolerance(merge_tol)
-        _check_outputs(mesh_out, map_path, report_path)
-        V, F = read_input_mesh(mesh_in, polygons=True)
-        sources = _prepare_markers(markers, markers_out, V.shape[0])
-        V2, F2, imap, report = clean(V, F, merge_tol=merge_tol, largest_component=largest,
-                                     non_manifold=non_manifold, orient=not no_orient,
-                                     progress=_progress(progress, V.shape[0]))
-        _finish("clean", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
-                report_path)
 
-    @cli.command("decimate")
-    @click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
-    @click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
-    @click.option("--vertices", "n_vertices", required=True, type=click.IntRange(4),
-                  help="Target vertex count (the result has at most this many, unless constraints stop it).")
-    @click.option("--preserve-boundary", is_flag=True, help="Keep the mesh boundary (eye, mouth, outline) intact.")
-    @click.option("--preserve-topology", is_flag=True, help="Refuse collapses that change the topology.")
-    @_common
-    def decimate_cmd(mesh_in, mesh_out, n_vertices, preserve_boundary, preserve_topology, map_path, markers,
-                     markers_out, drop_lost_markers, report_path, progress):
-        """Quadric edge-collapse decimation of IN (pymeshlab) to about --vertices vertices, into OUT.
+@click.command("decimate")
+@click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
+@click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--vertices", "n_vertices", required=True, type=click.IntRange(4),
+              help="Target vertex count (the result has at most this many, unless constraints stop it).")
+@click.option("--preserve-boundary", is_flag=True, help="Keep the mesh boundary (eye, mouth, outline) intact.")
+@click.option("--preserve-topology", is_flag=True, help="Refuse collapses that change the topology.")
+@_common
+def decimate_cmd(mesh_in, mesh_out, n_vertices, preserve_boundary, preserve_topology, map_path, markers,
+                 markers_out, drop_lost_markers, report_path, progress):
+    """Quadric edge-collapse decimation of IN (pymeshlab) to about --vertices vertices, into OUT.
 
-        Vertices are never moved (the result is a subset of IN's vertices). The
-        vertices of every --markers file are preserved.
+    Vertices are never moved (the result is a subset of IN's vertices). The
+    vertices of every --markers file are preserved.
 
-        \b
-        Example:
-          facegeom decimate face.obj face-2k.obj --vertices 2000 --preserve-boundary \\
-              --markers markers.csv --markers-out markers-2k.csv --map map.npz
-        """
-        import numpy as np
+    \b
+    Example:
+      facegeom decimate face.obj face-2k.obj --vertices 2000 --preserve-boundary \\
+          --markers markers.csv --markers-out markers-2k.csv --map map.npz
+    """
+    import numpy as np
 
-        from facegeom.pipelines.cleanup import decimate
-        from facegeom.pipelines.meshinput import read_input_mesh
+    from facegeom.pipelines.cleanup import decimate
+    from facegeom.pipelines.meshinput import read_input_mesh
 
-        _check_outputs(mesh_out, map_path, report_path)
-        V, F = read_input_mesh(mesh_in)
-        sources = _prepare_markers(markers, markers_out, V.shape[0])
-        keep = np.concatenate([s.ids for s in sources]) if sources else None
-        V2, F2, imap, report = decimate(V, F, n_vertices, preserve_boundary=preserve_boundary,
-                                        preserve_topology=preserve_topology, keep=keep,
-                                        progress=_progress(progress, V.shape[0]))
-        _finish("decimate", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
-                report_path)
-
-    @cli.command("crop")
-    @click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
-    @click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
-    @click.option("--from-vertices", "from_vertices", default=None, metavar="I,J,...",
-                  help="Landmark vertex ids (of IN) the region grows from; use with --radius.")
-    @click.option("--radius", type=float, default=None,
-                  help="Geodesic radius of the region around --from-vertices, in mesh units (ICT: cm).")
-    @click.option("--geodesic", type=click.Choice(["exact", "heat", "graph"]), default="exact", show_default=True,
-                  help="Distance: libigl exact geodesics, heat method (fast, ~1% error) or edge paths.")
-    @click.option("--id-range", "id_range", default=None, metavar="A:B",
-                  help="Keep vertex ids A..B-1 instead (half-open; e.g. 0:6706, the ICT narrow face).")
-    @_common
-    def crop_cmd(mesh_in, mesh_out, from_vertices, radius, geodesic, id_range, map_path, markers, markers_out,
-                 drop_lost_markers, report_path, progress):
-        """Keep the face region of IN into OUT: the vertices within a geodesic radius of landmark vertices, or an
-        id range; faces with a vertex outside are removed.
-
-        \b
-        Examples:
-          facegeom crop head.obj face.obj --from-vertices 3442,1234 --radius 9
-          facegeom crop head.obj face.obj --id-range 0:6706 --markers m.csv --markers-out m-face.csv
-        """
-        import numpy as np
-
-        from facegeom.errors import InputError
-        from facegeom.pipelines.cleanup import crop, parse_id_range
-        from facegeom.pipelines.meshinput import read_input_mesh
-
-        if radius is not None and from_vertices is None:
-            raise InputError("--radius goes with --from-vertices")
-        if (from_vertices is None) == (id_range is None):
-            raise InputError("crop needs either --from-vertices with --radius, or --id-range (one of them)")
-        if from_vertices is not None and radius is None:
-            raise InputError("--from-vertices needs --radius (geodesic distance in mesh units)")
-        _check_outputs(mesh_out, map_path, report_path)
-        V, F = read_input_mesh(mesh_in)
-        src = rng = None
-        if from_vertices is not None:
-            try:
-                src = np.array([int(x) for x in from_vertices.split(",") if x.strip()], dtype=np.int64)
-            except ValueError:
-                raise InputError(f"--from-vertices must be comma-separated vertex ids, got {from_vertices!r}") \
-                    from None
-            if src.size == 0:
-                raise InputError("--from-vertices is empty")
-            bad = src[(src < 0) | (src >= V.shape[0])]
-            if bad.size:
-                raise InputError(f"--from-vertices: vertex {int(bad[0])} is out of range: the mesh has "
-                                 f"{V.shape[0]} vertices", mesh_in)
-        else:
-            rng = parse_id_range(id_range, V.shape[0])
-        sources = _prepare_markers(markers, markers_out, V.shape[0])
-        V2, F2, imap, report = crop(V, F, sources=src, radius=radius, id_range=rng, geodesic=geodesic,
+    _check_outputs(mesh_out, map_path, report_path)
+    V, F = read_input_mesh(mesh_in)
+    sources = _prepare_markers(markers, markers_out, V.shape[0])
+    keep = np.concatenate([s.ids for s in sources]) if sources else None
+    V2, F2, imap, report = decimate(V, F, n_vertices, preserve_boundary=preserve_boundary,
+                                    preserve_topology=preserve_topology, keep=keep,
                                     progress=_progress(progress, V.shape[0]))
-        _finish("crop", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
-                report_path)
+    _finish("decimate", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
+            report_path)
+
+
+@click.command("crop")
+@click.argument("mesh_in", metavar="IN", type=click.Path(dir_okay=False))
+@click.argument("mesh_out", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--from-vertices", "from_vertices", default=None, metavar="I,J,...",
+              help="Landmark vertex ids (of IN) the region grows from; use with --radius.")
+@click.option("--radius", type=float, default=None,
+              help="Geodesic radius of the region around --from-vertices, in mesh units (ICT: cm).")
+@click.option("--geodesic", type=click.Choice(["exact", "heat", "graph"]), default="exact", show_default=True,
+              help="Distance: libigl exact geodesics, heat method (fast, ~1% error) or edge paths.")
+@click.option("--id-range", "id_range", default=None, metavar="A:B",
+              help="Keep vertex ids A..B-1 instead (half-open; e.g. 0:6706, the ICT narrow face).")
+@_common
+def crop_cmd(mesh_in, mesh_out, from_vertices, radius, geodesic, id_range, map_path, markers, markers_out,
+             drop_lost_markers, report_path, progress):
+    """Keep the face region of IN into OUT: the vertices within a geodesic radius of landmark vertices, or an
+    id range; faces with a vertex outside are removed.
+
+    \b
+    Examples:
+      facegeom crop head.obj face.obj --from-vertices 3442,1234 --radius 9
+      facegeom crop head.obj face.obj --id-range 0:6706 --markers m.csv --markers-out m-face.csv
+    """
+    import numpy as np
+
+    from facegeom.errors import InputError
+    from facegeom.pipelines.cleanup import crop, parse_id_range
+    from facegeom.pipelines.meshinput import read_input_mesh
+
+    if radius is not None and from_vertices is None:
+        raise InputError("--radius goes with --from-vertices")
+    if (from_vertices is None) == (id_range is None):
+        raise InputError("crop needs either --from-vertices with --radius, or --id-range (one of them)")
+    if from_vertices is not None and radius is None:
+        raise InputError("--from-vertices needs --radius (geodesic distance in mesh units)")
+    _check_outputs(mesh_out, map_path, report_path)
+    V, F = read_input_mesh(mesh_in)
+    src = rng = None
+    if from_vertices is not None:
+        try:
+            src = np.array([int(x) for x in from_vertices.split(",") if x.strip()], dtype=np.int64)
+        except ValueError:
+            raise InputError(f"--from-vertices must be comma-separated vertex ids, got {from_vertices!r}") \
+                from None
+        if src.size == 0:
+            raise InputError("--from-vertices is empty")
+        bad = src[(src < 0) | (src >= V.shape[0])]
+        if bad.size:
+            raise InputError(f"--from-vertices: vertex {int(bad[0])} is out of range: the mesh has "
+                             f"{V.shape[0]} vertices", mesh_in)
+    else:
+        rng = parse_id_range(id_range, V.shape[0])
+    sources = _prepare_markers(markers, markers_out, V.shape[0])
+    V2, F2, imap, report = crop(V, F, sources=src, radius=radius, id_range=rng, geodesic=geodesic,
+                                progress=_progress(progress, V.shape[0]))
+    _finish("crop", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
+            report_path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import click
 
-__all__ = ["register"]
+__all__ = ["view"]
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -52,132 +52,133 @@ def _run(view, screenshot, size):
     view.run(screenshot=screenshot, width=w, height=h, echo=click.echo)
 
 
-def register(cli: click.Group) -> None:
-    """Add the ``view`` group (drive, retarget, animate, fit) to the top-level ``cli``."""
+@click.group("view")
+def view():
+    """Look before believing a table: every method's result side by side (polyscope).
 
-    @cli.group("view")
-    def view():
-        """Look before believing a table: every method's result side by side (polyscope).
+    Without a display, add --screenshot PATH to render a PNG headless.
+    """
 
-        Without a display, add --screenshot PATH to render a PNG headless.
-        """
 
-    @view.command("drive")
-    @click.option("--methods", default="rbf;biharmonic;tangent", show_default=True,
-                  help="';'-separated deformer specs [label=]name[:k=v,...], or 'all' (bench drive's); "
-                       "more can be switched on in the panel.")
-    @click.option("--seed", default=0, show_default=True, type=int,
-                  help="Identity seed (or bench seed with --bench-case).")
-    @click.option("--expression", default="happiness", show_default=True,
-                  help="A named expression (facegeom.model.expressions: happiness, jaw-open, pucker, ...) or random-sparse.")
-    @click.option("--intensity", default=0.9, show_default=True, type=click.FloatRange(0, 2),
-                  help="Scale of the named expression.")
-    @click.option("--bench-case", type=click.IntRange(0), default=None,
-                  help="Use case N of `facegeom bench drive --seed SEED` instead (the row case=N of drive.csv).")
-    @click.option("--layout", "layout_name", default="ict80", show_default=True,
-                  help="Marker layout: ict80, landmarks68 or random<k>.")
-    @click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
-    @click.option("--marker", default=0, show_default=True, type=click.IntRange(0), help="Marker selected at start.")
-    @click.option("--nudge", default=None, metavar="DX,DY,DZ",
-                  help="Move the selected marker by this offset (mm) before showing (e.g. for a screenshot).")
-    @_output_options
-    @click.pass_obj
-    def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_name, layout_seed, marker, nudge,
-                   screenshot, size):
-        """Source | every deformer | true target, error colours (mm); drag or nudge a marker, all update live."""
-        from facegeom.errors import InputError
-        from viewer.app import check_display
+@view.command("drive")
+@click.option("--methods", default="rbf;biharmonic;tangent", show_default=True,
+              help="';'-separated deformer specs [label=]name[:k=v,...], or 'all' (bench drive's); "
+                   "more can be switched on in the panel.")
+@click.option("--seed", default=0, show_default=True, type=int,
+              help="Identity seed (or bench seed with --bench-case).")
+@click.option("--expression", default="happiness", show_default=True,
+              help="A named expression (facegeom.model.expressions: happiness, jaw-open, pucker, ...) or random-sparse.")
+@click.option("--intensity", default=0.9, show_default=True, type=click.FloatRange(0, 2),
+              help="Scale of the named expression.")
+@click.option("--bench-case", type=click.IntRange(0), default=None,
+              help="Use case N of `facegeom bench drive --seed SEED` instead (the row case=N of drive.csv).")
+@click.option("--layout", "layout_name", default="ict80", show_default=True,
+              help="Marker layout: ict80, landmarks68 or random<k>.")
+@click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
+@click.option("--marker", default=0, show_default=True, type=click.IntRange(0), help="Marker selected at start.")
+@click.option("--nudge", default=None, metavar="DX,DY,DZ",
+              help="Move the selected marker by this offset (mm) before showing (e.g. for a screenshot).")
+@_output_options
+@click.pass_obj
+def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_name, layout_seed, marker, nudge,
+               screenshot, size):
+    """Source | every deformer | true target, error colours (mm); drag or nudge a marker, all update live."""
+    from facegeom.errors import InputError
+    from viewer.app import check_display
 
-        check_display(screenshot)
-        _size(size)
-        delta = None
-        if nudge is not None:
-            try:
-                delta = [float(x) for x in nudge.split(",")]
-            except ValueError:
-                delta = []
-            if len(delta) != 3:
-                raise InputError(f"--nudge must be three comma-separated numbers (mm), got {nudge!r}")
-        from viewer.drive import DriveView
+    check_display(screenshot)
+    _size(size)
+    delta = None
+    if nudge is not None:
+        try:
+            delta = [float(x) for x in nudge.split(",")]
+        except ValueError:
+            delta = []
+        if len(delta) != 3:
+            raise InputError(f"--nudge must be three comma-separated numbers (mm), got {nudge!r}")
+    from viewer.drive import DriveView
 
-        v = DriveView(obj.face_model(), methods, seed=seed, expression=expression, intensity=intensity,
-                      layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case)
-        if marker >= v.case.handles.size:
-            raise InputError(f"--marker {marker} is out of range: the layout has {v.case.handles.size} markers")
-        v.marker = marker
-        if delta is not None:
-            v.nudge(marker, delta)
-        _run(v, screenshot, size)
+    v = DriveView(obj.face_model(), methods, seed=seed, expression=expression, intensity=intensity,
+                  layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case)
+    if marker >= v.case.handles.size:
+        raise InputError(f"--marker {marker} is out of range: the layout has {v.case.handles.size} markers")
+    v.marker = marker
+    if delta is not None:
+        v.nudge(marker, delta)
+    _run(v, screenshot, size)
 
-    @view.command("retarget")
-    @click.option("--methods", default="copy;rbf;tangent", show_default=True,
-                  help="';'-separated retargeter specs [label=]name[:k=v,...], or 'all' (bench retarget's).")
-    @_take_options
-    @_output_options
-    @click.pass_obj
-    def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames, labels, seed, frame, screenshot,
-                      size):
-        """Play a take on the actor beside the character's retargeted markers, per-frame errors."""
-        from viewer.app import check_display
 
-        check_display(screenshot)
-        _size(size)
-        from viewer.playback import RetargetView, load_sequence
+@view.command("retarget")
+@click.option("--methods", default="copy;rbf;tangent", show_default=True,
+              help="';'-separated retargeter specs [label=]name[:k=v,...], or 'all' (bench retarget's).")
+@_take_options
+@_output_options
+@click.pass_obj
+def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames, labels, seed, frame, screenshot,
+                  size):
+    """Play a take on the actor beside the character's retargeted markers, per-frame errors."""
+    from viewer.app import check_display
 
+    check_display(screenshot)
+    _size(size)
+    from viewer.playback import RetargetView, load_sequence
+
+    model = obj.face_model()
+    seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
+    _run(RetargetView(model, seq, methods, labels, frame=min(frame, frames - 1)), screenshot, size)
+
+
+@view.command("animate")
+@click.option("--retargeters", default="tangent", show_default=True, help="';'-separated retargeter specs.")
+@click.option("--deformer", default="tangent", show_default=True, help="One deformer spec, e.g. 'biharmonic'.")
+@_take_options
+@_output_options
+@click.pass_obj
+def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, start, frames, labels, seed, frame,
+                 screenshot, size):
+    """Play the actor beside the driven character mesh (per-vertex error) and the true character."""
+    from viewer.app import check_display
+
+    check_display(screenshot)
+    _size(size)
+    from viewer.playback import AnimateView, load_sequence
+
+    model = obj.face_model()
+    seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
+    _run(AnimateView(model, seq, retargeters, deformer, labels, frame=min(frame, frames - 1)), screenshot, size)
+
+
+@view.command("fit")
+@click.option("--methods", default="sem;l1reg;pcadel", show_default=True,
+              help="';'-separated fitter specs, or 'all' (bench fit's).")
+@click.option("--case", default=0, show_default=True, type=click.IntRange(0),
+              help="Case N of `facegeom bench fit --seed SEED` (random identity and sparse expression).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--kind", type=click.Choice(["landmarks", "mesh"]), default="landmarks", show_default=True,
+              help="Give the fitters 23 noisy 2-D landmarks (pose unknown) or the whole mesh.")
+@click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0),
+              help="Landmark noise (pixels).")
+@click.option("--target", "target_path", type=click.Path(dir_okay=False), default=None,
+              help="Fit this mesh instead (in correspondence with the ICT face; generic rig).")
+@_output_options
+@click.pass_obj
+def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size):
+    """A target beside every fitter's face (error colours) and its coefficients by blendshape name."""
+    from facegeom.errors import InputError
+    from viewer.app import check_display
+
+    check_display(screenshot)
+    _size(size)
+    from viewer.fit import FitView
+
+    mesh = None
+    if target_path is not None:
+        from facegeom.io import read_mesh
+
+        mesh, _ = read_mesh(target_path)
         model = obj.face_model()
-        seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
-        _run(RetargetView(model, seq, methods, labels, frame=min(frame, frames - 1)), screenshot, size)
-
-    @view.command("animate")
-    @click.option("--retargeters", default="tangent", show_default=True, help="';'-separated retargeter specs.")
-    @click.option("--deformer", default="tangent", show_default=True, help="One deformer spec, e.g. 'biharmonic'.")
-    @_take_options
-    @_output_options
-    @click.pass_obj
-    def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, start, frames, labels, seed, frame,
-                     screenshot, size):
-        """Play the actor beside the driven character mesh (per-vertex error) and the true character."""
-        from viewer.app import check_display
-
-        check_display(screenshot)
-        _size(size)
-        from viewer.playback import AnimateView, load_sequence
-
-        model = obj.face_model()
-        seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
-        _run(AnimateView(model, seq, retargeters, deformer, labels, frame=min(frame, frames - 1)), screenshot, size)
-
-    @view.command("fit")
-    @click.option("--methods", default="sem;l1reg;pcadel", show_default=True,
-                  help="';'-separated fitter specs, or 'all' (bench fit's).")
-    @click.option("--case", default=0, show_default=True, type=click.IntRange(0),
-                  help="Case N of `facegeom bench fit --seed SEED` (random identity and sparse expression).")
-    @click.option("--seed", default=0, show_default=True, type=int)
-    @click.option("--kind", type=click.Choice(["landmarks", "mesh"]), default="landmarks", show_default=True,
-                  help="Give the fitters 23 noisy 2-D landmarks (pose unknown) or the whole mesh.")
-    @click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0),
-                  help="Landmark noise (pixels).")
-    @click.option("--target", "target_path", type=click.Path(dir_okay=False), default=None,
-                  help="Fit this mesh instead (in correspondence with the ICT face; generic rig).")
-    @_output_options
-    @click.pass_obj
-    def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size):
-        """A target beside every fitter's face (error colours) and its coefficients by blendshape name."""
-        from facegeom.errors import InputError
-        from viewer.app import check_display
-
-        check_display(screenshot)
-        _size(size)
-        from viewer.fit import FitView
-
-        mesh = None
-        if target_path is not None:
-            from facegeom.io import read_mesh
-
-            mesh, _ = read_mesh(target_path)
-            model = obj.face_model()
-            if mesh.shape[0] != model.n_vertices:
-                raise InputError(f"the mesh has {mesh.shape[0]} vertices but the ICT face {model.n_vertices}: "
-                                 f"it must be in vertex correspondence", target_path)
-        _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh),
-             screenshot, size)
+        if mesh.shape[0] != model.n_vertices:
+            raise InputError(f"the mesh has {mesh.shape[0]} vertices but the ICT face {model.n_vertices}: "
+                             f"it must be in vertex correspondence", target_path)
+    _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh),
+         screenshot, size)

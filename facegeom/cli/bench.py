@@ -1,0 +1,273 @@
+"""``facegeom bench ...``: the benchmarks that reproduce the papers' experiments (see :mod:`facegeom.bench`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from facegeom.cli.context import Context
+
+
+@click.group()
+def bench():
+    """Benchmarks that reproduce the papers' experiments (seeded; CSV + plot + table)."""
+
+
+@bench.command("drive")
+@click.option("--cases", default=50, show_default=True, type=click.IntRange(1, 10000), help="Source/target pairs.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of identities and expressions.")
+@click.option("--methods", default="all", show_default=True,
+              help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t1=tangent:rings=1'.")
+@click.option("--layout", "layout_name", default="ict80", show_default=True,
+              help="Marker layout: ict80, landmarks68 or random<k> (held-out layouts).")
+@click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/drive", show_default=True,
+              help="Folder for drive.csv, drive-summary.md and drive.png.")
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_drive(obj: Context, cases, seed, methods, layout_name, layout_seed, out, no_plot, quiet):
+    """Face driving on the real ICT face: every deformer, errors in mm, times (cf. the paper's Fig. 10)."""
+    from facegeom.bench import drive as bd
+    from facegeom.registry import LINEUPS, parse_methods
+
+    specs = parse_methods(methods, "deformers", LINEUPS["drive"])
+    model = obj.face_model()
+    bd.main(model, specs, cases, seed, layout_name, layout_seed, Path(out), progress=not quiet,
+            echo=click.echo, plot_it=not no_plot)
+
+
+@bench.command("retarget")
+@click.option("--sequences", default=50, show_default=True, type=click.IntRange(1, 10000),
+              help="Actor/character sequences (4 in 5 from real takes, every 5th synthetic).")
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of windows, identities and characters.")
+@click.option("--methods", default="all", show_default=True,
+              help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t=tangent:window=2'.")
+@click.option("--labels", default="2,3,4,6,8,10,15,20,25,30", show_default=True,
+              help="Numbers of labelled frames (evenly spread) to sweep.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of ARKit take CSVs (or one CSV). Default: $FACEGEOM_TAKES, "
+                   "else ../shared/data/arkit-takes next to the repository.")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes (no real recordings needed).")
+@click.option("--layout", "layout_name", default="ict80", show_default=True, help="Marker layout.")
+@click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/retarget", show_default=True,
+              help="Folder for retarget.csv, retarget-frames.csv, retarget-summary.md and retarget.png.")
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, layout_name,
+                   layout_seed, out, no_plot, quiet):
+    """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
+    from facegeom.bench import retarget as br
+    from facegeom.errors import InputError
+    from facegeom.registry import LINEUPS, parse_methods
+
+    try:
+        counts = sorted({int(x) for x in labels.split(",") if x.strip()})
+    except ValueError:
+        raise InputError(f"--labels must be comma-separated integers, got {labels!r}") from None
+    if not counts or counts[0] < 2 or counts[-1] > frames:
+        raise InputError(f"--labels must lie in [2, {frames}] (the frames of a sequence)")
+    specs = parse_methods(methods, "retargeters", LINEUPS["retarget"])
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
+            echo=click.echo, plot_it=not no_plot, progress=not quiet)
+
+
+def _load_takes(model, takes_path):
+    """``[(name, W (T, E))]`` ICT weights of every take CSV found (a note per take on stderr)."""
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import locate_takes
+
+    where = locate_takes(takes_path)
+    files = [where] if where.is_file() else find_takes(where)
+    out = []
+    for f in files:
+        take = read_take(f)
+        click.echo(f"take {f.name}: {take.n_frames} frames"
+                   + (f" ({take.lost_rows} lost-tracking rows, policy {take.policy})" if take.lost_rows else ""), err=True)
+        out.append((f.stem, ict_weights(take, model.expression_names)))
+    return out
+
+
+@bench.command("noise")
+@click.option("--sequences", default=20, show_default=True, type=click.IntRange(1, 10000))
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--levels", default="0,0.1,0.2,0.5,1", show_default=True,
+              help="Comma-separated noise standard deviations (mm per coordinate).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True, help="'all' or ';'-separated retargeter specs.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/noise", show_default=True)
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_noise(obj: Context, sequences, frames, labels, levels, seed, methods, takes_path, synthetic_only, out,
+                no_plot, quiet):
+    """Retargeting with Gaussian noise on the known character frames and on the actor's markers."""
+    from facegeom.bench import noise as bn
+    from facegeom.errors import InputError
+    from facegeom.registry import LINEUPS, parse_methods
+
+    try:
+        lv = tuple(float(x) for x in levels.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"--levels must be comma-separated numbers (mm), got {levels!r}") from None
+    if not lv or min(lv) < 0:
+        raise InputError(f"--levels must be non-negative numbers (mm), got {levels!r}")
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    specs = parse_methods(methods, "retargeters", LINEUPS["noise"])
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    bn.main(model, takes, specs, sequences, seed, out, lv, labels, frames, echo=click.echo, plot_it=not no_plot,
+            progress=not quiet)
+
+
+@bench.command("animate")
+@click.option("--sequences", default=10, show_default=True, type=click.IntRange(1, 10000))
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(10, 100000), help="Frames per sequence.")
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--retargeters", default="all", show_default=True,
+              help="'all' (copy, rbf, tangent) or ';'-separated retargeter specs.")
+@click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+@click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/animate", show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, deformer, takes_path, synthetic_only,
+                  out, quiet):
+    """Performance-driven animation over many takes: face error and times per retargeter."""
+    from facegeom.bench import animate as ba
+    from facegeom.errors import InputError
+    from facegeom.registry import LINEUPS, parse_method, parse_methods
+
+    if labels > frames:
+        raise InputError(f"--labels {labels} exceeds --frames {frames}")
+    specs = parse_methods(retargeters, "retargeters", LINEUPS["animate"])
+    d_spec = parse_method(deformer)
+    model = obj.face_model()
+    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    ba.main(model, takes, specs, d_spec, sequences, seed, out, labels, frames, echo=click.echo, progress=not quiet)
+
+
+@bench.command("fit")
+@click.option("--cases", default=100, show_default=True, type=click.IntRange(1, 100000), help="Random targets.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True,
+              help="'all' (sem, sem+ = sem:clamp=true,stop=ric, l1reg, l2reg, pcaexp, pcadel, eos if installed) or ';'-separated specs.")
+@click.option("--experiments", default="landmarks,clouds,meshes,temporal", show_default=True,
+              help="Comma-separated subset of landmarks, clouds, meshes, temporal.")
+@click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0), help="Landmark noise (pixels).")
+@click.option("--cloud-cases", default=5, show_default=True, type=click.IntRange(1), help="Targets for point clouds.")
+@click.option("--samplings", default=10, show_default=True, type=click.IntRange(1), help="Samplings per cloud target.")
+@click.option("--points", default=30000, show_default=True, type=click.IntRange(100), help="Points per cloud.")
+@click.option("--take", "take_path", type=click.Path(), default=None,
+              help="Take for the temporal experiment (default: the first found via --takes / $FACEGEOM_TAKES).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
+@click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the take window.")
+@click.option("--frames", default=300, show_default=True, type=click.IntRange(3), help="Frames of the take window.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/fit", show_default=True)
+@click.option("--no-plot", is_flag=True, help="Skip the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, take_path,
+              takes_path, start, frames, out, no_plot, quiet):
+    """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
+    from facegeom.bench import fit as bf
+    from facegeom.errors import InputError
+    from facegeom.registry import LINEUPS, parse_methods
+
+    ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
+    bad = [x for x in ex if x not in bf.EXPERIMENTS]
+    if bad or not ex:
+        raise InputError(f"--experiments: unknown {bad[0] if bad else 'empty'!r}; choose from {', '.join(bf.EXPERIMENTS)}")
+    specs = parse_methods(methods, "fitters", LINEUPS["fit"])
+    model = obj.face_model()
+    take = None
+    if "temporal" in ex:
+        from facegeom.io import find_takes, ict_weights, read_take
+        from facegeom.model import default_takes_path, locate_takes
+
+        if take_path or takes_path or default_takes_path().is_dir():
+            path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+            W = ict_weights(read_take(path), model.expression_names)
+            if start + frames > W.shape[0]:
+                raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end",
+                                 path)
+            take = (f"{path.stem}@{start}", W[start:start + frames])
+        else:
+            click.echo("no takes found: skipping the temporal experiment", err=True)
+    bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
+            progress=not quiet, plot_it=not no_plot)
+
+
+@bench.command("scaling")
+@click.option("--levels", default="0,1,2", show_default=True,
+              help="Subdivision levels of the face (0: 9,409 vertices, 1: ~37k, 2: ~150k).")
+@click.option("--methods", default="all", show_default=True, help="'all' (tangent, biharmonic, arap) or specs.")
+@click.pass_obj
+def bench_scaling(obj: Context, levels, methods):
+    """Fit and deform times on the face subdivided to ~37k and ~150k vertices."""
+    from facegeom.bench import scaling as bs
+    from facegeom.errors import InputError
+    from facegeom.registry import LINEUPS, parse_methods
+
+    try:
+        lv = [int(x) for x in levels.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--levels must be comma-separated integers, got {levels!r}") from None
+    if not lv or min(lv) < 0 or max(lv) > 3:
+        raise InputError("--levels must lie in 0..3")
+    specs = parse_methods(methods, "deformers", LINEUPS["scaling"])
+    bs.main(obj.face_model(), specs, lv, echo=click.echo)
+
+
+@bench.command("batch")
+@click.option("--fits", default=10000, show_default=True, type=int, help="Landmark files fitted by SEM.")
+@click.option("--frames", default=2000, show_default=True, type=int, help="Marker frames driven.")
+@click.option("--per-file", default=100, show_default=True, type=int, help="Frames per marker sequence file.")
+@click.option("--workers", default=2, show_default=True, type=int, help="Processes of the local Dask cluster.")
+@click.option("--noop", default=1000, show_default=True, type=int, help="No-op tasks (scheduler overhead).")
+@click.option("--repeats", default=5, show_default=True, type=int, help="Warm drive runs each way (medians reported).")
+@click.option("--blas-threads", "blas", default="1", show_default=True,
+              help="BLAS threads of this process (the plain loop): a number, or 'default' (leave it).")
+@click.option("--work", default=None, type=click.Path(file_okay=False),
+              help="Folder for the generated inputs and outputs (default: a temporary folder, deleted at the end).")
+@click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the numbers as JSON here.")
+@click.option("--example", default=None, metavar="DIR", type=click.Path(file_okay=False),
+              help="Only write inputs for data/jobs/fit-landmarks.toml into DIR (e.g. data/jobs/out): "
+                   "DIR/landmarks/*.csv and DIR/truth/*.json, --fits of them.")
+@click.option("--data", default=None, type=click.Path(),
+              help="Face data bundle (default: facegeom --data, $FACEGEOM_DATA or ../shared/data).")
+@click.pass_obj
+def bench_batch(obj: Context, fits, frames, per_file, workers, noop, repeats, blas, work, out, example, data):
+    """Throughput of `facegeom batch` on a local Dask cluster against a plain loop in one process."""
+    from facegeom.bench import batch as bb
+
+    model = Context(data or obj.data).face_model()
+    if example:
+        bb.write_example(model, example, fits, echo=click.echo)
+        return
+    bb.main(model, fits, frames, per_file, workers, noop, repeats, blas, work, out, echo=click.echo)
+
+
+@bench.command("cleanup")
+@click.option("--vertices", default=100_000, show_default=True, type=int, help="Vertices of the subdivided face.")
+@click.option("--repeats", default=3, show_default=True, type=int, help="Timed runs (median reported).")
+@click.pass_obj
+def bench_cleanup(obj: Context, vertices, repeats):
+    """`facegeom clean` (with its index map) on a ~100,000-vertex face with injected defects."""
+    from facegeom.bench import cleanup as bc
+
+    bc.main(obj.face_model(), vertices, repeats, echo=click.echo)
+

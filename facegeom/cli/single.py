@@ -1,0 +1,162 @@
+"""``facegeom drive | retarget | fit | animate``: one method run on one input (see :mod:`facegeom.pipelines.single`)."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from facegeom.cli.context import Context, parse_params
+
+
+@click.command()
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.argument("markers", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="Deformed mesh (.obj/.ply/.off); with --method all, a folder (one mesh per method).")
+@click.option("-m", "--method", default="tangent", show_default=True,
+              help="A registered deformer (see `facegeom methods`), or 'all'.")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
+              help="Method parameter, repeatable (e.g. -p d=3 -p rings=2).")
+@click.option("--format", "fmt", type=click.Choice(["obj", "ply", "off"]), default=None,
+              help="Mesh format of the per-method files with --method all (default: the input's).")
+def drive(mesh, markers, output, method, params, fmt):
+    """Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."""
+    from facegeom import registry
+    from facegeom.io import read_markers, read_mesh, write_mesh
+
+    V, F = read_mesh(mesh)
+    ids, pos = read_markers(markers, n_vertices=V.shape[0])
+    kw = parse_params(params)
+    names = list(registry.available("deformers")) if method == "all" else [method]
+    if method == "all":
+        if kw:
+            raise click.BadParameter("parameters apply to one method; drop --param with --method all",
+                                     param_hint="--param")
+        out_dir = Path(output)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        suffix = "." + (fmt or Path(mesh).suffix.lstrip(".").lower())
+    for name in names:
+        deformer = registry.create("deformers", name, **kw)
+        t = time.perf_counter()
+        deformer.fit(V, F, ids)
+        fit_s = time.perf_counter() - t
+        t = time.perf_counter()
+        Y = deformer.deform(pos)
+        deform_ms = (time.perf_counter() - t) * 1e3
+        target = out_dir / f"{name}{suffix}" if method == "all" else Path(output)
+        write_mesh(target, Y, F)
+        click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
+
+
+@click.command()
+@click.argument("source", type=click.Path(dir_okay=False))
+@click.argument("labels", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The retargeted sequence (.csv or .npz).")
+@click.option("-m", "--method", default="tangent", show_default=True,
+              help="A registered retargeter (see `facegeom methods --kind retargeters`).")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
+              help="Method parameter, repeatable (e.g. -p window=2 -p strategy=marker).")
+@click.option("--fill-gaps", is_flag=True,
+              help="Interpolate lost (empty/NaN) source markers over time instead of refusing them.")
+def retarget(source, labels, output, method, params, fill_gaps):
+    """Retarget the actor's markers SOURCE onto a character known at the frames of LABELS.
+
+    Both files are marker sequences (CSV with header frame,marker,x,y,z, or npz
+    with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
+    """
+    from facegeom import registry
+    from facegeom.pipelines.single import retarget_files, write_retargeted
+
+    res = retarget_files(source, labels, lambda: registry.create("retargeters", method, **parse_params(params)),
+                         fill_gaps, echo=click.echo)
+    write_retargeted(output, res)
+    click.echo(f"{method}: {res.source.n_frames} frames x {res.source.n_markers} markers from {res.labels.n_frames} "
+               f"labelled frames in {res.seconds * 1e3:.1f} ms (largest deviation from a label "
+               f"{res.label_deviation:.3g}) -> {output}")
+
+
+@click.command()
+@click.argument("target", type=click.Path(dir_okay=False))
+@click.option("--kind", type=click.Choice(["auto", "mesh", "landmarks", "points"]), default="auto", show_default=True,
+              help="What TARGET is: a mesh in correspondence with the rig, a landmark CSV (vertex_id,u,v) or a point "
+                   "cloud (auto: .csv = landmarks, a mesh with the rig's vertex count = mesh, else points).")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs (neutral.obj + one per shape); "
+                   "default: the ICT generic face with its 53 expressions.")
+@click.option("-m", "--method", default="sem", show_default=True, help="A registered fitter (facegeom methods).")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Method parameter, repeatable.")
+@click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
+@click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
+@click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Coefficients by shape name (.json or .csv).")
+@click.option("--mesh-out", type=click.Path(dir_okay=False), default=None, help="Also write the fitted face mesh.")
+@click.pass_obj
+def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out):
+    """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
+    import numpy as np
+
+    from facegeom import registry
+    from facegeom.io import write_mesh
+    from facegeom.model import load_rig
+    from facegeom.pipelines.single import fit_file, write_fit
+
+    rig = load_rig(rig_path, obj.face_model)
+    tp = Path(target)
+    r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy)
+    active = r.active
+    write_fit(output, rig.names, r, method, str(tp), time_s=r.seconds)
+    click.echo(f"{method}: {r.kind} target, {active.size} active shapes in {r.seconds * 1e3:.1f} ms -> {output}")
+    for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
+        click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
+    if mesh_out:
+        write_mesh(mesh_out, r.vertices, rig.triangles)
+        click.echo(f"wrote {mesh_out}")
+
+
+@click.command()
+@click.option("--take", "take_path", type=click.Path(), default=None,
+              help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes (for the default take).")
+@click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the window.")
+@click.option("--frames", default=100, show_default=True, type=click.IntRange(2, 100000))
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of the actor and the character.")
+@click.option("--retargeter", default="tangent", show_default=True, help="Retargeter spec, e.g. 'rbf'.")
+@click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output .npz.")
+@click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
+@click.pass_obj
+def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
+    """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
+    from facegeom.errors import InputError
+    from facegeom.io import find_takes, write_mesh
+    from facegeom.model import locate_takes
+    from facegeom.pipelines.animate import animate_take, write_animation_npz
+    from facegeom.registry import parse_method
+
+    model = obj.face_model()
+    path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    anim, seq, ids = animate_take(model, path, start, frames, labels, seed,
+                                  lambda: parse_method(retargeter).build("retargeters"),
+                                  lambda: parse_method(deformer).build("deformers"))
+    click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
+               f"{anim.times['retarget_s'] * 1e3:.1f} ms, deformer fit {anim.times['deformer_fit_s']:.2f} s, "
+               f"{frames} frames driven in {anim.times['drive_s']:.3f} s")
+    click.echo(f"mean marker error {anim.marker_error_mm.mean():.3f} mm; mean face error {anim.frame_error_mm.mean():.3f} "
+               f"mm (worst frame {anim.frame_error_mm.max():.3f} mm); character mean marker motion "
+               f"{seq.mean_motion() * 10:.2f} mm")
+    out = Path(output)
+    if out.suffix.lower() != ".npz":
+        raise InputError("the output must be a .npz file", out)
+    write_animation_npz(out, anim, ids)
+    click.echo(f"wrote {out}")
+    if obj_dir:
+        d = Path(obj_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        for t in range(frames):
+            write_mesh(d / f"frame_{t:05d}.obj", anim.vertices[t], anim.faces)
+        click.echo(f"wrote {frames} OBJ files to {d}")
+
