@@ -22,8 +22,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from facegeom.errors import InputError
-from facegeom.io import read_landmarks, read_marker_sequence, read_markers, read_mesh, read_point_cloud
-from facegeom.io import read_polygon_mesh
+from facegeom.io import (
+    read_landmarks,
+    read_marker_sequence,
+    read_markers,
+    read_mesh,
+    read_point_cloud,
+    read_polygon_mesh,
+)
 
 EXAMPLES = int(os.environ.get("FACEGEOM_FUZZ_EXAMPLES", "100"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize="FACEGEOM_FUZZ_EXAMPLES" not in os.environ,
