@@ -235,6 +235,9 @@ CORPUS = [
     ("off", b"  # c\n  OFF # c\n 3 1 0\n0 0 0\n1 0 0\n0 1 0\n 3 0 1 2\n"),
     ("off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n9223372036854775807 0 1 2\n"),
     ("xyz", b"1 2 3\n\xff\xfe\n"),
+    ("landmarks", b"vertex_id,u,v\n99999999999999999999,10.5,20\n3,11,21.25\n7,0,0\n"),  # OverflowError
+    ("markers", b"vertex_id,x,y,z\n99999999999999999999,0.1,0.2,0.3\n"),  # OverflowError
+    ("sequence", b"frame,marker,x,y,z\n99999999999999999999,m0,0,0,0\n"),
 ]
 
 

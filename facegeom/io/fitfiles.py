@@ -56,6 +56,8 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             q = [float(r[1]), float(r[2])]
         except ValueError:
             raise InputError(f"line {line_no}: not a number", path) from None
+        if abs(ids[-1]) >= 1 << 62:
+            raise InputError(f"line {line_no}: vertex_id {ids[-1]} is out of range", path)
         if not np.all(np.isfinite(q)):
             raise InputError(f"line {line_no}: coordinate is NaN or inf", path)
         uv.append(q)
