@@ -16,6 +16,7 @@ from facegeom.io.fitfiles import (
     read_weights,
     write_weights,
 )
+from facegeom.io.formats import MeshData
 from facegeom.io.markers import MARKER_HEADER, read_markers, write_markers
 from facegeom.io.markerseq import (
     SEQUENCE_HEADER,
@@ -25,7 +26,7 @@ from facegeom.io.markerseq import (
     read_retarget_inputs,
     write_marker_sequence,
 )
-from facegeom.io.mesh import MESH_FORMATS, read_mesh, write_mesh
+from facegeom.io.mesh import MESH_FORMATS, read_mesh, read_polygon_mesh, write_mesh
 from facegeom.io.takes import (
     ARKIT_NAMES,
     POLICIES,
@@ -45,6 +46,8 @@ __all__ = [
     "read_csv_rows",
     "MESH_FORMATS",
     "read_mesh",
+    "read_polygon_mesh",
+    "MeshData",
     "write_mesh",
     "MARKER_HEADER",
     "read_markers",

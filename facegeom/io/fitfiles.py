@@ -2,8 +2,9 @@
 
 - Landmarks: CSV with the header ``vertex_id,u,v`` (pixels; ``v`` grows
   downwards, the convention of :class:`facegeom.model.camera.PinholeCamera`).
-- Point clouds: PLY / OBJ / XYZ / OFF read with pymeshlab (faces, if any, are
-  ignored), or ``.npy`` ``(N, 3)``.
+- Point clouds: PLY / OBJ / XYZ / OFF read by the validating readers of
+  :mod:`facegeom.io.formats` (faces, if any, are ignored), or ``.npy`` ``(N, 3)``
+  (no pickles; its size checked against the file before loading).
 - Coefficients: JSON ``{"weights": {name: value}, ...}`` or CSV ``shape,weight``,
   written atomically.
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path, read_csv_rows
-from facegeom.native import quiet_native
+from facegeom.io.formats import read_points
 
 __all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "CLOUD_FORMATS", "TARGET_KINDS"]
 
@@ -55,6 +56,8 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             q = [float(r[1]), float(r[2])]
         except ValueError:
             raise InputError(f"line {line_no}: not a number", path) from None
+        if abs(ids[-1]) >= 1 << 62:
+            raise InputError(f"line {line_no}: vertex_id {ids[-1]} is out of range", path)
         if not np.all(np.isfinite(q)):
             raise InputError(f"line {line_no}: coordinate is NaN or inf", path)
         uv.append(q)
@@ -69,29 +72,46 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     return ids, np.array(uv, dtype=np.float64)
 
 
+def _read_npy(path: Path) -> np.ndarray:
+    """A ``.npy`` array, its size checked against the file before it is loaded (no pickles)."""
+    try:
+        P = np.load(path, mmap_mode="r", allow_pickle=False)  # maps: a header larger than the file fails here
+        return np.array(P, dtype=np.float64)
+    except Exception as exc:  # noqa: BLE001 - numpy raises many types on a malformed header
+        raise InputError(f"cannot read as .npy ({exc.__class__.__name__})", path) from None
+
+
 def read_point_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Read a point cloud -> ``(N, 3)`` float64, N >= 1, finite."""
+    """Read a point cloud: the vertices of a PLY / OBJ / OFF (faces ignored), an XYZ, or a ``.npy``.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.ply``, ``.obj``, ``.off``, ``.xyz`` (read by :func:`facegeom.io.formats.read_points`)
+        or ``.npy`` of shape ``(N, 3)``.
+
+    Returns
+    -------
+    (N, 3) float64
+        N >= 1, finite.
+
+    Raises
+    ------
+    InputError
+        Missing, empty, malformed or truncated file, NaN/inf, no point.
+    """
     path = Path(path)
     _exists(path, "point-cloud")
     suffix = path.suffix.lower()
     if suffix not in CLOUD_FORMATS:
         raise InputError(f"unsupported point-cloud format {suffix!r}; use one of {', '.join(CLOUD_FORMATS)}", path)
     if suffix == ".npy":
-        try:
-            P = np.load(path, allow_pickle=False)
-        except Exception as exc:  # noqa: BLE001
-            raise InputError(f"cannot read as .npy ({exc.__class__.__name__})", path) from None
+        P = _read_npy(path)
     else:
-        import pymeshlab
-
-        ms = pymeshlab.MeshSet()
         try:
-            with quiet_native((1, 2)):
-                ms.load_new_mesh(str(path))
-        except pymeshlab.PyMeshLabException as exc:
-            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
-            raise InputError(f"malformed point cloud: {first}", path) from None
-        P = ms.current_mesh().vertex_matrix()
+            P = read_points(path)
+        except InputError as exc:
+            raise InputError(f"malformed point cloud: {exc.reason}", path) from None
     P = np.asarray(P, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InputError(f"point cloud must have shape (N, 3), got {P.shape}", path)

@@ -50,6 +50,8 @@ def read_markers(path: str | os.PathLike, n_vertices: int | None = None) -> tupl
             raise InputError(f"line {line_no}: expected 4 values, got {len(r)}", path)
         try:
             vid = int(r[0])
+            if abs(vid) >= 1 << 62:
+                raise ValueError
         except ValueError:
             raise InputError(f"line {line_no}: vertex_id {r[0]!r} is not an integer", path) from None
         try:

@@ -124,6 +124,8 @@ def _read_csv(path: Path) -> MarkerSequence:
             raise InputError(f"line {line_no}: frame {r[0]!r} is not an integer", path) from None
         if f < 0:
             raise InputError(f"line {line_no}: frame {f} is negative", path)
+        if f >= 1 << 62:
+            raise InputError(f"line {line_no}: frame {f} is out of range", path)
         name = r[1].strip()
         if not name:
             raise InputError(f"line {line_no}: empty marker name", path)

@@ -1,8 +1,9 @@
 """Triangle-mesh files (OBJ, PLY, OFF), read with clear errors and written atomically.
 
-Reading and writing go through libigl (``read_triangle_mesh`` /
-``write_triangle_mesh``; binary PLY through ``writePLY``); polygons are
-fan-triangulated on reading. :func:`write_mesh` writes through
+Reading goes through the validating numpy readers of
+:mod:`facegeom.io.formats` (no byte reaches native code; polygons are kept by
+:func:`read_polygon_mesh` and fan-triangulated by :func:`read_mesh`); writing
+through libigl (``write_triangle_mesh``; binary PLY through ``writePLY``). :func:`write_mesh` writes through
 :func:`facegeom.io.files.atomic_path`, so an interrupted or failed write never
 leaves a half-written file. A file that cannot be read is an
 :class:`~facegeom.errors.InputError` naming it.
@@ -10,7 +11,6 @@ leaves a half-written file. A file that cannot be read is an
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 import igl
@@ -19,11 +19,13 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.interfaces import as_faces, as_vertices
 from facegeom.io.files import atomic_path
+from facegeom.io.formats import MeshData, read_mesh_data
 from facegeom.native import quiet_native
 
 __all__ = [
     "MESH_FORMATS",
     "read_mesh",
+    "read_polygon_mesh",
     "write_mesh",
 ]
 
@@ -41,11 +43,13 @@ def _check_mesh_path(path: Path) -> None:
         raise InputError("empty file", path)
 
 
-_NONFINITE = re.compile(rb"(?i)(?<![a-z])(nan|inf|infinity)(?![a-z])")
-
-
 def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh (OBJ, PLY, OFF; polygons fan-triangulated).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        An ``.obj``, ``.ply`` or ``.off`` file.
 
     Returns
     -------
@@ -58,31 +62,38 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         Missing, empty, unreadable or malformed file; NaN/inf coordinates;
         faces indexing past the vertex count. The message names the file.
     """
+    mesh = read_polygon_mesh(path)
+    return mesh.vertices, np.ascontiguousarray(mesh.triangles(), dtype=np.int64)
+
+
+def read_polygon_mesh(path: str | os.PathLike) -> MeshData:
+    """Read a mesh keeping its polygons (OBJ, PLY, OFF), checked like :func:`read_mesh`.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        An ``.obj``, ``.ply`` or ``.off`` file.
+
+    Returns
+    -------
+    MeshData
+        ``vertices (n, 3)`` float64 (n >= 1), the polygons as ``corners (k,)``
+        and ``offsets (m + 1,)`` int64 (m >= 1, 3 or more corners each);
+        ``triangles()`` gives their fan triangulation ``(t, 3)``.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_mesh`.
+    """
     path = Path(path)
     _check_mesh_path(path)
-    try:
-        with quiet_native((2,)):
-            V, F = igl.read_triangle_mesh(str(path))[:2]
-    except RuntimeError:
-        head = path.read_bytes()[:1 << 22]
-        if path.suffix.lower() != ".ply" and _NONFINITE.search(head):
-            raise InputError("vertex coordinates contain NaN or inf", path) from None
-        raise InputError("malformed mesh: libigl could not parse it", path) from None
-    V = np.asarray(V)
-    F = np.asarray(F)
-    if V.size == 0 or V.ndim != 2:
+    mesh = read_mesh_data(path)
+    if mesh.vertices.shape[0] == 0:
         raise InputError("malformed mesh: no vertex could be read", path)
-    if V.shape[1] != 3:
-        raise InputError(f"vertices must be 3-D, got {V.shape[1]} coordinates", path)
-    if F.size == 0:
-        if F.ndim == 2 and F.shape[0] > 0:
-            raise InputError("malformed or truncated mesh: its faces could not be read", path)
+    if mesh.n_faces == 0:
         raise InputError("the mesh has no face", path)
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise InputError("malformed or truncated mesh: its faces could not be read as polygons", path)
-    V = as_vertices(V, "vertex coordinates", path)
-    F = as_faces(F, V.shape[0], "faces", path)
-    return V, F
+    return mesh
 
 
 def write_mesh(path: str | os.PathLike, V, F) -> Path:
