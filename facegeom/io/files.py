@@ -56,7 +56,10 @@ def _create_temporary(folder: Path, target: Path, mode: int, shown: Path) -> Pat
     An error (e.g. a folder that is not writable) names ``shown``, the output.
     """
     for _ in range(100):
-        tmp = folder / f".{target.stem}.{secrets.token_hex(4)}.tmp{target.suffix}"
+        # keeps the suffix (writers pick the format by it); no suffix stays no suffix
+        name = f".{target.stem}.{secrets.token_hex(4)}.tmp{target.suffix}" if target.suffix \
+            else f".{target.name}-{secrets.token_hex(4)}-tmp"
+        tmp = folder / name
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
         except FileExistsError:
@@ -108,7 +111,7 @@ def atomic_path(path: str | os.PathLike):
     Path
         An empty temporary file in the destination folder, named
         ``.STEM.XXXXXXXX.tmp.EXT`` (it keeps ``path``'s suffix: libigl picks the
-        format by it). Its mode is that of the file being replaced, else
+        format by it; ``.NAME-XXXXXXXX-tmp`` when ``path`` has no suffix). Its mode is that of the file being replaced, else
         ``0o666`` less the umask (what ``open()`` gives a new file).
 
     Raises
@@ -185,10 +188,13 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return False
 
 
-def _inside(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
-    """Whether ``path`` (resolved) is somewhere inside the existing folder ``folder`` (resolved)."""
-    p, f = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
-    return f in p.parents
+def _inode(path: str | os.PathLike):
+    """``(device, inode)`` of the existing file ``path`` (symbolic links followed), else None."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
 
 
 def check_outputs(inputs: Iterable, outputs: Iterable) -> None:
@@ -210,21 +216,25 @@ def check_outputs(inputs: Iterable, outputs: Iterable) -> None:
         resolved path, a symbolic link to it or a hard link of it), lies inside
         an input folder, or two outputs are the same file.
     """
-    ins = [i for i in inputs if i is not None]
-    outs = [o for o in outputs if o is not None]
-    for o in outs:
-        for i in ins:
-            if os.path.isdir(i) and not os.path.isdir(o):
-                if _inside(o, i):
+    ins = [(i, os.path.realpath(i), _inode(i), os.path.isdir(i)) for i in inputs if i is not None]
+    seen: dict = {}  # resolved path or inode of an output -> that output
+    for o in (o for o in outputs if o is not None):
+        real, inode = os.path.realpath(o), _inode(o)
+        for i, i_real, i_inode, i_dir in ins:
+            if i_dir and not os.path.isdir(o):
+                if Path(i_real) in Path(real).parents:
                     raise InputError(f"is inside the input folder {i}: refusing to change an input; "
                                      "write the output elsewhere", o)
-            elif same_file(o, i):
+            elif real == i_real or (inode is not None and inode == i_inode):
                 raise InputError(f"is also an input ({i}): refusing to overwrite it; write the output to "
                                  "another file", o)
-    for k, b in enumerate(outs):
-        for a in outs[:k]:
-            if same_file(a, b):
-                raise InputError(f"is the same file as another output ({a}): give each output its own file", b)
+        for key in (real, inode):
+            if key is not None and key in seen:
+                raise InputError(f"is the same file as another output ({seen[key]}): give each output its own "
+                                 "file", o)
+        seen[real] = o
+        if inode is not None:
+            seen[inode] = o
 
 
 def check_writable_folder(path: str | os.PathLike) -> None:
