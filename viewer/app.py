@@ -346,16 +346,27 @@ class BaseView:
         self.frame_camera()
 
     def screenshot(self, path, include_ui: bool = True) -> Path:
-        """Render the current state to ``path`` (PNG); the panel is drawn too unless ``include_ui`` is False."""
+        """Render the current state to ``path`` (PNG); the panel is drawn too unless ``include_ui`` is False.
+
+        Written atomically (:func:`facegeom.io.atomic_path`: ``open()``'s mode,
+        symbolic links written through); polyscope reports no failure, so the
+        image is checked: a missing or empty file is an :class:`InputError`
+        naming ``path`` and ``path`` is left as it was.
+        """
         import polyscope as ps
+
+        from facegeom.io import atomic_path
 
         path = Path(path)
         if path.parent and not path.parent.exists():
             path.parent.mkdir(parents=True, exist_ok=True)
         self.frozen = True
         try:
-            ps.frame_tick()  # lay the panel out once before capturing it
-            ps.screenshot(str(path), transparent_bg=False, include_UI=include_ui)
+            with atomic_path(path) as tmp:  # an empty file: it stays empty if polyscope cannot write it
+                ps.frame_tick()  # lay the panel out once before capturing it
+                ps.screenshot(str(tmp), transparent_bg=False, include_UI=include_ui)
+                if not tmp.is_file() or tmp.stat().st_size == 0:
+                    raise InputError("the screenshot could not be written (no image came out of polyscope)", path)
         finally:
             self.frozen = False
         return path

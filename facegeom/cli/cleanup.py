@@ -45,9 +45,10 @@ def _prepare_markers(markers, markers_out, n_vertices: int):
     return [read_vertex_csv(m, n_vertices) for m in markers]
 
 
-def _check_outputs(out: str, map_path, report_path):
+def _check_outputs(out: str, map_path, report_path, mesh_in=None, markers=(), markers_out=()):
+    """Output formats, then no output is an input (IN, a --markers file) or another output."""
     from facegeom.errors import InputError
-    from facegeom.io import MESH_FORMATS
+    from facegeom.io import MESH_FORMATS, check_outputs
 
     p = Path(out)
     if p.suffix.lower() not in MESH_FORMATS:
@@ -56,6 +57,7 @@ def _check_outputs(out: str, map_path, report_path):
         raise InputError("an index map must be a .csv or .npz file", map_path)
     if report_path and Path(report_path).suffix.lower() != ".json":
         raise InputError("the report must be a .json file", report_path)
+    check_outputs([mesh_in, *markers], [out, map_path, *markers_out, report_path])
 
 
 def _progress(flag, n_vertices: int):
@@ -119,7 +121,7 @@ def clean_cmd(mesh_in, mesh_out, merge_tol, largest, non_manifold, no_orient, ma
     from facegeom.pipelines.meshinput import read_input_mesh
 
     parse_tolerance(merge_tol)
-    _check_outputs(mesh_out, map_path, report_path)
+    _check_outputs(mesh_out, map_path, report_path, mesh_in, markers, markers_out)
     V, F = read_input_mesh(mesh_in, polygons=True)
     sources = _prepare_markers(markers, markers_out, V.shape[0])
     V2, F2, imap, report = clean(V, F, merge_tol=merge_tol, largest_component=largest,
@@ -154,7 +156,7 @@ def decimate_cmd(mesh_in, mesh_out, n_vertices, preserve_boundary, preserve_topo
     from facegeom.pipelines.cleanup import decimate
     from facegeom.pipelines.meshinput import read_input_mesh
 
-    _check_outputs(mesh_out, map_path, report_path)
+    _check_outputs(mesh_out, map_path, report_path, mesh_in, markers, markers_out)
     V, F = read_input_mesh(mesh_in)
     sources = _prepare_markers(markers, markers_out, V.shape[0])
     keep = np.concatenate([s.ids for s in sources]) if sources else None
@@ -199,7 +201,7 @@ def crop_cmd(mesh_in, mesh_out, from_vertices, radius, geodesic, id_range, map_p
         raise InputError("crop needs either --from-vertices with --radius, or --id-range (one of them)")
     if from_vertices is not None and radius is None:
         raise InputError("--from-vertices needs --radius (geodesic distance in mesh units)")
-    _check_outputs(mesh_out, map_path, report_path)
+    _check_outputs(mesh_out, map_path, report_path, mesh_in, markers, markers_out)
     V, F = read_input_mesh(mesh_in)
     src = rng = None
     if from_vertices is not None:

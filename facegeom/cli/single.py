@@ -9,6 +9,24 @@ import click
 from facegeom.cli.context import Context, parse_params
 
 
+def _make_folder(folder) -> list[Path]:
+    """Create ``folder`` and its missing parents; return the folders created (outermost first)."""
+    folder = Path(folder)
+    missing = [p for p in [folder, *folder.parents] if not p.exists()][::-1]
+    folder.mkdir(parents=True, exist_ok=True)
+    return missing
+
+
+def _remove_folders(created: list[Path]) -> None:
+    """Remove the folders :func:`_make_folder` created, innermost first, as far as they are empty."""
+    import contextlib
+    import os
+
+    for p in reversed(created):
+        with contextlib.suppress(OSError):
+            os.rmdir(p)
+
+
 @click.command()
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.argument("markers", type=click.Path(dir_okay=False))
@@ -23,30 +41,47 @@ from facegeom.cli.context import Context, parse_params
 def drive(mesh, markers, output, method, params, fmt):
     """Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."""
     from facegeom import registry
-    from facegeom.io import read_markers, read_mesh, write_mesh
+    from facegeom.io import all_or_nothing, check_outputs, read_markers, read_mesh, write_mesh
 
+    check_outputs([mesh, markers], [] if method == "all" else [output])
     V, F = read_mesh(mesh)
     ids, pos = read_markers(markers, n_vertices=V.shape[0])
     kw = parse_params(params)
-    names = list(registry.available("deformers")) if method == "all" else [method]
-    if method == "all":
-        if kw:
-            raise click.BadParameter("parameters apply to one method; drop --param with --method all",
-                                     param_hint="--param")
-        out_dir = Path(output)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        suffix = "." + (fmt or Path(mesh).suffix.lstrip(".").lower())
-    for name in names:
-        deformer = registry.create("deformers", name, **kw)
+    if method != "all":
+        deformer = registry.create("deformers", method, **kw)
         t = time.perf_counter()
         deformer.fit(V, F, ids)
         fit_s = time.perf_counter() - t
         t = time.perf_counter()
         Y = deformer.deform(pos)
         deform_ms = (time.perf_counter() - t) * 1e3
-        target = out_dir / f"{name}{suffix}" if method == "all" else Path(output)
-        write_mesh(target, Y, F)
-        click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
+        write_mesh(output, Y, F)
+        click.echo(f"{method:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {output}")
+        return
+    if kw:
+        raise click.BadParameter("parameters apply to one method; drop --param with --method all",
+                                 param_hint="--param")
+    out_dir = Path(output)
+    suffix = "." + (fmt or Path(mesh).suffix.lstrip(".").lower())
+    names = list(registry.available("deformers"))
+    targets = [out_dir / f"{name}{suffix}" for name in names]
+    check_outputs([mesh, markers], targets)
+    created = _make_folder(out_dir)
+    try:  # every method's mesh or none (and no folder left behind)
+        with all_or_nothing(targets) as tmps:
+            for name, target, tmp in zip(names, targets, tmps):
+                deformer = registry.create("deformers", name)
+                t = time.perf_counter()
+                deformer.fit(V, F, ids)
+                fit_s = time.perf_counter() - t
+                t = time.perf_counter()
+                Y = deformer.deform(pos)
+                deform_ms = (time.perf_counter() - t) * 1e3
+                write_mesh(tmp, Y, F)
+                click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
+    except BaseException:
+        _remove_folders(created)
+        raise
 
 
 @click.command()
@@ -67,8 +102,10 @@ def retarget(source, labels, output, method, params, fill_gaps):
     with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
     """
     from facegeom import registry
+    from facegeom.io import check_outputs
     from facegeom.pipelines.single import retarget_files, write_retargeted
 
+    check_outputs([source, labels], [output])
     res = retarget_files(source, labels, lambda: registry.create("retargeters", method, **parse_params(params)),
                          fill_gaps, echo=click.echo)
     write_retargeted(output, res)
@@ -99,20 +136,23 @@ def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, out
     import numpy as np
 
     from facegeom import registry
-    from facegeom.io import write_mesh
+    from facegeom.io import all_or_nothing, check_outputs, write_mesh
     from facegeom.model import load_rig
     from facegeom.pipelines.single import fit_file, write_fit
 
+    check_outputs([target, rig_path], [output, mesh_out])
     rig = load_rig(rig_path, obj.face_model)
     tp = Path(target)
     r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy)
     active = r.active
-    write_fit(output, rig.names, r, method, str(tp), time_s=r.seconds)
+    with all_or_nothing([output] + ([mesh_out] if mesh_out else [])) as tmps:  # the weights and the mesh, or neither
+        write_fit(tmps[0], rig.names, r, method, str(tp), time_s=r.seconds)
+        if mesh_out:
+            write_mesh(tmps[1], r.vertices, rig.triangles)
     click.echo(f"{method}: {r.kind} target, {active.size} active shapes in {r.seconds * 1e3:.1f} ms -> {output}")
     for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
         click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
     if mesh_out:
-        write_mesh(mesh_out, r.vertices, rig.triangles)
         click.echo(f"wrote {mesh_out}")
 
 
@@ -132,13 +172,15 @@ def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, out
 def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
     from facegeom.errors import InputError
-    from facegeom.io import find_takes, write_mesh
+    from facegeom.io import all_or_nothing, check_outputs, find_takes, write_mesh
     from facegeom.model import locate_takes
     from facegeom.pipelines.animate import animate_take, write_animation_npz
     from facegeom.registry import parse_method
 
     model = obj.face_model()
     path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    objs = [Path(obj_dir) / f"frame_{t:05d}.obj" for t in range(frames)] if obj_dir else []
+    check_outputs([path], [output] + objs)
     anim, seq, ids = animate_take(model, path, start, frames, labels, seed,
                                   lambda: parse_method(retargeter).build("retargeters"),
                                   lambda: parse_method(deformer).build("deformers"))
@@ -151,12 +193,16 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     out = Path(output)
     if out.suffix.lower() != ".npz":
         raise InputError("the output must be a .npz file", out)
-    write_animation_npz(out, anim, ids)
+    created = _make_folder(obj_dir) if obj_dir else []
+    try:  # the npz and every OBJ, or nothing (a folder made here is removed again)
+        with all_or_nothing([out] + objs) as tmps:
+            write_animation_npz(tmps[0], anim, ids)
+            for t, tmp in enumerate(tmps[1:]):
+                write_mesh(tmp, anim.vertices[t], anim.faces)
+    except BaseException:
+        _remove_folders(created)
+        raise
     click.echo(f"wrote {out}")
     if obj_dir:
-        d = Path(obj_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        for t in range(frames):
-            write_mesh(d / f"frame_{t:05d}.obj", anim.vertices[t], anim.faces)
-        click.echo(f"wrote {frames} OBJ files to {d}")
+        click.echo(f"wrote {frames} OBJ files to {Path(obj_dir)}")
 

@@ -47,6 +47,16 @@ def _take_options(f):
     return f
 
 
+def _check_screenshot(screenshot, *inputs) -> None:
+    """Before rendering: the --screenshot PATH is no input and its folder can be written (one-line error)."""
+    if screenshot is None:
+        return
+    from facegeom.io import check_outputs, check_writable_folder
+
+    check_outputs(inputs, [screenshot])
+    check_writable_folder(screenshot)
+
+
 def _run(view, screenshot, size):
     w, h = _size(size)
     view.run(screenshot=screenshot, width=w, height=h, echo=click.echo)
@@ -87,6 +97,7 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
     from viewer.app import check_display
 
     check_display(screenshot)
+    _check_screenshot(screenshot)
     _size(size)
     delta = None
     if nudge is not None:
@@ -120,6 +131,7 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
     from viewer.app import check_display
 
     check_display(screenshot)
+    _check_screenshot(screenshot, take_path)
     _size(size)
     from viewer.playback import RetargetView, load_sequence
 
@@ -140,6 +152,7 @@ def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, s
     from viewer.app import check_display
 
     check_display(screenshot)
+    _check_screenshot(screenshot, take_path)
     _size(size)
     from viewer.playback import AnimateView, load_sequence
 
@@ -168,6 +181,7 @@ def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, 
     from viewer.app import check_display
 
     check_display(screenshot)
+    _check_screenshot(screenshot, target_path)
     _size(size)
     from viewer.fit import FitView
 

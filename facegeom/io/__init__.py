@@ -7,7 +7,14 @@ coefficients), atomic writes (:mod:`.files`). Errors name the file.
 """
 from __future__ import annotations
 
-from facegeom.io.files import all_or_nothing, atomic_path, read_csv_rows
+from facegeom.io.files import (
+    all_or_nothing,
+    atomic_path,
+    check_outputs,
+    check_writable_folder,
+    read_csv_rows,
+    same_file,
+)
 from facegeom.io.fitfiles import (
     CLOUD_FORMATS,
     TARGET_KINDS,
@@ -43,6 +50,9 @@ from facegeom.io.vertex_csv import VertexCSV, read_vertex_csv
 __all__ = [
     "all_or_nothing",
     "atomic_path",
+    "check_outputs",
+    "check_writable_folder",
+    "same_file",
     "read_csv_rows",
     "MESH_FORMATS",
     "read_mesh",
