@@ -177,3 +177,116 @@ def test_segfault_inline_isolated_fails_only_its_input(landmarks, tmp_path, monk
     assert res.counts["ok"] == 7 and res.counts["failed"] == 1, [r["message"] for r in res.rows]
     assert "process died while processing this input (SIGSEGV" in rows["t00005.csv"]["message"]
     assert res.engine.startswith("inline") and (tmp_path / "t00004.json").is_file()
+
+
+# --------------------------------------------------------------------------- 4. malformed jobs
+
+
+@pytest.mark.parametrize("change, problem", [
+    ({"output": "afile"}, "output .*afile: is a file; the output is a folder"),
+    ({"params": {"speed": 3}}, "fitter 'sem' has no parameter 'speed'; valid parameters: exclusion, clamp"),
+    ({"params": {"alternations": "banana"}}, "alternations must be a non-negative integer, got 'banana'"),
+    ({"params": {"covered_only": "yes"}}, "covered_only must be true or false, got 'yes'"),
+    ({"params": {"region": "banana"}}, "region must be a list of vertex ids"),
+    ({"operation": "drive", "params": {"d": "banana"}, "shared": {"markers": "ict80"}}, "d must be 1, 2 or 3 .*got 'banana'"),
+    ({"operation": "drive", "params": {"smoothness": [1]}, "shared": {"markers": "ict80"}}, "smoothness must be a non-negative number"),
+    ({"operation": "retarget", "params": {"window": "x"}, "shared": {"labels": "{stem}.csv"}},
+     "window must be a positive integer, got 'x'"),
+    ({"operation": "retarget", "method": "rbf", "params": {"kernel": "banana"}, "shared": {"labels": "{stem}.csv"}},
+     "kernel must be one of"),
+    ({"operation": "clean", "inputs": "m", "params": {"largest_component": "x"}, "shared": {}},
+     "params.largest_component must be true or false"),
+    ({"operation": "clean", "method": "crop", "inputs": "m", "params": {"id_range": "a:b"}, "shared": {}},
+     "params.id_range: id range must hold integers"),
+    ({"truth": "{stem.upper}"}, "bad template"),
+    ({"truth": "{stem:>999999999999}"}, "bad template"),
+    ({"output": "a\x00b"}, "cannot hold a NUL character"),
+    ({"batch": {"chunk": 2**70}}, "batch.chunk must be a positive integer"),
+    ({"batch": {"chunk": -4}}, "batch.chunk must be a positive integer"),
+    ({"batch": {"retries": 2**70}}, "batch.retries must be a non-negative integer"),
+    ({"shared": {**CAMERA, "focal": -1.0}}, "shared.focal must be a positive number"),
+    ({"shared": {**CAMERA, "cx": float("nan")}}, "shared.cx must be a number"),
+    ({"inputs": []}, "inputs must be a folder, a glob, or a list of them"),
+    ({"inputs": ["lm", 3]}, "inputs must be a folder, a glob, or a list of them"),
+    ({"operation": 3}, "unknown operation 3"),
+    ({"method": "nope"}, "no fitter named 'nope'"),
+])
+def test_malformed_job_is_one_line_error_naming_the_file(tmp_path, change, problem):
+    (tmp_path / "lm").mkdir()
+    (tmp_path / "lm" / "a.csv").write_text("vertex_id,u,v\n1,2,3\n")
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "a.obj").write_text("v 0 0 0\n")
+    (tmp_path / "afile").write_text("not a folder")
+    d = {"operation": "fit", "inputs": "lm", "output": "o", "shared": dict(CAMERA), **change}
+    with pytest.raises(InputError, match=problem) as e:
+        fb.run_job(fb.job_from_dict(d, base=tmp_path, source=str(tmp_path / "job.toml")), inline=True,
+                   progress=False)
+    assert str(e.value).startswith(str(tmp_path / "job.toml")) and "\n" not in str(e.value)
+    assert not (tmp_path / "o").exists()  # refused while planning: nothing written, no worker started
+
+
+def test_every_method_names_a_mistyped_parameter():
+    import inspect
+
+    from facegeom import registry
+
+    problems = []
+    for kind in registry.KINDS:
+        for name in registry.available(kind):
+            try:
+                cls = registry.get(kind, name)
+            except InputError:  # an optional baseline that is not installed
+                continue
+            for p in list(inspect.signature(cls.__init__).parameters)[1:]:
+                for bad in ("banana", [1], float("nan")):
+                    try:
+                        registry.create(kind, name, **{p: bad})
+                    except InputError as exc:
+                        if p not in str(exc):
+                            problems.append(f"{kind} {name} {p}={bad!r}: {exc}")
+                    except Exception as exc:  # noqa: BLE001
+                        problems.append(f"{kind} {name} {p}={bad!r}: {type(exc).__name__}: {exc}")
+    assert not problems, "\n".join(problems)
+
+
+def test_sem_fits_the_neutral_face_as_a_point_cloud(face_model):
+    from facegeom.methods.sem import SEMFitter
+    from facegeom.model import PointCloudTarget, load_rig
+
+    rig = load_rig(None, lambda: face_model)
+    res = SEMFitter().fit(rig, PointCloudTarget(face_model.neutral))  # was KeyError: nothing to select
+    assert res.weights.shape == (rig.n_shapes,) and abs(res.weights).max() < 1e-6
+
+
+# --------------------------------------------------------------------------- 6. limits of the readers
+
+
+@pytest.mark.parametrize("reader, text, what", [
+    ("read_marker_sequence", "frame,marker,x,y,z\n0,a,0,0,0\n99999999999999999999,a,0,0,0\n", "frame"),
+    ("read_markers", "vertex_id,x,y,z\n1,0,0,0\n-9223372036854775809,0,0,0\n", "vertex_id"),
+    ("read_landmarks", "vertex_id,u,v\n1,0,0\n99999999999999999999,0,0\n", "vertex_id"),
+    ("read_vertex_csv", "vertex_id,x,y,z\n1,0,0,0\n9223372036854775808,0,0,0\n", "vertex_id"),
+])
+def test_readers_refuse_integers_beyond_int64(tmp_path, reader, text, what):
+    import facegeom.io as io
+
+    f = tmp_path / "in.csv"
+    f.write_text(text)
+    args = (f, 10) if reader == "read_vertex_csv" else (f,)
+    with pytest.raises(InputError, match=f"^{f}: line 3: {what} .* does not fit a 64-bit integer$"):
+        getattr(io, reader)(*args)
+
+
+def test_sparse_frame_numbers_do_not_allocate_the_gap(tmp_path):
+    import resource
+
+    from facegeom.io import read_marker_sequence, read_retarget_inputs
+
+    f = tmp_path / "sparse.csv"
+    f.write_text("frame,marker,x,y,z\n0,a,0,0,0\n0,b,1,0,0\n300000000,a,0,1,0\n300000000,b,1,1,0\n")
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    seq = read_marker_sequence(f)  # frames are labels: a sorted index array
+    assert seq.frames.tolist() == [0, 300000000] and seq.positions.shape == (2, 2, 3)
+    with pytest.raises(InputError, match="source frames must run 0..T-1 without holes; frame 1 is absent"):
+        read_retarget_inputs(f, f)  # retargeting needs consecutive source frames: refused, not allocated
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # KiB: no 2-8 GB index arrays
