@@ -41,7 +41,7 @@ import time
 import numpy as np
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import FitResult, Params
+from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, result
 from facegeom.model import BlendshapeRig, LandmarkTarget
 
@@ -78,7 +78,7 @@ class EosFitter(Params):
 
     def __init__(self, iterations: int = 5, compact: bool = True):
         self._eos = _import_eos()
-        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 0:
+        if isinstance(iterations, bool) or not is_integer(iterations) or iterations < 0:
             raise InputError(f"iterations must be a non-negative integer, got {iterations!r}")
         if not isinstance(compact, (bool, np.bool_)):
             raise InputError(f"compact must be true or false, got {compact!r}")

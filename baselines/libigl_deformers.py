@@ -6,7 +6,7 @@ import numpy as np
 
 from baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted, is_integer
 
 ENERGIES = {
     "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,
@@ -31,9 +31,9 @@ class ARAPDeformer(Params):
     """
 
     def __init__(self, iterations: int = 10, energy: str = "spokes_and_rims"):
-        if int(iterations) != iterations or iterations < 1:
+        if not is_integer(iterations) or iterations < 1:
             raise InputError(f"iterations must be a positive integer, got {iterations!r}")
-        if energy not in ENERGIES:
+        if not isinstance(energy, str) or energy not in ENERGIES:
             raise InputError(f"energy must be one of {', '.join(ENERGIES)}, got {energy!r}")
         self.iterations, self.energy = int(iterations), energy
         self.data_ = None
@@ -110,7 +110,7 @@ class BiharmonicDeformer(Params):
     """
 
     def __init__(self, k: int = 2):
-        if int(k) != k or not 1 <= k <= 3:
+        if not is_integer(k) or not 1 <= k <= 3:
             raise InputError(f"k must be 1, 2 or 3, got {k!r}")
         self.k = int(k)
         self.map_ = None

@@ -6,7 +6,7 @@ from scipy.interpolate import RBFInterpolator
 
 from baselines._common import apply_displacement_map, fit_inputs
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_positions, check_fitted
+from facegeom.interfaces import Params, as_positions, check_fitted, is_finite_number, is_integer
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
            "inverse_quadratic", "gaussian")
@@ -41,11 +41,11 @@ class RBFDeformer(Params):
                  degree: int = 1):
         if kernel not in KERNELS:
             raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-        if not np.isfinite(smoothing) or smoothing < 0:
+        if not is_finite_number(smoothing) or smoothing < 0:
             raise InputError(f"smoothing must be a non-negative number, got {smoothing!r}")
-        if epsilon is not None and (not np.isfinite(epsilon) or epsilon <= 0):
+        if epsilon is not None and (not is_finite_number(epsilon) or epsilon <= 0):
             raise InputError(f"epsilon must be a positive number, got {epsilon!r}")
-        if int(degree) != degree or degree < -1:
+        if not is_integer(degree) or degree < -1:
             raise InputError(f"degree must be an integer >= -1, got {degree!r}")
         self.kernel, self.smoothing, self.epsilon, self.degree = kernel, float(smoothing), epsilon, int(degree)
         self.map_ = None

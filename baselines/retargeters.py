@@ -5,8 +5,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 
+from baselines.rbf import KERNELS
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, check_fitted
+from facegeom.interfaces import Params, check_fitted, is_finite_number, is_integer
 from facegeom.methods.tangent import TangentSolver
 from facegeom.methods.tangent_retarget import check_retarget_inputs, temporal_windows
 
@@ -114,10 +115,14 @@ class RBFRetargeter(Params):
                  smoothing: float = 1e-8, rel_tol: float = 1e-3):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
-        if not np.isfinite(smoothing) or smoothing < 0:
+        if not is_finite_number(smoothing) or smoothing < 0:
             raise InputError(f"smoothing must be a non-negative number, got {smoothing!r}")
-        if int(degree) != degree or degree < -1:
+        if not is_integer(degree) or degree < -1:
             raise InputError(f"degree must be an integer >= -1, got {degree!r}")
+        if not isinstance(kernel, str) or kernel not in KERNELS:
+            raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+        if not is_finite_number(rel_tol) or rel_tol < 0:
+            raise InputError(f"rel_tol must be a non-negative number, got {rel_tol!r}")
         self.strategy, self.kernel, self.degree = strategy, kernel, int(degree)
         self.smoothing, self.rel_tol = float(smoothing), float(rel_tol)
         self.result_ = None
@@ -215,7 +220,7 @@ class LaplacianRetargeter(Params):
     """
 
     def __init__(self, window: int = 1):
-        if int(window) != window or window < 1:
+        if not is_integer(window) or window < 1:
             raise InputError(f"window must be a positive integer, got {window!r}")
         self.window = int(window)
         self.result_ = None

@@ -33,6 +33,8 @@ from facegeom.errors import InputError
 
 __all__ = [
     "Params",
+    "is_integer",
+    "is_finite_number",
     "Deformer",
     "Retargeter",
     "Fitter",
@@ -46,6 +48,47 @@ __all__ = [
     "as_positions",
     "as_sequence",
 ]
+
+
+def is_integer(value) -> bool:
+    """Whether a parameter value is an integer (an int, or a float of integral value; not a bool, not text).
+
+    Constructors check their integer parameters with it before ``int(value)``,
+    so ``d="banana"`` is a one-line :class:`~facegeom.errors.InputError` naming
+    the parameter, never a ``ValueError`` traceback.
+
+    Parameters
+    ----------
+    value : object
+
+    Returns
+    -------
+    bool
+    """
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (int, np.integer)):
+        return True
+    return isinstance(value, (float, np.floating)) and bool(np.isfinite(value)) and float(value).is_integer()
+
+
+def is_finite_number(value) -> bool:
+    """Whether a parameter value is a finite real number (not a bool, not text).
+
+    Parameters
+    ----------
+    value : object
+
+    Returns
+    -------
+    bool
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        return bool(np.isfinite(value))
+    except OverflowError:  # an int beyond float
+        return False
 
 
 class Params:

@@ -47,8 +47,18 @@ def get(kind: str, name: str) -> type:
 
 
 def create(kind: str, name: str, **params):
-    """Build the method ``name`` of ``kind`` with constructor ``params``."""
+    """Build the method ``name`` of ``kind`` with constructor ``params``.
+
+    An unknown parameter name (for a :class:`~facegeom.interfaces.Params`
+    method: not in its ``param_names()``) is an :class:`InputError` listing the
+    valid ones; the constructor checks the values (an InputError naming the parameter).
+    """
     cls = get(kind, name)
+    valid = cls.param_names() if hasattr(cls, "param_names") else None
+    unknown = [k for k in params if valid is not None and k not in valid]
+    if unknown:
+        raise InputError(f"{kind[:-1]} {name!r} has no parameter {unknown[0]!r}; valid parameters: "
+                         f"{', '.join(valid) or 'none'}")
     try:
         return cls(**params)
     except TypeError as exc:  # unknown keyword

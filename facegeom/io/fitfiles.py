@@ -24,6 +24,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path, read_csv_rows
 from facegeom.io.formats import read_points
+from facegeom.io.ints import check_int64
 
 __all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "CLOUD_FORMATS", "TARGET_KINDS"]
 
@@ -52,12 +53,11 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         if len(r) != 3:
             raise InputError(f"line {line_no}: expected 3 values, got {len(r)}", path)
         try:
-            ids.append(int(r[0]))
+            vid = int(r[0])
             q = [float(r[1]), float(r[2])]
         except ValueError:
             raise InputError(f"line {line_no}: not a number", path) from None
-        if abs(ids[-1]) >= 1 << 62:
-            raise InputError(f"line {line_no}: vertex_id {ids[-1]} is out of range", path)
+        ids.append(check_int64(vid, "vertex_id", line_no, path))
         if not np.all(np.isfinite(q)):
             raise InputError(f"line {line_no}: coordinate is NaN or inf", path)
         uv.append(q)

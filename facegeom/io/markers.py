@@ -14,6 +14,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.interfaces import as_handles, as_vertices
 from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.ints import check_int64
 
 __all__ = ['MARKER_HEADER', 'read_markers', 'write_markers']
 
@@ -50,10 +51,9 @@ def read_markers(path: str | os.PathLike, n_vertices: int | None = None) -> tupl
             raise InputError(f"line {line_no}: expected 4 values, got {len(r)}", path)
         try:
             vid = int(r[0])
-            if abs(vid) >= 1 << 62:
-                raise ValueError
         except ValueError:
             raise InputError(f"line {line_no}: vertex_id {r[0]!r} is not an integer", path) from None
+        check_int64(vid, "vertex_id", line_no, path)
         try:
             xyz = [float(c) for c in r[1:]]
         except ValueError:

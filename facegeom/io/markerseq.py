@@ -23,6 +23,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.ints import check_int64
 
 __all__ = ["MarkerSequence", "SEQUENCE_HEADER", "read_marker_sequence", "write_marker_sequence", "fill_gaps",
            "read_retarget_inputs"]
@@ -122,6 +123,7 @@ def _read_csv(path: Path) -> MarkerSequence:
             f = int(r[0])
         except ValueError:
             raise InputError(f"line {line_no}: frame {r[0]!r} is not an integer", path) from None
+        check_int64(f, "frame", line_no, path)
         if f < 0:
             raise InputError(f"line {line_no}: frame {f} is negative", path)
         if f >= 1 << 62:
@@ -267,7 +269,8 @@ def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, f
     src = read_marker_sequence(source)
     T = src.n_frames
     if not np.array_equal(src.frames, np.arange(T)):
-        hole = int(np.setdiff1d(np.arange(int(src.frames[-1]) + 1), src.frames)[0])
+        # frames are sorted and distinct: the first k with frames[k] != k is absent (no array up to the last frame)
+        hole = int(np.flatnonzero(src.frames != np.arange(T))[0])
         raise InputError(f"source frames must run 0..T-1 without holes; frame {hole} is absent", source)
     miss = src.missing()
     n = 0

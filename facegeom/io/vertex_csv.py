@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
+from facegeom.io.ints import check_int64
 
 __all__ = ['VertexCSV', 'read_vertex_csv']
 
@@ -93,6 +94,7 @@ def read_vertex_csv(path: str | os.PathLike, n_vertices: int) -> VertexCSV:
             vid = int(r[col])
         except ValueError:
             raise InputError(f"line {line_no}: vertex_id {r[col]!r} is not an integer", path) from None
+        check_int64(vid, "vertex_id", line_no, path)
         if not 0 <= vid < n_vertices:
             raise InputError(f"line {line_no}: vertex_id {vid} is out of range: the mesh has {n_vertices} vertices",
                              path)

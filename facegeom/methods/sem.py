@@ -58,7 +58,7 @@ from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult, Params
+from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
 
@@ -164,6 +164,14 @@ def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = T
     return sem_gram(M @ d, M @ M.T, float(d @ d), exclusion, upper)
 
 
+def _region_ids(region) -> np.ndarray:
+    """``region`` as vertex ids ``(r,)`` int64; a one-line error for anything else (text, nested lists, floats)."""
+    r = np.asarray(region) if isinstance(region, (list, tuple, np.ndarray)) else None
+    if r is None or r.ndim != 1 or not (r.size == 0 or np.issubdtype(r.dtype, np.integer)):
+        raise InputError(f"region must be a list of vertex ids (integers), got {region!r}")
+    return r.astype(np.int64)
+
+
 class SEMFitter(Params):
     """Selective Expression Manipulation as a :class:`~facegeom.interfaces.Fitter`.
 
@@ -205,6 +213,8 @@ class SEMFitter(Params):
         if stop not in ("none", "ric"):
             raise InputError(f"stop must be 'none' (the paper) or 'ric', got {stop!r}")
         self.stop = stop
+        if not isinstance(covered_only, (bool, np.bool_)):
+            raise InputError(f"covered_only must be true or false, got {covered_only!r}")
         self.covered_only = bool(covered_only)
         if select not in ("esim", "gain"):
             raise InputError(f"select must be 'esim' (the paper) or 'gain', got {select!r}")
@@ -212,13 +222,13 @@ class SEMFitter(Params):
         for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
             if not isinstance(v, (bool, np.bool_)):
                 raise InputError(f"{name} must be true or false, got {v!r}")
-        if int(alternations) != alternations or alternations < 0:
+        if not is_integer(alternations) or alternations < 0:
             raise InputError(f"alternations must be a non-negative integer, got {alternations!r}")
-        if int(max_points) != max_points or max_points < 0:
+        if not is_integer(max_points) or max_points < 0:
             raise InputError(f"max_points must be a non-negative integer, got {max_points!r}")
         self.exclusion, self.clamp, self.refit = bool(exclusion), bool(clamp), bool(refit)
         self.alternations, self.max_points = int(alternations), int(max_points)
-        self.region = None if region is None else np.asarray(region, dtype=np.int64)
+        self.region = None if region is None else _region_ids(region)
 
     def __repr__(self) -> str:
         return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
@@ -637,6 +647,8 @@ class SEMFitter(Params):
                 s[drop] = -np.inf
                 if not alive.any():
                     break
+            if not np.isfinite(s[cand]).any():  # no candidate moves the face towards the points: it fits already
+                break
             i = int(np.argmax(s))
             e[i] += ei[i]
             order.append(i)

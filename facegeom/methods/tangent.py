@@ -25,7 +25,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import Params, as_faces, as_handles, as_positions, as_vertices, check_fitted
+from facegeom.interfaces import (
+    Params,
+    as_faces,
+    as_handles,
+    as_positions,
+    as_vertices,
+    check_fitted,
+    is_finite_number,
+    is_integer,
+)
 from facegeom.linalg import SPDSolver, factorize_spd
 
 __all__ = [
@@ -150,7 +159,7 @@ def alignment_matrix(X, neighbourhoods, d: int, weights=None, rank_tol: float = 
         raise InputError(f"X must have shape (N, D), got {X.shape}")
     if not np.all(np.isfinite(X)):
         raise InputError("X contains NaN or inf")
-    if int(d) != d or d < 1:
+    if not is_integer(d) or d < 1:
         raise InputError(f"d must be a positive integer, got {d!r}")
     d = int(d)
     N = X.shape[0]
@@ -223,7 +232,7 @@ class TangentSolver:
         labelled = as_handles(labelled, N, "labelled")
         if beta is not None:
             beta = float(beta)
-            if not np.isfinite(beta) or beta <= 0:
+            if not is_finite_number(beta) or beta <= 0:
                 raise InputError(f"beta must be a positive number or None (hard constraints), got {beta!r}")
         self.N, self.labelled, self.beta = N, labelled, beta
         self._check_components(B, labelled)
@@ -394,19 +403,19 @@ class TangentDeformer(Params):
                  smoothness: float = 1.0):
         if neighbourhood not in ("kring", "geodesic"):
             raise InputError(f"neighbourhood must be 'kring' or 'geodesic', got {neighbourhood!r}")
-        if int(rings) != rings or rings < 1:
+        if not is_integer(rings) or rings < 1:
             raise InputError(f"rings must be a positive integer, got {rings!r}")
-        if radius is not None and (not np.isfinite(radius) or radius <= 0):
+        if radius is not None and (not is_finite_number(radius) or radius <= 0):
             raise InputError(f"radius must be a positive number, got {radius!r}")
-        if int(d) != d or not 1 <= d <= 3:
+        if not is_integer(d) or not 1 <= d <= 3:
             raise InputError(f"d must be 1, 2 or 3 for mesh vertices, got {d!r}")
-        if beta is not None and (not np.isfinite(beta) or beta <= 0):
+        if beta is not None and (not is_finite_number(beta) or beta <= 0):
             raise InputError(f"beta must be a positive number or None (hard constraints), got {beta!r}")
         if field not in ("displacement", "position"):
             raise InputError(f"field must be 'displacement' or 'position', got {field!r}")
         if align not in ("rigid", "none"):
             raise InputError(f"align must be 'rigid' or 'none', got {align!r}")
-        if not np.isfinite(smoothness) or smoothness < 0:
+        if not is_finite_number(smoothness) or smoothness < 0:
             raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
         self.neighbourhood, self.rings, self.radius = neighbourhood, int(rings), radius
         self.d, self.beta, self.field, self.align = int(d), beta, field, align

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted
+from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted, is_finite_number, is_integer
 from facegeom.methods.tangent import TangentSolver, alignment_matrix
 
 
@@ -216,22 +216,24 @@ class TangentRetargeter(Params):
                  ridge: float | str = "auto", source_smoothing: float | str = "auto"):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
-        if int(window) != window or window < 1:
+        if not is_integer(window) or window < 1:
             raise InputError(f"window must be a positive integer, got {window!r}")
-        if int(d) != d or d < 1:
+        if not is_integer(d) or d < 1:
             raise InputError(f"d must be a positive integer, got {d!r}")
-        if beta is not None and beta != "auto" and (isinstance(beta, str) or not np.isfinite(beta) or beta <= 0):
+        if beta is not None and beta != "auto" and (isinstance(beta, str) or not is_finite_number(beta) or beta <= 0):
             raise InputError(f"beta must be a positive number, 'auto' or None (hard constraints), got {beta!r}")
         if field not in ("position", "offset", "affine"):
             raise InputError(f"field must be 'position', 'offset' or 'affine', got {field!r}")
-        if not np.isfinite(smoothness) or smoothness < 0:
+        if not is_finite_number(smoothness) or smoothness < 0:
             raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
         self.strategy, self.window, self.d, self.beta = strategy, int(window), int(d), beta
-        if ridge != "auto" and (isinstance(ridge, str) or not np.isfinite(ridge) or ridge < 0):
+        if ridge != "auto" and (isinstance(ridge, str) or not is_finite_number(ridge) or ridge < 0):
             raise InputError(f"ridge must be a non-negative number or 'auto', got {ridge!r}")
+        if not is_finite_number(rank_tol) or rank_tol < 0:
+            raise InputError(f"rank_tol must be a non-negative number, got {rank_tol!r}")
         self.field, self.smoothness, self.rank_tol = field, float(smoothness), float(rank_tol)
         self.ridge = ridge if ridge == "auto" else float(ridge)
-        if source_smoothing != "auto" and (isinstance(source_smoothing, str) or not np.isfinite(source_smoothing)
+        if source_smoothing != "auto" and (isinstance(source_smoothing, str) or not is_finite_number(source_smoothing)
                                            or source_smoothing < 0):
             raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
         self.source_smoothing = source_smoothing

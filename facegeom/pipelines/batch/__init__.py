@@ -41,6 +41,34 @@ that fails (unreadable, malformed, a solver error) fails its own row, never the
 job. A manifest (``batch-job.json``) records what the folder was made with; a
 rerun with other settings is refused unless ``overwrite=True``.
 
+Output names: an output mirrors its input's path relative to the inputs'
+common folder (inputs ``a/x.csv`` and ``b/y.csv`` write ``OUT/a/x.json`` and
+``OUT/b/y.json``), so same-named inputs of different folders never collide;
+the subfolders are created before any task runs. Files in the output folder
+are never inputs: a pattern that matches only files there (the output folder
+is an input folder) is refused, naming the folder.
+
+One run per output folder: :func:`run_job` holds an exclusive ``flock`` on
+``OUT/.facegeom-batch.lock`` (holding its pid and host) from the manifest check
+to the summary, and a second run into the folder is refused at once:
+``another batch job (pid N) is writing to OUT``. The kernel releases the lock
+when its process ends however it ends, so a lock file left by a killed run is
+stale by construction and taken over by the next run
+(:mod:`facegeom.pipelines.batch.lock`).
+
+Crash isolation: a native crash (segfault, out-of-memory kill) in one input
+kills the process running its chunk. On Dask the scheduler retries the task on
+another worker; when the chunk still kills its worker every time (Dask's
+``KilledWorker``), its items are resubmitted one task each (at most ``chunk``
+extra tasks per such chunk; the items written before the crash are skipped), so
+only the crashing input fails. The normal path pays nothing for this. Inline,
+chunks run in this process and a crash ends the run (outputs written so far are
+kept; a rerun resumes) unless ``isolate=True``: then each chunk runs in a
+forked child (the shared state is built once in the parent and inherited), and
+a chunk whose child dies is rerun one child per item, with the same effect as
+on Dask. Use a local cluster (the default engine) or ``isolate`` for inputs
+that may crash native code.
+
 Chunks: inputs are sorted and cut into fixed chunks of ``chunk`` items
 (``[batch] chunk``, default per operation: 64 landmark files, 16 marker frames,
 else 1), independent of the number of workers, so a job gives the same result

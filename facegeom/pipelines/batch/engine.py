@@ -4,6 +4,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import signal
 import time
 
 from facegeom.errors import InputError
@@ -105,7 +106,7 @@ def connect(client=None, scheduler: str | None = None, workers: int | None = Non
         cluster.close()
 
 
-def run_inline(spec: dict, chunks: list[list[dict]], rows: dict, progress: bool) -> None:
+def run_inline(spec: dict, chunks: list[list[dict]], rows: dict, progress: bool, isolate: bool = False) -> None:
     """Run the chunks in this process, one after the other; their rows go into ``rows`` (by item index).
 
     Parameters
@@ -118,16 +119,89 @@ def run_inline(spec: dict, chunks: list[list[dict]], rows: dict, progress: bool)
         Summary rows by item index, filled in place.
     progress : bool
         Show a progress bar.
+    isolate : bool
+        Run each chunk in a forked child process (the shared state is built
+        once here first and inherited): a native crash costs its chunk's child,
+        whose items are then run one child each, so only the crashing input
+        fails. Without it a crash ends this process.
     """
+    if isolate:
+        _prebuild_state(spec)
     with progress_bar(sum(len(c) for c in chunks), spec["operation"], progress) as bar:
         for c in chunks:
-            try:
-                for r in run_chunk(spec, c):
-                    rows[r["index"]] = r
-            except Exception as exc:  # noqa: BLE001 - as a failed task on Dask
-                for it in c:
-                    rows[it["index"]] = make_row(it, "failed", f"task failed: {describe(exc)}", None, "")
+            if isolate:
+                _run_isolated(spec, c, rows)
+            else:
+                try:
+                    for r in run_chunk(spec, c):
+                        rows[r["index"]] = r
+                except Exception as exc:  # noqa: BLE001 - as a failed task on Dask
+                    for it in c:
+                        rows[it["index"]] = make_row(it, "failed", f"task failed: {describe(exc)}", None, "")
             bar.update(len(c))
+
+
+def _prebuild_state(spec: dict) -> None:
+    """Build the job's shared state in this process, so forked children inherit it (a failure: each chunk says)."""
+    from facegeom.pipelines.batch.tasks import worker_state
+
+    with contextlib.suppress(Exception):
+        worker_state(spec)
+
+
+def _child(spec: dict, items: list[dict], conn) -> None:
+    try:
+        conn.send(("rows", run_chunk(spec, items)))
+    except Exception as exc:  # noqa: BLE001 - sent to the parent as the task's failure
+        conn.send(("error", f"task failed: {describe(exc)}"))
+    finally:
+        conn.close()
+
+
+def _in_child(spec: dict, items: list[dict]) -> tuple[str, object]:
+    """``run_chunk(spec, items)`` in a forked child: ``("rows", rows)``, ``("error", message)`` or ``("died", how)``."""
+    import multiprocessing
+
+    try:
+        ctx = multiprocessing.get_context("fork")
+    except ValueError:  # pragma: no cover - no fork (Windows)
+        raise InputError("isolated inline runs need fork (POSIX); run on a local Dask cluster instead") from None
+    recv, send = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_child, args=(spec, items, send), daemon=True)
+    p.start()
+    send.close()
+    try:
+        msg = recv.recv()
+    except EOFError:
+        msg = None
+    finally:
+        recv.close()
+        p.join()
+    if msg is not None:
+        return msg
+    code = p.exitcode
+    if code is not None and code < 0:
+        with contextlib.suppress(ValueError):
+            return "died", signal.Signals(-code).name
+        return "died", f"signal {-code}"
+    return "died", f"exit status {code}"
+
+
+def _run_isolated(spec: dict, chunk: list[dict], rows: dict) -> None:
+    """One chunk in a child; if the child dies, each of its items in a child of its own."""
+    kind, value = _in_child(spec, chunk)
+    if kind == "died" and len(chunk) > 1:
+        for it in chunk:
+            _run_isolated(spec, [it], rows)
+        return
+    if kind == "rows":
+        for r in value:
+            rows[r["index"]] = r
+        return
+    msg = value if kind == "error" else (f"task failed: its process died while processing this input ({value}; a "
+                                         f"crash in native code or out of memory?)")
+    for it in chunk:
+        rows[it["index"]] = make_row(it, "failed", msg, None, "")
 
 
 def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retries: int, progress: bool) -> None:
@@ -153,13 +227,24 @@ def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retrie
     futures = {}
     for k, c in enumerate(chunks):
         f = client.submit(run_chunk, spec, c, key=f"facegeom-{spec['operation']}-{token}-{k}", retries=retries)
-        futures[f] = c
+        futures[f] = (c, str(k))
     try:
         with progress_bar(sum(len(c) for c in chunks), spec["operation"], progress) as bar:
-            for fut, res in as_completed(list(futures), with_results=True, raise_errors=False):
-                c = futures.pop(fut)
+            done = as_completed(list(futures), with_results=True, raise_errors=False)
+            for fut, res in done:
+                c, name = futures.pop(fut)
                 if fut.status == "error":  # the task itself failed (e.g. its worker died too often)
-                    msg = _task_error(fut)
+                    exc = _task_exception(fut)
+                    if type(exc).__name__ == "KilledWorker" and len(c) > 1:
+                        fut.release()
+                        # a crash in one input: its chunk's items one task each, so only that input fails
+                        for j, it in enumerate(c):
+                            f = client.submit(run_chunk, spec, [it], retries=retries,
+                                              key=f"facegeom-{spec['operation']}-{token}-{name}-{j}")
+                            futures[f] = ([it], f"{name}-{j}")
+                            done.add(f)
+                        continue
+                    msg = _task_error(exc, len(c))
                     for it in c:
                         rows[it["index"]] = make_row(it, "failed", msg, None, "")
                 else:
@@ -172,15 +257,19 @@ def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retrie
             client.cancel(list(futures))
 
 
-def _task_error(fut) -> str:
+def _task_exception(fut) -> BaseException:
     try:
-        exc = fut.exception()
+        return fut.exception()
     except Exception as e:  # noqa: BLE001
-        exc = e
+        return e
+
+
+def _task_error(exc: BaseException, n_items: int) -> str:
     name = type(exc).__name__
     if name == "KilledWorker":
-        return ("task failed: its worker process died each time it ran it (KilledWorker; out of memory or a crash "
-                "in native code?)")
+        what = "it" if n_items > 1 else "this input"
+        return (f"task failed: its worker process died each time it ran {what} (KilledWorker; out of memory or a "
+                f"crash in native code?)")
     return f"task failed: {describe(exc)}"
 
 

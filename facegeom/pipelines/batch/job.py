@@ -8,7 +8,9 @@ operation accepts (its shared keys, formats, input suffixes) is its
 """
 from __future__ import annotations
 
+import math
 import os
+import string
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +23,8 @@ __all__ = ["OPERATIONS", "JOB_KEYS", "BATCH_KEYS", "OperationSchema", "SCHEMAS",
 OPERATIONS = ("fit", "drive", "retarget", "animate", "clean")
 JOB_KEYS = ("operation", "method", "params", "inputs", "output", "shared", "truth", "batch", "data")
 BATCH_KEYS = ("chunk", "retries", "format")
+MAX_CHUNK = 1_000_000  # inputs per task
+MAX_RETRIES = 100  # retries of a task
 
 # kind of a shared value -> (its check, how the error names it)
 _KINDS = {
@@ -29,7 +33,7 @@ _KINDS = {
     "template": (lambda v: isinstance(v, str), "a path template (string)"),
     "bool": (lambda v: isinstance(v, bool), "true or false"),
     "int": (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
-    "number": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), "a number"),
+    "number": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v), "a number"),
 }
 
 
@@ -243,10 +247,18 @@ def job_from_dict(d: dict, base: str | os.PathLike | None = None, source: str = 
     if data is not None and not isinstance(data, str):
         raise job_error(source, "data must be a path (string)")
 
+    for what, x in ([("inputs", x) for x in inputs] + [("output", output), ("data", data or ""), ("truth", truth or "")]
+                    + [(f"shared.{k}", v) for k, v in shared.items() if isinstance(v, str)]):
+        if "\x00" in x:
+            raise job_error(source, f"{what} {x!r}: a path cannot hold a NUL character")
+
     def absolute(x: str) -> str:
         return str(Path(os.path.expanduser(x)) if os.path.isabs(os.path.expanduser(x)) else base / x)
 
-    return Job(operation=op_name, inputs=[absolute(x) for x in inputs], output=Path(absolute(output)),
+    out = Path(absolute(output))
+    if out.exists() and not out.is_dir():
+        raise job_error(source, f"output {out}: is a file; the output is a folder")
+    return Job(operation=op_name, inputs=[absolute(x) for x in inputs], output=out,
                method=method, params=dict(params), shared=dict(shared), truth=truth, chunk=chunk, retries=retries,
                format=fmt, data=absolute(data) if data else None, source=source, base=base)
 
@@ -307,11 +319,12 @@ def _batch_table(b, op_name: str, source: str) -> tuple[int | None, int, str | N
     if unknown:
         raise job_error(source, f"unknown key batch.{unknown[0]}; [batch] has {', '.join(BATCH_KEYS)}")
     chunk = b.get("chunk")
-    if chunk is not None and (not isinstance(chunk, int) or isinstance(chunk, bool) or chunk < 1):
-        raise job_error(source, f"batch.chunk must be a positive integer, got {chunk!r}")
+    if chunk is not None and (not isinstance(chunk, int) or isinstance(chunk, bool) or not 1 <= chunk <= MAX_CHUNK):
+        raise job_error(source, f"batch.chunk must be a positive integer (at most {MAX_CHUNK}), got {chunk!r}")
     retries = b.get("retries", 2)
-    if not isinstance(retries, int) or isinstance(retries, bool) or retries < 0:
-        raise job_error(source, f"batch.retries must be a non-negative integer, got {retries!r}")
+    if not isinstance(retries, int) or isinstance(retries, bool) or not 0 <= retries <= MAX_RETRIES:
+        raise job_error(source, f"batch.retries must be a non-negative integer (at most {MAX_RETRIES}), got "
+                                f"{retries!r}")
     fmt = b.get("format")
     if fmt is not None:
         fmt = str(fmt).lower().lstrip(".")
@@ -337,11 +350,16 @@ def check_template(t: str, what: str, source: str) -> None:
     ------
     InputError
     """
+    fields = ("stem", "name", "parent")
     try:
-        t.format(stem="x", name="x.y", parent="p")
-    except (KeyError, IndexError, ValueError) as exc:
-        raise job_error(source, f"{what} {t!r}: bad template ({exc.__class__.__name__}: {exc}); use {{stem}}, "
-                                f"{{name}} or {{parent}}") from None
+        parts = list(string.Formatter().parse(t))
+    except ValueError as exc:
+        raise job_error(source, f"{what} {t!r}: bad template ({exc}); use {{stem}}, {{name}} or {{parent}}") from None
+    for _, field_name, spec, conversion in parts:
+        if field_name is not None and (field_name not in fields or spec or conversion):
+            raise job_error(source, f"{what} {t!r}: bad template (field {{{field_name}"
+                                    f"{'!' + conversion if conversion else ''}{':' + spec if spec else ''}}}); use "
+                                    f"{{stem}}, {{name}} or {{parent}}")
 
 
 def resolve_template(job_base: Path, t: str, src: Path) -> Path:

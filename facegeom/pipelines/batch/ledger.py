@@ -15,11 +15,11 @@ import os
 from pathlib import Path
 
 from facegeom.errors import InputError
-from facegeom.pipelines.batch.job import Job
+from facegeom.pipelines.batch.job import Job, job_error
 from facegeom.pipelines.batch.tasks import make_row
 
 __all__ = ["SUMMARY_NAME", "MANIFEST_NAME", "SUMMARY_COLUMNS", "read_summary", "write_summary", "write_manifest",
-           "remove_outputs", "remove_stale_temporaries", "finish_rows"]
+           "remove_outputs", "remove_stale_temporaries", "finish_rows", "make_output_folders"]
 
 SUMMARY_NAME = "batch-summary.csv"
 MANIFEST_NAME = "batch-job.json"
@@ -113,6 +113,34 @@ def write_manifest(job: Job, spec: dict, overwrite: bool) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps({**want, "facegeom": __version__, "job": job.source}, indent=2, default=str)
                        + "\n")
+
+
+def make_output_folders(job: Job, items: list[dict]) -> None:
+    """Create the output folder and every subfolder the items write into (before any task runs).
+
+    Outputs mirror their inputs' paths relative to the inputs' common folder
+    (inputs ``a/x.csv`` and ``b/y.csv`` write ``OUT/a/x.json`` and
+    ``OUT/b/y.json``), so same-named inputs of different folders never collide.
+
+    Parameters
+    ----------
+    job : Job
+    items : list of dict
+        The planned items (their ``outputs``).
+
+    Raises
+    ------
+    InputError
+        A folder cannot be created (a file is in the way, no permission), naming the job.
+    """
+    folders = {job.output} | {Path(o).parent for it in items for o in it["outputs"]}
+    for folder in sorted(folders, key=lambda f: len(f.parts)):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise job_error(job.source, f"output folder {folder}: a file of that name is in the way") from None
+        except OSError as exc:
+            raise job_error(job.source, f"output folder {folder}: cannot create it ({exc.strerror or exc})") from None
 
 
 def remove_outputs(items: list[dict], summary: Path) -> None:

@@ -29,6 +29,10 @@ def config_hash(obj) -> str:
 def find_inputs(job: Job) -> list[Path]:
     """The job's input files, resolved and sorted; hidden files and files in the output folder left out.
 
+    Files in the output folder (or below it) are outputs of an earlier run,
+    never inputs. A pattern all of whose files lie there (the output folder is
+    an input folder, or holds it) is refused rather than silently matching nothing.
+
     Parameters
     ----------
     job : Job
@@ -41,7 +45,7 @@ def find_inputs(job: Job) -> list[Path]:
     Raises
     ------
     InputError
-        A named file is missing, or nothing matched.
+        A named file is missing, a pattern matches only files in the output folder, or nothing matched.
     """
     out = os.path.realpath(job.output) + os.sep
     found: set[str] = set()
@@ -65,11 +69,20 @@ def find_inputs(job: Job) -> list[Path]:
             files = [pattern]
         else:
             raise job_error(job.source, f"inputs: {pattern}: file not found")
+        kept = in_output = 0
         for f in files:
             f = real(f)
-            if os.path.basename(f).startswith(".") or f.startswith(out) or not os.path.isfile(f):
+            if os.path.basename(f).startswith(".") or not os.path.isfile(f):
+                continue
+            if f.startswith(out):
+                in_output += 1
                 continue
             found.add(f)
+            kept += 1
+        if in_output and not kept:
+            raise job_error(job.source, f"inputs: {pattern}: every file it matches is in the output folder "
+                                        f"{job.output}, whose files are taken for outputs, never inputs; choose "
+                                        f"an output folder outside the inputs")
     if not found:
         raise job_error(job.source, f"no input matched {', '.join(repr(x) for x in job.inputs)}"
                                     f" (for {job.operation}: {', '.join(job.schema.suffixes)} files)")

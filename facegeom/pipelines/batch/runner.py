@@ -11,12 +11,14 @@ from facegeom.pipelines.batch.job import Job
 from facegeom.pipelines.batch.ledger import (
     SUMMARY_NAME,
     finish_rows,
+    make_output_folders,
     read_summary,
     remove_outputs,
     remove_stale_temporaries,
     write_manifest,
     write_summary,
 )
+from facegeom.pipelines.batch.lock import output_lock
 from facegeom.pipelines.batch.plan import plan
 from facegeom.pipelines.batch.tasks import is_complete, make_row
 
@@ -65,7 +67,8 @@ class BatchResult:
 
 
 def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int | None = None,
-            inline: bool = False, overwrite: bool = False, progress: bool = True, echo=None) -> BatchResult:
+            inline: bool = False, isolate: bool = False, overwrite: bool = False, progress: bool = True,
+            echo=None) -> BatchResult:
     """Run ``job``: skip complete outputs, process the rest on Dask, write the summary CSV.
 
     Parameters
@@ -77,6 +80,10 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
         otherwise a local cluster of ``workers`` processes (default: one per core).
     inline : bool
         No Dask: the same chunks, in this process, one after the other.
+    isolate : bool
+        With ``inline``: run each chunk in a forked child process, so a native
+        crash (segfault) fails only the input that caused it (see
+        :mod:`facegeom.pipelines.batch`). Off by default: no process per chunk.
     overwrite : bool
         Delete the outputs of every input first and recompute them all.
     echo : callable, optional
@@ -86,13 +93,21 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
     ------
     InputError
         A bad job (no input matched, a missing shared file, an unknown method,
-        an output folder made by another job). Bad *inputs* never raise: their
+        an output folder made by another job, or one another run is writing to). Bad *inputs* never raise: their
         rows in :attr:`BatchResult.rows` and the summary say ``failed``.
     """
     say = echo or (lambda *_: None)
     t_start = time.perf_counter()
     spec, items, chunk = plan(job)
-    job.output.mkdir(parents=True, exist_ok=True)
+    make_output_folders(job, items)
+    with output_lock(job.output):
+        out_rows, engine, n_tasks, summary = _run_locked(job, spec, items, chunk, client, scheduler, workers, inline,
+                                                         isolate, overwrite, progress, say)
+    return BatchResult(out_rows, summary, time.perf_counter() - t_start, engine or "nothing to do", chunk, n_tasks)
+
+
+def _run_locked(job, spec, items, chunk, client, scheduler, workers, inline, isolate, overwrite, progress, say):
+    """The run in an output folder this process has locked: ``(rows, engine, tasks, summary path)``."""
     write_manifest(job, spec, overwrite)
     summary = job.output / SUMMARY_NAME
     if overwrite:
@@ -103,13 +118,14 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
     previous = read_summary(summary)
     chunks, rows = _schedule(items, chunk)
     n_todo = sum(len(c) for c in chunks)
-    engine = "inline (this process)" if inline else None
+    engine = ("inline (this process, a child process per task)" if isolate else "inline (this process)") \
+        if inline else None
     say(f"{job.operation} ({spec['method']}): {len(items)} inputs, {n_todo} to do in {len(chunks)} tasks of up to "
         f"{chunk}, {len(items) - n_todo} already complete -> {job.output}")
     try:
         if chunks and inline:
             say(f"engine: {engine}")
-            run_inline(spec, chunks, rows, progress)
+            run_inline(spec, chunks, rows, progress, isolate)
         elif chunks:
             with connect(client, scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS"), workers) as (cl, engine):
                 say(f"engine: {engine}")
@@ -117,8 +133,7 @@ def run_job(job: Job, *, client=None, scheduler: str | None = None, workers: int
     finally:
         out_rows = finish_rows(job, items, rows, previous)
         write_summary(summary, out_rows)
-    return BatchResult(out_rows, summary, time.perf_counter() - t_start, engine or "nothing to do", chunk,
-                       len(chunks))
+    return out_rows, engine, len(chunks), summary
 
 
 def _schedule(items: list[dict], chunk: int) -> tuple[list[list[dict]], dict[int, dict]]:

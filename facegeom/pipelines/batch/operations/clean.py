@@ -15,6 +15,8 @@ _CLEAN_PARAMS = {
     "crop": ("from_vertices", "radius", "id_range", "geodesic"),
 }
 
+_BOOL_PARAMS = ("largest_component", "non_manifold", "orient", "preserve_boundary", "preserve_topology", "geodesic")
+
 __all__ = ["CleanOperation"]
 
 
@@ -38,7 +40,7 @@ class CleanOperation(Operation):
             exactly one of ``from_vertices`` (with ``radius``) and ``id_range``, or
             a ``shared.map`` other than csv or npz.
         """
-        from facegeom.pipelines.cleanup import parse_tolerance
+        from facegeom.pipelines.cleanup import parse_id_range, parse_tolerance
 
         if job.method not in _CLEAN_PARAMS:
             raise job_error(job.source, f"method {job.method!r}: clean runs one of {', '.join(_CLEAN_PARAMS)}")
@@ -47,6 +49,22 @@ class CleanOperation(Operation):
         if bad:
             raise job_error(job.source, f"params.{bad[0]}: {job.method} takes {', '.join(allowed)}")
         p = job.params
+        for k in _BOOL_PARAMS:
+            if k in p and not isinstance(p[k], bool):
+                raise job_error(job.source, f"params.{k} must be true or false, got {p[k]!r}")
+        if "radius" in p and (isinstance(p["radius"], bool) or not isinstance(p["radius"], (int, float))
+                              or not 0 < p["radius"] < float("inf")):
+            raise job_error(job.source, f"params.radius must be a positive number, got {p['radius']!r}")
+        v = p.get("from_vertices")
+        if v is not None and not (isinstance(v, list) and v and all(
+                isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2**63 for x in v)):
+            raise job_error(job.source, f"params.from_vertices must be a list of vertex ids (non-negative integers), "
+                                        f"got {v!r}")
+        if "id_range" in p:
+            try:
+                parse_id_range(p["id_range"], 2**62)  # the mesh is not read here: any end will do
+            except InputError as exc:
+                raise job_error(job.source, f"params.id_range: {exc}") from None
         if "merge_tol" in p:
             try:
                 parse_tolerance(p["merge_tol"])

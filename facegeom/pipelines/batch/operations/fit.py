@@ -62,6 +62,8 @@ class FitOperation(Operation):
         if landmarks and any(c is None for c in cam):
             raise job_error(job.source, "landmark targets need the camera: set shared.focal, shared.cx and shared.cy "
                                         "(pixels)")
+        if landmarks and not cam[0] > 0:
+            raise job_error(job.source, f"shared.focal must be a positive number (pixels), got {cam[0]!r}")
         fitter = check_method(job, "fitters")
         spec["shared"] = {"rig": rig, "kind": kind, "camera": cam,
                           "vectorised": "landmarks" in batched_targets(fitter)}
