@@ -105,3 +105,28 @@ def test_import_ict_folder_errors(tmp_path):
     (tmp_path / "vertex_indices.json").write_text("{not json")
     with pytest.raises(InputError, match="malformed JSON"):
         fd.import_ict_folder(tmp_path)
+
+
+def test_bundle_that_is_not_an_npz_is_named_as_such(tmp_path):
+    """A mesh or a pickle given as the bundle: one line saying it is not a bundle (never unpickled)."""
+    import pickle
+
+    obj = tmp_path / "face.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    pkl = tmp_path / "evil.npz"
+    pkl.write_bytes(pickle.dumps({"neutral": 1}))
+    for p in (obj, pkl):
+        with pytest.raises(InputError, match="not a face data bundle") as e:
+            fd.load_bundle(p)
+        assert "pickle" not in str(e.value)
+
+
+def test_bundle_with_fractional_ids_is_refused(tmp_path):
+    arrays = {k: v for k, v in fd.load_bundle().items() if not k.startswith("_")}
+    lm = arrays["landmarks_multipie68"].astype(float)
+    lm[5] += 0.5
+    np.savez(tmp_path / "frac.npz", **{**arrays, "landmarks_multipie68": lm})
+    with pytest.raises(InputError, match="landmarks_multipie68 must hold integer vertex ids"):
+        fd.load_bundle(tmp_path / "frac.npz")
+    np.savez(tmp_path / "whole.npz", **{**arrays, "landmarks_multipie68": np.round(lm)})  # integral floats are ids
+    fd.load_bundle(tmp_path / "whole.npz")

@@ -124,6 +124,13 @@ def load_bundle(path: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
     """
     f = locate_data(path)
     try:
+        with open(f, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise InputError(f"cannot read the face data bundle ({exc.__class__.__name__})", f) from None
+    if magic != b"PK\x03\x04":  # an .npz is a zip archive; anything else is not a bundle (and never unpickled)
+        raise InputError(f"not a face data bundle: expected the {BUNDLE_NAME} archive (or the folder holding it)", f)
+    try:
         with np.load(f, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
@@ -155,6 +162,11 @@ def _validate_bundle(a: Mapping[str, np.ndarray], f) -> None:
             raise InputError(f"malformed face data bundle: {msg}", f)
     for key in ("triangles", "quads", "landmarks_multipie68"):
         v = a[key]
+        if not np.issubdtype(v.dtype, np.integer):
+            integral = np.issubdtype(v.dtype, np.floating) and np.all(np.isfinite(v)) and np.all(v == np.round(v))
+            if not integral:
+                raise InputError(f"malformed face data bundle: {key} must hold integer vertex ids, "
+                                 f"got {v.dtype} values such as {v.ravel()[:3].tolist()}", f)
         if v.size and (v.min() < 0 or v.max() >= n):
             raise InputError(f"malformed face data bundle: {key} index past the {n} vertices", f)
     for key in ("neutral", "expression_deltas", "identity_modes"):
