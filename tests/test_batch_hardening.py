@@ -179,6 +179,26 @@ def test_segfault_inline_isolated_fails_only_its_input(landmarks, tmp_path, monk
     assert res.engine.startswith("inline") and (tmp_path / "t00004.json").is_file()
 
 
+def test_cli_isolate_flag(landmarks, tmp_path, monkeypatch):
+    """``facegeom batch --inline --isolate``: the crashing input fails alone (exit 1); --isolate needs --inline."""
+    import facegeom.model as model
+    from click.testing import CliRunner
+
+    from facegeom.cli import cli
+
+    monkeypatch.setattr(model, "read_fit_target", model.read_fit_target)  # restored after the test
+    _segfault_on("t00002.csv")
+    jf = tmp_path / "job.toml"
+    jf.write_text(f'operation = "fit"\ninputs = "{landmarks / "landmarks"}/*.csv"\noutput = "out"\n'
+                  f"[batch]\nchunk = 4\n[shared]\nfocal = {FOCAL}\ncx = {CX}\ncy = {CY}\n")
+    r = CliRunner().invoke(cli, ["batch", str(jf), "--isolate"])
+    assert r.exit_code == 2 and "--isolate applies to --inline runs" in r.output
+    r = CliRunner().invoke(cli, ["batch", str(jf), "--inline", "--isolate", "--quiet"])
+    assert r.exit_code == 1, r.output
+    assert "7 ok, 1 failed" in r.output and "t00002.csv" in r.output and "SIGSEGV" in r.output
+    assert len(list((tmp_path / "out").glob("t*.json"))) == 7 and not (tmp_path / "out" / "t00002.json").exists()
+
+
 # --------------------------------------------------------------------------- 4. malformed jobs
 
 

@@ -16,6 +16,10 @@ import click
 @click.option("--workers", type=click.IntRange(1), default=None,
               help="Worker processes of the local cluster (default: one per core).")
 @click.option("--inline", is_flag=True, help="No Dask: run the chunks one after the other in this process.")
+@click.option("--isolate", is_flag=True,
+              help="With --inline: run each chunk in a forked child process, so an input that crashes the "
+                   "process fails alone (its chunk is retried one input per child). The Dask engine isolates "
+                   "workers anyway.")
 @click.option("--chunk", type=click.IntRange(1), default=None,
               help="Inputs per task (default: the job's [batch] chunk, else 64 landmark files, 16 marker "
                    "frames, 1 otherwise).")
@@ -25,7 +29,7 @@ import click
 @click.option("--overwrite", is_flag=True, help="Delete existing outputs and recompute every input.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
-def batch_cmd(ctx, job_file, output, scheduler, workers, inline, chunk, retries, overwrite, quiet):
+def batch_cmd(ctx, job_file, output, scheduler, workers, inline, isolate, chunk, retries, overwrite, quiet):
     """Run the job in JOB.toml: an operation (fit, drive, retarget, animate, clean) over every input, one
     result file per input and a summary CSV (batch-summary.csv) in the output folder.
 
@@ -48,12 +52,14 @@ def batch_cmd(ctx, job_file, output, scheduler, workers, inline, chunk, retries,
     """
     from facegeom.pipelines.batch import load_job, run_job
 
+    if isolate and not inline:
+        raise click.UsageError("--isolate applies to --inline runs (Dask workers are separate processes already)")
     job = load_job(job_file, output=output, data=ctx.obj.data if ctx.obj else None)
     if chunk is not None:
         job.chunk = chunk
     if retries is not None:
         job.retries = retries
-    res = run_job(job, scheduler=scheduler, workers=workers, inline=inline, overwrite=overwrite,
+    res = run_job(job, scheduler=scheduler, workers=workers, inline=inline, isolate=isolate, overwrite=overwrite,
                   progress=not quiet, echo=click.echo)
     c = res.counts
     line = f"{c['ok']} ok, {c['failed']} failed, {c['skipped']} skipped (already complete)"
