@@ -8,7 +8,8 @@ from facegeom.pipelines.cleanup.checks import _check_mesh, _non_manifold_edges
 from facegeom.pipelines.cleanup.indexmap import IndexMap
 from facegeom.pipelines.cleanup.meshlab import Progress, _pml, _Run
 from facegeom.pipelines.cleanup.options import parse_tolerance
-from facegeom.pipelines.cleanup.report import Report
+from facegeom.pipelines.cleanup.report import Report, StepReport
+from facegeom.pipelines.cleanup.topology import edge_face_counts, orient_pieces, split_corners
 
 __all__ = ["clean"]
 
@@ -73,28 +74,29 @@ def clean(V, F, *, merge_tol=0.0, largest_component: bool = False, non_manifold:
         run.apply(f"merge vertices closer than {label}", "meshing_merge_close_vertices", merge=True, threshold=thr)
     run.apply("remove zero-area faces", "meshing_remove_null_faces")
     run.apply("remove duplicate faces", "meshing_remove_duplicate_faces", face_merge=True)
+    _refuse_pathological(run.mesh.face_matrix())
     run.apply("repair non-manifold edges", "meshing_repair_non_manifold_edges",
               method="Split Vertices" if non_manifold == "split" else "Remove Faces", drop_unreferenced=True)
     if non_manifold == "split" and _non_manifold_edges(run.mesh.face_matrix()):
-        # splitting can fail where the faces on an edge disagree in orientation: remove faces there
-        run.apply("repair non-manifold edges (remove faces)", "meshing_repair_non_manifold_edges",
-                  method="Remove Faces")
+        # pymeshlab cannot split where the faces on an edge disagree in orientation: cut there in numpy
+        _split_in_numpy(run)
+    if non_manifold == "split" and _non_manifold_edges(run.mesh.face_matrix()):  # pragma: no cover - not seen
+        step = run.apply("repair non-manifold edges (remove faces)", "meshing_repair_non_manifold_edges",
+                         method="Remove Faces")
+        run.report.notes.append(f"splitting left non-manifold edges: {step.faces_before - step.faces_after} "
+                                f"faces were removed")
     run.apply("repair non-manifold vertices", "meshing_repair_non_manifold_vertices", vertdispratio=0.0)
     run.apply("remove unreferenced vertices", "meshing_remove_unreferenced_vertices")
     if run.mesh.face_number() == 0:
         raise InputError("nothing is left of the mesh after cleaning (every face was degenerate)")
     if largest_component:
         _keep_largest_component(run)
-    oriented = orient and run.apply("orient faces coherently", "meshing_re_orient_faces_coherently",
-                                    optional=True) is not None
     V2, F2, imap, fids = run.finish()
     left = _non_manifold_edges(F2)
     if left:  # pragma: no cover - not seen: every repair above ran
         run.report.notes.append(f"{left} non-manifold edges are left")
-    if oriented:
-        flipped = _restore_majority_orientation(F2, imap, fids, F_ref, run.rep)
-        st = run.report.steps[-1]
-        st.details["reoriented_faces"] = flipped
+    if orient:
+        _orient(run, F2, imap, fids, F_ref)
     return V2, F2, imap, run.close(V2, F2, imap)
 
 
@@ -151,32 +153,77 @@ def _cyclic_same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             | ((a[:, 0] == b[:, 2]) & (a[:, 1] == b[:, 0])))
 
 
-def _restore_majority_orientation(F2, imap: IndexMap, fids, F_ref, rep) -> int:
-    """pymeshlab orients each component after its first face; keep the majority's orientation instead.
-
-    Flips (in place) the components where most faces came out reversed from the
-    input; returns how many faces now differ in orientation from the input.
-    """
-    from facegeom.geometry import connected_components
-
+def _flipped_from_input(F2, imap: IndexMap, fids, F_ref, rep) -> np.ndarray:
+    """Per final face: 1 if reversed from its input face, 0 if not, -1 if it cannot be compared."""
     src = imap.new_to_old[F2]
+    src = np.where(src >= 0, rep[np.maximum(src, 0)], -1)
+    out = np.full(F2.shape[0], -1, dtype=np.int64)
     ok = (fids >= 0) & (src >= 0).all(axis=1)
     orig = F_ref[fids[ok]]
     orig = np.where(orig >= 0, rep[np.maximum(orig, 0)], -1)
     same_set = (np.sort(orig, axis=1) == np.sort(src[ok], axis=1)).all(axis=1)
     rows = np.flatnonzero(ok)[same_set]
-    flipped = np.zeros(F2.shape[0], bool)
-    flipped[rows] = ~_cyclic_same(orig[same_set], src[rows])
-    compared = np.zeros(F2.shape[0], bool)
-    compared[rows] = True
-    _, lab = connected_components(F2, imap.n_new)
-    comp = lab[F2[:, 0]]
-    nc = int(comp.max()) + 1
-    n_flip = np.bincount(comp[flipped], minlength=nc)
-    n_same = np.bincount(comp[compared & ~flipped], minlength=nc)
-    bad = n_flip > n_same
-    if bad.any():
-        sel = bad[comp]
-        F2[sel] = F2[sel][:, [0, 2, 1]]
-        flipped[sel & compared] = ~flipped[sel & compared]
-    return int(flipped.sum())
+    out[rows] = ~_cyclic_same(orig[same_set], src[rows])
+    return out
+
+
+def _orient(run: _Run, F2: np.ndarray, imap: IndexMap, fids, F_ref) -> None:
+    """Orient every piece of ``F2`` (in place) on its own; a reported step, a note per non-orientable piece.
+
+    Each orientable piece (faces joined by edges with two faces) keeps the
+    orientation most of its faces had in the input; a non-orientable piece (a
+    Möbius strip) keeps its faces as they are and is named in a note.
+    """
+    import time
+
+    t = time.perf_counter()
+    ref = _flipped_from_input(F2, imap, fids, F_ref, run.rep)
+    flip, bad = orient_pieces(F2, ref)
+    F2[flip] = F2[flip][:, [0, 2, 1]]
+    ref = np.where(ref >= 0, ref.astype(bool) ^ flip, -1)
+    nv, nf = imap.n_new, int(F2.shape[0])
+    run.add_step(StepReport("orient faces coherently", nv, nv, nf, nf, {"reoriented_faces": int((ref == 1).sum())},
+                            time.perf_counter() - t))
+    for f, size in bad:
+        run.report.notes.append(f"orient faces coherently: the piece of {size} faces with face {f} is not "
+                                f"orientable (e.g. a Moebius strip); its faces are left as they were, every "
+                                f"other piece is oriented")
+
+
+def _refuse_pathological(F) -> None:
+    """Refuse a 'mesh' whose non-manifold edges are a large share of its edges (pymeshlab would run away).
+
+    Raises
+    ------
+    InputError
+        More than 1,000 non-manifold edges and more than 10 % of the edges.
+    """
+    nm, ne = edge_face_counts(F)
+    if nm > 1000 and nm > 0.1 * ne:
+        raise InputError(f"{nm:,} of the {ne:,} edges ({100 * nm / ne:.0f} %) have more than two faces: this is not "
+                         f"a surface (e.g. a voxel grid with its inner faces); clean refuses it, extract its outer "
+                         f"surface first")
+
+
+def _split_in_numpy(run: _Run) -> None:
+    """Cut the remaining non-manifold edges and vertices (numpy), keeping every face; a reported step.
+
+    The copies carry the id of the vertex they were split from, the faces
+    keep theirs, so the index map stays exact.
+    """
+    ml = _pml()
+    cm = run.mesh
+    F = cm.face_matrix().astype(np.int64)
+    V = cm.vertex_matrix()
+    vq = cm.vertex_scalar_array()
+    fq = cm.face_scalar_array()
+    F2, src = split_corners(F, V.shape[0])
+    run.ms = ml.MeshSet()
+    run.ms.add_mesh(ml.Mesh(V[src], F2.astype(np.int32), v_scalar_array=vq[src], f_scalar_array=fq))
+    nv0, nf0 = int(V.shape[0]), int(F.shape[0])
+    import time
+
+    t = time.perf_counter()
+    details = run._track(len(run.report.steps), None)
+    run.add_step(StepReport("repair non-manifold edges (cut)", nv0, int(src.size), nf0, int(F2.shape[0]), details,
+                            time.perf_counter() - t))
