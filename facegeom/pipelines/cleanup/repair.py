@@ -64,6 +64,10 @@ def clean(V, F, *, merge_tol=0.0, largest_component: bool = False, non_manifold:
         raise InputError(f"non_manifold must be 'split' or 'remove', got {non_manifold!r}")
     kind, tol = parse_tolerance(merge_tol)
     V, F, polygons = _check_mesh(V, F)
+    if not polygons:
+        done = _fixed_point(V, F, kind, tol, largest_component, orient, progress)
+        if done is not None:
+            return done
     run = _Run("clean", V, F, progress, polygons=polygons)
     F_ref = _triangulate(run, V, F) if polygons else F
     run.apply("merge duplicate vertices", "meshing_remove_duplicate_vertices", merge=True)
@@ -98,6 +102,88 @@ def clean(V, F, *, merge_tol=0.0, largest_component: bool = False, non_manifold:
     if orient:
         _orient(run, F2, imap, fids, F_ref)
     return V2, F2, imap, run.close(V2, F2, imap)
+
+
+def _fixed_point(V, F, kind, tol, largest_component, orient, progress):
+    """``V, F`` unchanged with the identity map when ``clean`` has nothing to repair, else None.
+
+    That is: every vertex referenced, no degenerate or duplicate face, edge-
+    and vertex-manifold, every orientable piece coherently oriented, a single
+    largest component when asked, no vertices closer than ``merge_tol`` but
+    exactly coincident ones, and merging those would only recreate the
+    non-manifold contacts (or degenerate/duplicate faces) that splitting them
+    repaired. Such a mesh is what ``clean`` returns, so a second ``clean`` is
+    the identity (without this, it merges split copies and splits them again).
+    """
+    import time
+
+    import igl
+
+    from facegeom.geometry import connected_components
+
+    t0 = time.perf_counter()
+    n, m = V.shape[0], F.shape[0]
+    if np.unique(F).size != n or not _faces_ok(V, F) or edge_face_counts(F)[0]:
+        return None
+    if not np.asarray(igl.is_vertex_manifold(F)).astype(bool).all():
+        return None
+    if orient and orient_pieces(F)[0].any():
+        return None
+    if largest_component:
+        _, lab = connected_components(F, n)
+        sizes = np.bincount(lab[F[:, 0]])
+        if (sizes[sizes > 0] < sizes.max()).any():
+            return None
+    if tol > 0:
+        from scipy.spatial import cKDTree
+
+        thr = tol if kind != "percent" else tol / 100 * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+        pairs = cKDTree(V).query_pairs(thr, output_type="ndarray")
+        if pairs.size and (V[pairs[:, 0]] != V[pairs[:, 1]]).any(axis=1).any():
+            return None
+    _, inv, cnt = np.unique(V, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if (cnt > 1).any():  # coincident vertices: merging them must break the mesh, else clean would merge them
+        Fm = inv[F]
+        if not _faces_ok(V, Fm, check_area=False):
+            pass  # merging makes degenerate or duplicate faces: clean would lose faces, so they stay apart
+        else:
+            bad = np.zeros(cnt.size, bool)
+            vm = np.asarray(igl.is_vertex_manifold(Fm)).astype(bool).ravel()
+            bad[: vm.size] = ~vm
+            H = np.sort(np.r_[Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]], axis=1)
+            _, hinv, hcnt = np.unique(H, axis=0, return_inverse=True, return_counts=True)
+            nm = H[hcnt[hinv.ravel()] > 2]
+            bad[nm.ravel()] = True
+            if not bad[cnt > 1].all():
+                return None
+    names = ["merge duplicate vertices"]
+    if tol > 0:
+        names.append(f"merge vertices closer than {tol:g}%" if kind == "percent" else f"merge vertices closer than "
+                     f"{tol:g}")
+    names += ["remove zero-area faces", "remove duplicate faces", "repair non-manifold edges",
+              "repair non-manifold vertices", "remove unreferenced vertices"]
+    if largest_component:
+        names.append("keep the largest component")
+    rep = Report("clean", n, m, n, m)
+    rep.steps = [StepReport(k, n, n, m, m) for k in names]
+    if orient:
+        rep.steps.append(StepReport("orient faces coherently", n, n, m, m, {"reoriented_faces": 0}))
+    imap = IndexMap.identity(n)
+    rep.index_map = imap.counts()
+    rep.seconds = time.perf_counter() - t0
+    if progress is not None:
+        progress(f"clean: {n:,} vertices, {m:,} faces: nothing to repair")
+    return V.copy(), F.copy(), imap, rep
+
+
+def _faces_ok(V, F, check_area: bool = True) -> bool:
+    """No face with a repeated vertex (or zero area), no two faces on the same three vertices."""
+    if ((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])).any():
+        return False
+    if check_area and (np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]) == 0).all(axis=1).any():
+        return False
+    return np.unique(np.sort(F, axis=1), axis=0).shape[0] == F.shape[0]
 
 
 def _triangulate(run: _Run, V: np.ndarray, F: list) -> np.ndarray:
