@@ -282,10 +282,10 @@ def _refuse_pathological(F) -> None:
     Raises
     ------
     InputError
-        More than 1,000 non-manifold edges and more than 10 % of the edges.
+        More than 100 non-manifold edges and more than 10 % of the edges.
     """
     nm, ne = edge_face_counts(F)
-    if nm > 1000 and nm > 0.1 * ne:
+    if nm > 100 and nm > 0.1 * ne:
         raise InputError(f"{nm:,} of the {ne:,} edges ({100 * nm / ne:.0f} %) have more than two faces: this is not "
                          f"a surface (e.g. a voxel grid with its inner faces); clean refuses it, extract its outer "
                          f"surface first")
