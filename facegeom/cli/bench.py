@@ -271,3 +271,20 @@ def bench_cleanup(obj: Context, vertices, repeats):
 
     bc.main(obj.face_model(), vertices, repeats, echo=click.echo)
 
+
+
+@bench.command("cleanup-corpus")
+@click.argument("folder", type=click.Path(exists=True))
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/cleanup-corpus", show_default=True,
+              help="Folder for cleanup-corpus.csv and cleanup-corpus-summary.md.")
+@click.option("--no-decimate", is_flag=True, help="Skip the decimation checks.")
+@click.option("--max-faces", default=0, show_default=True, type=click.IntRange(0),
+              help="Skip meshes with more faces (0: no limit).")
+@click.option("--timeout", default=300.0, show_default=True, type=click.FloatRange(1),
+              help="Seconds per mesh (each mesh runs in its own process).")
+def bench_cleanup_corpus(folder, out, no_decimate, max_faces, timeout):
+    """`facegeom clean` and `decimate` on a folder of real meshes (.obj/.ply/.off): crashes, defects left, idempotence."""
+    from facegeom.bench import cleanup_corpus as bcc
+
+    bcc.main(Path(folder), Path(out), decimate=not no_decimate, max_faces=max_faces, echo=click.echo,
+             timeout=timeout)

@@ -89,7 +89,7 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
     if lost.size:
         raise InputError(f"decimation could not preserve vertex {int(lost[0])} ({lost.size} lost)")
     rep = run.close(V2, F2, imap)
-    _add_notes(rep, V2, F2, target)
+    _add_notes(rep, V2, F2, target, F, keep, imap)
     return V2, F2, imap, rep
 
 
@@ -131,15 +131,53 @@ def _collapse(run: _Run, target: int, preserve_boundary: bool, preserve_topology
     return passes
 
 
-def _add_notes(rep: Report, V2: np.ndarray, F2: np.ndarray, target: int) -> None:
-    """Notes on a result with non-manifold parts or more vertices than asked."""
+def _add_notes(rep: Report, V2: np.ndarray, F2: np.ndarray, target: int, F_in: np.ndarray,
+               keep: np.ndarray, imap: IndexMap) -> None:
+    """Notes on a result with non-manifold parts or more vertices than asked; each names its true cause.
+
+    The defects are compared with the input's; preserved vertices are blamed
+    only when some were asked for and a defect touches one of them or their
+    one-ring.
+    """
     bad = mesh_problems(V2, F2)
     nm = bad["non_manifold_edges"] + bad["non_manifold_vertices"] + bad["duplicate_faces"]
     if nm:
-        rep.notes.append(f"the result has {bad['non_manifold_edges']} non-manifold edges, "
-                         f"{bad['non_manifold_vertices']} non-manifold vertices and {bad['duplicate_faces']} "
-                         f"duplicate faces (collapse too aggressive around preserved vertices): ask for more "
-                         f"vertices, add --preserve-topology, or run `facegeom clean` on it")
+        before = mesh_problems(np.zeros((int(F_in.max()) + 1, 3)) if F_in.size else np.zeros((0, 3)), F_in)
+        had = before["non_manifold_edges"] + before["non_manifold_vertices"] + before["duplicate_faces"]
+        what = (f"the result has {bad['non_manifold_edges']} non-manifold edges, {bad['non_manifold_vertices']} "
+                f"non-manifold vertices and {bad['duplicate_faces']} duplicate faces")
+        if had:
+            cause = (f"the input already had {before['non_manifold_edges']} non-manifold edges, "
+                     f"{before['non_manifold_vertices']} non-manifold vertices and {before['duplicate_faces']} "
+                     f"duplicate faces: run `facegeom clean` first")
+        else:
+            cause = "the input had none: the edge collapses made them"
+            if keep.size and _near_kept(F2, imap.old_to_new[keep]):
+                cause += " (collapse too aggressive around preserved vertices)"
+            cause += ": ask for more vertices, add --preserve-topology, or run `facegeom clean` on the result"
+        rep.notes.append(f"{what}; {cause}")
     if V2.shape[0] > target:
         rep.notes.append(f"stopped at {V2.shape[0]:,} vertices (asked {target:,}): no further collapse was possible "
                          f"under the constraints")
+
+
+def _near_kept(F: np.ndarray, kept: np.ndarray) -> bool:
+    """True when a non-manifold edge, vertex or duplicate face of ``F`` touches a kept vertex or its one-ring."""
+    import igl
+
+    kept = kept[kept >= 0]
+    if not kept.size:
+        return False
+    ring = np.zeros(int(F.max()) + 1, bool)
+    ring[kept] = True
+    ring[np.unique(F[ring[F].any(axis=1)])] = True
+    H = np.sort(np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1)
+    _, inv, cnt = np.unique(H, axis=0, return_inverse=True, return_counts=True)
+    touched = np.zeros_like(ring)
+    touched[H[cnt[inv.ravel()] > 2].ravel()] = True
+    vm = np.asarray(igl.is_vertex_manifold(F)).astype(bool).ravel()
+    touched[: vm.size] |= ~vm
+    S = np.sort(F, axis=1)
+    _, finv, fcnt = np.unique(S, axis=0, return_inverse=True, return_counts=True)
+    touched[S[fcnt[finv.ravel()] > 1].ravel()] = True
+    return bool((touched & ring).any())
