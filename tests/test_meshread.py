@@ -231,7 +231,7 @@ def test_ply_ascii_fewer_faces_than_header_nan_and_bad_faces(tmp_path):
     assert read_mesh(put(tmp_path, "ok.ply", raw))[1].tolist() == [[0, 1, 2], [1, 3, 2]]
     fails(tmp_path, "few.ply", raw[:raw.rindex(b"3 1 3 2")], "truncated in the face section")
     fails(tmp_path, "nan.ply", raw.replace(b"1.0 1.0 0.0", b"1.0 nan 0.0"), "vertex 3 (0-based)", "NaN")
-    fails(tmp_path, "two.ply", raw.replace(b"3 1 3 2\n", b"2 1 3 2\n"), "values after")
+    fails(tmp_path, "two.ply", raw.replace(b"3 1 3 2\n", b"2 1 3 2\n"), "face 1 (0-based) has 2 vertices")
     fails(tmp_path, "idx.ply", raw.replace(b"3 1 3 2", b"3 1 9 2"), "face 1 (0-based)", "9 is outside 0..3")
     fails(tmp_path, "neg.ply", raw.replace(b"3 1 3 2", b"3 1 -1 2"), "-1 is outside")
     binary = grid_ply()
@@ -338,3 +338,19 @@ def test_npy_header_larger_than_the_file(tmp_path):
     np.save(tmp_path / "o.npy", np.array([object()]), allow_pickle=True)
     with pytest.raises(InputError, match="cannot read as .npy"):
         read_point_cloud(tmp_path / "o.npy")
+
+
+def test_ply_ascii_rows_with_more_values_than_the_header(tmp_path):
+    """MeshLab (VCG) ascii PLYs can put extra values on a face row: one row per line keeps the rows apart."""
+    head = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\n"
+            "property uchar red\nend_header\n")
+    verts = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+    faces = "3 0 1 2 6 0 0 1 0 1 1 9 1 1 1\n3 0 2 3 6 0 0 1 1 0 1 9 1 1 1\n"  # 4 values past `red`
+    p = tmp_path / "vcg.ply"
+    p.write_text(head + verts + faces)
+    V, F = read_mesh(p)
+    assert V.shape == (4, 3) and F.tolist() == [[0, 1, 2], [0, 2, 3]]
+    p.write_text(head + verts + "3 0 1 2 6 0 0 1 0 1 1\n3 0 2 3 6 0 0 1 1 0 1 9\n")  # a row short of `red`
+    with pytest.raises(InputError, match="face row 0"):
+        read_mesh(p)

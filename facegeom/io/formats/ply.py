@@ -327,6 +327,67 @@ def _ascii_walk(tokens, pos, elem, want, path):
     return pos, out
 
 
+def _ascii_tokens(body: bytes, elements, wants, path: Path) -> dict:
+    """The ascii body read as one stream of values, exactly as the header describes it."""
+    tokens = body.split()
+    pos, found = 0, {}
+    for elem, want in zip(elements, wants):
+        pos, got = _ascii_element(tokens, pos, elem, want, path)
+        found.update(got)
+    if pos < len(tokens):
+        raise InputError(f"{len(tokens) - pos} values after the last element (the header does not "
+                         "describe the body)", path)
+    return found
+
+
+def _ascii_lines(body: bytes, elements, wants, path: Path) -> dict | None:
+    """The ascii body read one element row per line, ignoring values past the header's properties.
+
+    Some writers (MeshLab's VCG library, for faces with texture coordinates)
+    put more values on a row than the header declares. When the body has
+    exactly one non-blank line per element row, each row is read from its own
+    line, so such extra values cannot shift the rows after them. Returns
+    ``None`` when the line count does not match (the caller reports the
+    stream reader's error); a line with too few values is an error.
+    """
+    lines = [ln.split() for ln in body.splitlines()]
+    lines = [t for t in lines if t]
+    if len(lines) != sum(e.count for e in elements):
+        return None
+    found, at = {}, 0
+    for elem, want in zip(elements, wants):
+        keep = {k: ([], []) for k in want}
+        for r in range(elem.count):
+            t, pos = lines[at + r], 0
+            for k, p in enumerate(elem.props):
+                if pos >= len(t):
+                    raise InputError(f"{elem.name} row {r}: {len(t)} values, fewer than its properties need", path)
+                if p.count_code is None:
+                    if k in keep:
+                        keep[k][0].append(t[pos])
+                    pos += 1
+                    continue
+                try:
+                    n = int(t[pos])
+                except ValueError:
+                    raise InputError(f"{elem.name} row {r}: list length {quote(t[pos])} is not an integer",
+                                     path) from None
+                if n < 0 or pos + 1 + n > len(t):
+                    raise InputError(f"{elem.name} row {r}: list length {n} does not fit its line", path)
+                if k in keep:
+                    keep[k][0].extend(t[pos + 1:pos + 1 + n])
+                    keep[k][1].append(n)
+                pos += 1 + n
+        at += elem.count
+        where = lambda i, name=elem.name: f"the {name} section"  # noqa: E731
+        for k, role in want.items():
+            if elem.props[k].count_code is not None:
+                found[role] = (np.asarray(keep[k][1], np.int64), parse_ints(keep[k][0], where, path))
+            else:
+                found[role] = parse_floats(keep[k][0], where, path)
+    return found
+
+
 # --------------------------------------------------------------------------- file
 
 
@@ -363,14 +424,12 @@ def read_ply(path: Path, data: bytes, faces: bool = True) -> MeshData:
     wants = [_wanted(elem, path) for elem in elements]
     found = {}
     if fmt == "ascii":
-        tokens = data[body:].split()
-        pos = 0
-        for elem, want in zip(elements, wants):
-            pos, got = _ascii_element(tokens, pos, elem, want, path)
-            found.update(got)
-        if pos < len(tokens):
-            raise InputError(f"{len(tokens) - pos} values after the last element (the header does not "
-                             "describe the body)", path)
+        try:
+            found = _ascii_tokens(data[body:], elements, wants, path)
+        except InputError as exc:
+            found = _ascii_lines(data[body:], elements, wants, path)
+            if found is None:
+                raise exc from None
     else:
         pos = body
         for elem, want in zip(elements, wants):
