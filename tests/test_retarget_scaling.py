@@ -157,3 +157,30 @@ def test_twenty_thousand_frames_in_linear_memory():
     # one dense (T, T) float64 matrix alone would be 3.2 GB
     assert peak < 300 * 2**20, f"peak traced allocation {peak / 2**20:.0f} MB"
     assert seconds < 60, f"{seconds:.1f} s"
+
+
+def test_bench_retarget_scaling_command(tmp_path):
+    import csv
+
+    from click.testing import CliRunner
+
+    from facegeom.cli.main import cli
+
+    out = tmp_path / "res"
+    r = CliRunner().invoke(cli, ["bench", "retarget-scaling", "--frames", "60,120", "--markers", "5", "--in-process",
+                                 "--methods", "tangent;copy", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(out / "retarget-scaling.csv")))
+    assert [(row["frames"], row["method"], row["status"]) for row in rows] == [
+        ("60", "tangent", "ok"), ("60", "copy", "ok"), ("120", "tangent", "ok"), ("120", "copy", "ok")]
+    assert all(float(row["seconds"]) >= 0 and float(row["peak_mb"]) > 0 for row in rows)
+    assert (out / "retarget-scaling-summary.md").is_file()
+
+
+def test_isolated_case_reports_time_and_memory():
+    from facegeom.bench.retarget_scaling import run
+    from facegeom.registry import parse_method
+
+    (row,) = run([parse_method("tangent-exact=tangent:beta=None,ridge=0.0001,source_smoothing=0")], frames=(80,),
+                 p=4, isolate=True, timeout=120, mem_gb=8, echo=lambda s: None)
+    assert row["status"] == "ok" and row["memory"] == "ru_maxrss" and row["seconds"] > 0
