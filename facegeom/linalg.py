@@ -15,7 +15,7 @@ import scipy.sparse.linalg as spla
 from facegeom.errors import SolveError
 from facegeom.native import quiet_native
 
-__all__ = ["SPDSolver", "factorize_spd"]
+__all__ = ["SPDSolver", "factorize_spd", "banded_inverse_diagonal"]
 
 try:  # optional fast backend
     from cholespy import CholeskySolverD, MatrixType
@@ -143,3 +143,58 @@ def factorize_spd(A, backend: str = "auto") -> SPDSolver:
         except RuntimeError as exc:
             tried.append(f"splu ({exc})")
     raise SolveError("the system matrix is singular or not positive definite; tried: " + "; ".join(tried))
+
+
+def banded_inverse_diagonal(U: np.ndarray) -> np.ndarray:
+    """Diagonal of ``A^-1`` from the banded Cholesky factor of ``A`` (Takahashi's selected inversion), in O(n b^2).
+
+    With ``A = U^T U`` (``U`` upper triangular with ``b`` super-diagonals), the
+    inverse ``Z`` satisfies ``U Z = U^-T``, lower triangular with diagonal
+    ``1 / U_ii``. Read row by row from the bottom, that gives the entries of
+    ``Z`` inside the band of ``A`` from entries already known:
+    ``Z_ij = -sum_k U_ik Z_kj / U_ii`` for ``0 < j - i <= b`` and
+    ``Z_ii = (1 / U_ii - sum_k U_ik Z_ik) / U_ii`` (``k = i+1 .. i+b``). No
+    entry outside the band is formed, so time and memory are linear in ``n``;
+    the result is exact up to rounding (no sampling). The recursion is
+    sequential: one Python loop over the rows, vectorised over a batch of
+    ``G`` factors of the same size (e.g. the candidates of a grid search).
+
+    Parameters
+    ----------
+    U : (b + 1, n) or (G, b + 1, n) float array
+        Upper Cholesky factor(s) in LAPACK upper banded storage, as returned by
+        :func:`scipy.linalg.cholesky_banded` with ``lower=False``:
+        ``U[b + i - j, j] = U_ij`` for ``i <= j <= i + b``.
+
+    Returns
+    -------
+    (n,) or (G, n) float64
+        ``diag(A^-1)`` of each factor (its sum is the trace of the inverse).
+    """
+    U = np.asarray(U, dtype=np.float64)
+    single = U.ndim == 2
+    if single:
+        U = U[None]
+    G, b1, n = U.shape
+    b = b1 - 1
+    # sup[o][:, i] = U[i, i + o] (o = 0 .. b), zero past the end
+    sup = np.zeros((b1, G, n))
+    for o in range(b1):
+        sup[o, :, : n - o] = U[:, b - o, o:]
+    sup = np.ascontiguousarray(sup.transpose(2, 0, 1))  # (n, b + 1, G): one row's coefficients together
+    out = np.empty((n, G))
+    # below[a, o] = Z[i + 1 + a, i + 1 + a + o] for the b rows under row i (a ring of the last b rows)
+    below = np.zeros((b, b1, G))
+    for i in range(n - 1, -1, -1):
+        u = sup[i]
+        m = min(b, n - 1 - i)
+        row = np.zeros((b1, G))  # row[o] = Z[i, i + o]
+        for o in range(m, 0, -1):  # Z[i + k, i + o] = below[min(k, o) - 1, |o - k|]
+            acc = sum(u[k] * (below[k - 1, o - k] if k <= o else below[o - 1, k - o]) for k in range(1, m + 1))
+            row[o] = -acc / u[0]
+        row[0] = (1.0 / u[0] - (u[1:m + 1] * row[1:m + 1]).sum(axis=0)) / u[0]
+        out[i] = row[0]
+        if b:
+            below[1:] = below[:-1]
+            below[0] = row
+    return out[:, 0] if single else np.ascontiguousarray(out.T)

@@ -181,9 +181,9 @@ def test_segfault_inline_isolated_fails_only_its_input(landmarks, tmp_path, monk
 
 def test_cli_isolate_flag(landmarks, tmp_path, monkeypatch):
     """``facegeom batch --inline --isolate``: the crashing input fails alone (exit 1); --isolate needs --inline."""
-    import facegeom.model as model
     from click.testing import CliRunner
 
+    import facegeom.model as model
     from facegeom.cli import cli
 
     monkeypatch.setattr(model, "read_fit_target", model.read_fit_target)  # restored after the test

@@ -232,6 +232,37 @@ def bench_scaling(obj: Context, levels, methods):
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
 
 
+@bench.command("retarget-scaling")
+@click.option("--frames", default="100,1000,10000,100000", show_default=True,
+              help="Comma-separated sequence lengths T.")
+@click.option("--markers", default=80, show_default=True, type=click.IntRange(1), help="Markers per frame.")
+@click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Labelled frames, evenly spread.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True,
+              help="'all' (tangent and tangent-exact, frame and marker strategies, laplacian, rbf, copy) "
+                   "or ';'-separated retargeter specs.")
+@click.option("--timeout", default=600.0, show_default=True, type=click.FloatRange(1), help="Seconds per case.")
+@click.option("--mem-limit", "mem_gb", default=16.0, show_default=True, type=click.FloatRange(0),
+              help="Address-space cap of a case, GiB (0: none).")
+@click.option("--in-process", is_flag=True, help="Run cases here with tracemalloc instead of one process each.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/retarget-scaling", show_default=True,
+              help="Folder for retarget-scaling.csv and retarget-scaling-summary.md.")
+def bench_retarget_scaling(frames, markers, labels, seed, methods, timeout, mem_gb, in_process, out):
+    """Retargeting time and peak memory against the number of frames (synthetic smooth takes)."""
+    from facegeom.bench import retarget_scaling as rsc
+    from facegeom.errors import InputError
+    from facegeom.registry import parse_methods
+
+    try:
+        lengths = [int(x) for x in frames.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--frames must be comma-separated integers, got {frames!r}") from None
+    if not lengths or min(lengths) < labels:
+        raise InputError(f"--frames must be at least --labels ({labels})")
+    specs = parse_methods(methods, "retargeters", list(rsc.DEFAULT_METHODS))
+    rsc.main(specs, lengths, Path(out), markers, labels, seed, not in_process, timeout, mem_gb, echo=click.echo)
+
+
 @bench.command("batch")
 @click.option("--fits", default=10000, show_default=True, type=int, help="Landmark files fitted by SEM.")
 @click.option("--frames", default=2000, show_default=True, type=int, help="Marker frames driven.")

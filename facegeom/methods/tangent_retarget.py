@@ -18,9 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import cho_solve_banded, cholesky_banded
+from scipy.sparse import csgraph
 
 from facegeom.errors import InputError
 from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted, is_finite_number, is_integer
+from facegeom.linalg import banded_inverse_diagonal, factorize_spd
 from facegeom.methods.tangent import TangentSolver, alignment_matrix
 
 
@@ -83,34 +86,84 @@ def loo_label_weight(B, labelled, residual, grid=BETA_GRID, zero_score: float | 
     ``zero_score`` (the base field's own leave-one-out error) when given, else
     the squared residual.
 
-    Returns the chosen absolute ``beta`` and the leave-one-out scores per candidate.
+    Only ``S r`` and the diagonal of ``S = beta A^-1[lab, lab]``
+    (``A = B + beta E E^T``) are needed, never ``S`` itself nor a dense inverse:
+    per candidate, one sparse factorization of ``A`` (banded in time for the
+    retargeting windows, so linear in the number of points) and one solve.
+    With at most ``D`` labels (the frame strategy) its right-hand sides are the
+    ``M`` label indicators, giving ``S`` whole; otherwise (the marker strategy:
+    ``p`` independent trajectories) they are ``beta E r`` for ``S r`` and ``C``
+    indicator columns, the ``c``-th holding the ``c``-th label of every
+    connected part of ``B`` (parts do not interact, so one column serves all of
+    them), for the diagonal; ``C`` is the largest number of labels in one part
+    (the labelled frames).
+
+    Parameters
+    ----------
+    B : (N, N) sparse symmetric positive semidefinite matrix
+        The alignment matrix (with any added energy).
+    labelled : (M,) int
+        Distinct labelled points.
+    residual : (M, D) float array
+        The labels minus the base field at the labelled points.
+    grid : sequence of float
+        Candidates, relative to the mean diagonal of ``B``.
+    zero_score : float, optional
+        The score of a candidate ``0``.
+
+    Returns
+    -------
+    beta : float
+        The chosen absolute weight.
+    scores : (len(grid),) float64
+        The leave-one-out scores per candidate.
+
+    Raises
+    ------
+    SolveError
+        A connected part of ``B`` holds no label, or a system is singular.
     """
-    B = sp.csr_matrix(B)
+    B = sp.csr_matrix(B, dtype=np.float64)
+    N = B.shape[0]
     scale = B.diagonal().mean()
     scale = scale if scale > 0 else 1.0
-    r = np.asarray(residual, dtype=np.float64).reshape(len(labelled), -1)
-    labelled = np.asarray(labelled)
-    dense = B.toarray() if B.shape[0] <= 1500 else None
-    if dense is not None:
-        E = np.zeros((B.shape[0], labelled.size))
-        E[labelled, np.arange(labelled.size)] = 1.0
+    labelled = np.asarray(labelled, dtype=np.int64)
+    M = labelled.size
+    r = np.asarray(residual, dtype=np.float64).reshape(M, -1)
+    TangentSolver._check_components(B, labelled)
+    D = r.shape[1]
+    if M <= D:  # few labels (the frame strategy): the whole S from M unit columns
+        C, colour = M, np.arange(M)
+        rhs = np.zeros((N, M))
+        rhs[labelled, colour] = 1.0
+    else:  # many labels in separate parts (the marker strategy): beta E r, plus one column per colour
+        _, comp = csgraph.connected_components(B != 0, directed=False)
+        # colour of a label = its rank among the labels of its part: labels of one colour never interact
+        order = np.argsort(comp[labelled], kind="stable")
+        part = comp[labelled][order]
+        first = np.r_[0, np.flatnonzero(np.diff(part)) + 1]
+        colour = np.empty(M, np.int64)
+        colour[order] = np.arange(M) - np.repeat(first, np.diff(np.r_[first, M]))
+        C = int(colour.max()) + 1
+        rhs = np.zeros((N, D + C))
+        rhs[labelled, D + colour] = 1.0
     scores = np.empty(len(grid))
     for k, g in enumerate(grid):
         if g == 0:  # no correction at all: each label is predicted as 0
             scores[k] = float((r ** 2).sum()) if zero_score is None else float(zero_score)
             continue
-        if dense is not None:  # small systems (a frame-strategy sequence): one dense solve per candidate
-            A = dense.copy()
-            A[labelled, labelled] += g * scale
-            try:
-                S = g * scale * np.linalg.solve(A, E)[labelled]  # (M, M): Y_lab = S r
-            except np.linalg.LinAlgError:
-                S = None
-        if dense is None or S is None:
-            W = TangentSolver(B, labelled, g * scale, dense_map=True).map_  # (M, N): Y = (r.T @ W).T
-            S = W[:, labelled].T
-        denom = np.maximum(1.0 - np.diag(S), 1e-9)
-        scores[k] = float(((((r - S @ r)) / denom[:, None]) ** 2).sum())
+        beta = g * scale
+        A = B + sp.csr_matrix((np.full(M, beta), (labelled, labelled)), shape=(N, N))
+        if C == M and rhs.shape[1] == M:
+            S = beta * factorize_spd(A).solve(rhs)[labelled]  # (M, M)
+            Sr, Sdiag = S @ r, np.diag(S)
+        else:
+            rhs[labelled, :D] = beta * r
+            X = factorize_spd(A).solve(rhs)
+            Sr = X[labelled, :D]  # (S r) = beta A^-1[lab, lab] r
+            Sdiag = beta * X[labelled, D + colour]
+        denom = np.maximum(1.0 - Sdiag, 1e-9)
+        scores[k] = float((((r - Sr) / denom[:, None]) ** 2).sum())
     return float(grid[int(np.argmin(scores))] * scale), scores
 
 
@@ -354,25 +407,53 @@ def whittaker_smooth(S: np.ndarray, lam: float | str = "auto", grid=LAMBDA_GRID)
     difference). ``lam="auto"`` picks one ``lam`` for the whole sequence from
     ``grid`` by generalised cross-validation, ``|(I - H) S|^2 / (1 - tr H / T)^2``:
     tracking jitter is removed, fast real motion (a jaw opening in a few frames) kept.
-    Returns the smoothed sequence and ``lam``.
+
+    The matrix is pentadiagonal: every candidate costs one banded Cholesky
+    factorization, one banded solve for all ``3p`` coordinates and the exact
+    trace of ``H = (I + lam D2^T D2)^-1`` from the factor
+    (:func:`~facegeom.linalg.banded_inverse_diagonal`), so time and memory are
+    linear in ``T``.
+
+    Parameters
+    ----------
+    S : (T, ...) float array
+        The sequence, time first (e.g. ``(T, p, 3)``).
+    lam : float or "auto"
+        The weight, or ``"auto"`` for generalised cross-validation over ``grid``.
+    grid : sequence of float
+        Candidates of ``"auto"``.
+
+    Returns
+    -------
+    X : float64 array, the shape of ``S``
+        The smoothed sequence.
+    lam : float
+        The weight used.
     """
     S = np.asarray(S, dtype=np.float64)
     T = S.shape[0]
     if T < 3 or lam == 0:
         return S.copy(), 0.0
-    D2 = second_difference(T).toarray()
-    Q = D2.T @ D2
-    # eigen-decomposition once: H(lam) = U diag(1 / (1 + lam w)) U^T
-    w, U = np.linalg.eigh(Q)
-    w = np.maximum(w, 0.0)
-    Z = U.T @ S.reshape(T, -1)  # (T, 3p) spectral coefficients
+    Q = (second_difference(T).T @ second_difference(T)).tocsr()
+    qband = np.zeros((3, T))  # upper banded storage: qband[2 - o, o:] = diagonal o of Q
+    for o in range(3):
+        qband[2 - o, o:] = Q.diagonal(o)
+    flat = S.reshape(T, -1)
+
+    def factor(g):
+        ab = g * qband
+        ab[2] += 1.0
+        return cholesky_banded(ab, lower=False, check_finite=False)
+
     if lam == "auto":
-        best, lam = np.inf, grid[0]
-        for g in grid:
-            h = 1.0 / (1.0 + g * w)
-            resid = float((((1.0 - h)[:, None] * Z) ** 2).sum())
-            score = resid / (1.0 - h.sum() / T) ** 2
+        factors = np.stack([factor(g) for g in grid])  # (G, 3, T)
+        traces = banded_inverse_diagonal(factors).sum(axis=1)  # tr H per candidate, one pass for all
+        best, lam, X = np.inf, grid[0], None
+        for g, U, trace in zip(grid, factors, traces):
+            Xg = cho_solve_banded((U, False), flat, check_finite=False)
+            score = float(((flat - Xg) ** 2).sum()) / (1.0 - trace / T) ** 2
             if score < best:
-                best, lam = score, float(g)
-    h = 1.0 / (1.0 + float(lam) * w)
-    return (U @ (h[:, None] * Z)).reshape(S.shape), float(lam)
+                best, lam, X = score, float(g), Xg
+    else:
+        X = cho_solve_banded((factor(float(lam)), False), flat, check_finite=False)
+    return X.reshape(S.shape), float(lam)
