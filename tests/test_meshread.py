@@ -354,3 +354,17 @@ def test_ply_ascii_rows_with_more_values_than_the_header(tmp_path):
     p.write_text(head + verts + "3 0 1 2 6 0 0 1 0 1 1\n3 0 2 3 6 0 0 1 1 0 1 9\n")  # a row short of `red`
     with pytest.raises(InputError, match="face row 0"):
         read_mesh(p)
+
+
+def test_off_counts_glued_to_the_keyword_and_faces_wrapped_over_lines(tmp_path):
+    """Two OFF variants met in public test models: ``OFF8 6 12`` headers, and one face index per line."""
+    verts = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+    p = tmp_path / "glued.off"
+    p.write_text("\t   OFF4 2 0 # a comment\n" + verts + "3 0 1 2\n3 0 2 3\n")
+    assert read_mesh(p)[1].tolist() == [[0, 1, 2], [0, 2, 3]]
+    p = tmp_path / "wrapped.off"
+    p.write_text("OFF\n4 1 0\n" + verts + "4 0\n1 \n2\n\n3\n")
+    assert [q.tolist() for q in read_polygon_mesh(p).polygons()] == [[0, 1, 2, 3]]
+    p.write_text("OFF\n4 2 0\n" + verts + "4 0\n1 \n2\n\n3\n")  # the stream holds one face, not two
+    with pytest.raises(InputError, match="line 7"):
+        read_mesh(p)

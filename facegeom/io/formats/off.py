@@ -2,9 +2,13 @@
 
 Accepted: the keyword ``[ST][C][N]OFF`` with the counts ``vertices faces
 [edges]`` on the same line or the next one; ``#`` comments, blank lines and
-leading blanks anywhere; one vertex or face per line, as every writer does.
-Columns after ``x y z`` (normals, colours, texture coordinates) and after a
-face's indices (its colour) are ignored; lines after the last face too.
+leading blanks anywhere; the counts glued to the keyword (``OFF8 6 12``); one
+vertex or face per line, as every writer does. Columns after ``x y z``
+(normals, colours, texture coordinates) and after a face's indices (its colour)
+are ignored; lines after the last face too. A face section whose faces wrap
+over several lines (one index per line, as some tools write) is read as a
+stream of values when the per-line reading fails and the stream holds exactly
+the announced faces and nothing else.
 
 Checked before anything is allocated: the counts against the file size (a
 vertex line holds at least 6 bytes, a face line 8) and against the lines that
@@ -26,6 +30,30 @@ from facegeom.io.formats.common import MeshData, check_finite, parse_floats, par
 __all__ = ["read_off"]
 
 _KEYWORD = re.compile(rb"(ST)?C?N?(4)?(n)?OFF")
+_GLUED = re.compile(rb"((?:ST)?C?N?4?n?OFF)(\d+)")
+
+
+def _stream_faces(rows: list[bytes], nf: int, n_vertices: int, path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """Faces read as one stream of values ``k i_1 .. i_k`` (lines not significant), or ``None``.
+
+    ``None`` unless the stream holds exactly ``nf`` faces of at least three
+    in-range corners and no value after them (so colour columns are never
+    taken for faces).
+    """
+    tok = b" ".join(rows).split()
+    counts, corners, pos = [], [], 0
+    for _ in range(nf):
+        if pos >= len(tok) or not tok[pos].isdigit():
+            return None
+        k = int(tok[pos])
+        if k < 3 or pos + 1 + k > len(tok) or not all(t.isdigit() for t in tok[pos + 1:pos + 1 + k]):
+            return None
+        counts.append(k)
+        corners.extend(int(t) for t in tok[pos + 1:pos + 1 + k])
+        pos += 1 + k
+    if pos != len(tok) or (corners and max(corners) >= n_vertices):
+        return None
+    return np.asarray(corners, np.int64), np.r_[0, np.cumsum(counts)].astype(np.int64)
 
 
 def _counts(tokens: list[bytes], line: int, path: Path) -> tuple[int, int]:
@@ -58,6 +86,9 @@ def read_off(path: Path, data: bytes, faces: bool = True) -> MeshData:
     """
     rows, lines = text_rows(data)
     head = rows[0].split() if rows else []
+    glued = _GLUED.fullmatch(head[0]) if head else None
+    if glued:  # "OFF8 6 12": the counts start right after the keyword
+        head = [glued.group(1), glued.group(2)] + head[1:]
     keyword = _KEYWORD.fullmatch(head[0]) if head else None
     if keyword is None:
         raise InputError("not an OFF file (the first line is not OFF, COFF, NOFF, STOFF, ...)", path)
@@ -90,6 +121,9 @@ def read_off(path: Path, data: bytes, faces: bool = True) -> MeshData:
     k = parse_ints(pick(tok, start), lambda i: f"line {flines[i]}", path)
     bad = np.flatnonzero((k < 3) | (k >= sizes))
     if bad.size:
+        streamed = _stream_faces(rows[first + nv:], nf, V.shape[0], path)
+        if streamed is not None:
+            return MeshData(V, *streamed)
         f = bad[0]
         problem = f"a face needs at least 3 vertices, got {k[f]}" if k[f] < 3 else \
             f"the face announces {k[f]} vertices but lists {sizes[f] - 1}"
