@@ -89,7 +89,8 @@ def clean(V, F, *, merge_tol=0.0, largest_component: bool = False, non_manifold:
                          method="Remove Faces")
         run.report.notes.append(f"splitting left non-manifold edges: {step.faces_before - step.faces_after} "
                                 f"faces were removed")
-    run.apply("repair non-manifold vertices", "meshing_repair_non_manifold_vertices", vertdispratio=0.0)
+    step = run.apply("repair non-manifold vertices", "meshing_repair_non_manifold_vertices", vertdispratio=0.0)
+    _finish_vertex_repair(run, step)
     run.apply("remove unreferenced vertices", "meshing_remove_unreferenced_vertices")
     if run.mesh.face_number() == 0:
         raise InputError("nothing is left of the mesh after cleaning (every face was degenerate)")
@@ -291,13 +292,17 @@ def _refuse_pathological(F) -> None:
                          f"surface first")
 
 
-def _split_in_numpy(run: _Run) -> None:
-    """Cut the remaining non-manifold edges and vertices (numpy), keeping every face; a reported step.
+def _cut_corners(run: _Run, k: int) -> tuple[int, int, int, dict[str, int], float]:
+    """Replace the mesh of ``run`` by its :func:`split_corners` cut (every face kept, copies keep their ids).
 
-    The copies carry the id of the vertex they were split from, the faces
-    keep theirs, so the index map stays exact.
+    Returns the vertex counts before and after, the face count, the tracked
+    details (``split_copies``) and the wall time; ``k`` is the index of the
+    step the cut is counted in.
     """
+    import time
+
     ml = _pml()
+    t = time.perf_counter()
     cm = run.mesh
     F = cm.face_matrix().astype(np.int64)
     V = cm.vertex_matrix()
@@ -306,10 +311,48 @@ def _split_in_numpy(run: _Run) -> None:
     F2, src = split_corners(F, V.shape[0])
     run.ms = ml.MeshSet()
     run.ms.add_mesh(ml.Mesh(V[src], F2.astype(np.int32), v_scalar_array=vq[src], f_scalar_array=fq))
-    nv0, nf0 = int(V.shape[0]), int(F.shape[0])
-    import time
+    details = run._track(k, None)
+    return int(V.shape[0]), int(src.size), int(F.shape[0]), details, time.perf_counter() - t
 
-    t = time.perf_counter()
-    details = run._track(len(run.report.steps), None)
-    run.add_step(StepReport("repair non-manifold edges (cut)", nv0, int(src.size), nf0, int(F2.shape[0]), details,
-                            time.perf_counter() - t))
+
+def _split_in_numpy(run: _Run) -> None:
+    """Cut the remaining non-manifold edges and vertices (numpy), keeping every face; a reported step.
+
+    The copies carry the id of the vertex they were split from, the faces
+    keep theirs, so the index map stays exact.
+    """
+    nv0, nv1, nf, details, sec = _cut_corners(run, len(run.report.steps))
+    run.add_step(StepReport("repair non-manifold edges (cut)", nv0, nv1, nf, nf, details, sec))
+
+
+def _non_manifold_vertices(F) -> int:
+    """How many vertices of ``F`` (triangles) are not manifold (libigl's test)."""
+    import igl
+
+    F = np.asarray(F, dtype=np.int64)
+    if F.size == 0:
+        return 0
+    vm = np.asarray(igl.is_vertex_manifold(F)).astype(bool).ravel()
+    used = np.zeros(vm.size, bool)
+    used[np.unique(F)] = True
+    return int((~vm & used).sum())
+
+
+def _finish_vertex_repair(run: _Run, step: StepReport) -> None:
+    """Cut, in numpy, the non-manifold vertices pymeshlab's vertex repair left; counted in ``step``.
+
+    pymeshlab splits one fan off each non-manifold vertex per call, so a
+    vertex where three or more fans meet (e.g. left by removing the faces of
+    non-manifold edges) stays non-manifold, and a second ``clean`` would merge
+    the split copies and split again. :func:`split_corners` gives every fan
+    its own copy at once, so one pass reaches the fixed point. Only run on an
+    edge-manifold mesh (it would cut non-manifold edges too).
+    """
+    F = run.mesh.face_matrix()
+    if not _non_manifold_vertices(F) or _non_manifold_edges(F):
+        return
+    _, nv1, _, details, sec = _cut_corners(run, run.report.steps.index(step))
+    step.vertices_after = nv1
+    for key, val in details.items():
+        step.details[key] = step.details.get(key, 0) + val
+    step.seconds += sec
