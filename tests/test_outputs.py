@@ -375,3 +375,23 @@ def test_screenshot_that_did_not_come_out_is_an_error(tmp_path, capsys, monkeypa
                                  capsys)
     assert code == 0 and f"wrote {shot}" in so, err
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and mode(shot) == 0o640
+
+
+def test_a_full_disk_is_one_line_naming_the_output(files, capsys, monkeypatch):
+    """An OSError that is not the user's (ENOSPC) still prints one line with the real output path, exit 1."""
+    import errno
+
+    import facegeom.io as fio
+
+    d = files
+
+    def full(path, *a, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(fio, "write_mesh", full)
+    before = listing(d)
+    code, _, err = run_main(["fit", d / "target.obj", "--rig", d / "rig", "-o", d / "w.json", "--mesh-out",
+                             d / "fitted.obj"], capsys)
+    assert code == 1 and err.count("\n") == 1 and "No space left on device" in err and "Traceback" not in err
+    assert str(d / "fitted.obj") in err and ".tmp" not in err
+    assert listing(d) == before

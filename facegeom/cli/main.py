@@ -94,6 +94,10 @@ def main(argv=None):
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         click.echo(f"facegeom: error: {exc.filename}: {exc.strerror}", err=True)
         sys.exit(2)
+    except OSError as exc:  # the system refused (disk full, I/O error, ...): one line naming the file, exit 1
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"facegeom: error: {where}{exc.strerror or exc}", err=True)
+        sys.exit(1)
     except KeyboardInterrupt:
         click.echo("facegeom: interrupted", err=True)
         sys.exit(130)
