@@ -21,6 +21,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from facegeom.errors import DataNotFoundError, InputError
+from facegeom.io.formats.common import read_file_bytes
+from facegeom.io.formats.obj import read_obj
 
 __all__ = [
     "ENV_VAR",
@@ -383,33 +385,30 @@ def _read_text(path: Path) -> str:
 
 
 def read_obj_positions(path: str | os.PathLike) -> np.ndarray:
-    """The ``v`` lines of an OBJ as ``(n, 3)`` float64 (texture coordinates etc. ignored)."""
+    """The ``v`` lines of an OBJ as ``(n, 3)`` float64, read by the validating OBJ reader (faces ignored).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, malformed ``v`` line, NaN/inf, no vertex.
+    """
     path = Path(path)
-    lines = [ln for ln in _read_text(path).splitlines() if ln.startswith("v ")]
-    if not lines:
+    V = read_obj(path, read_file_bytes(path), faces=False).vertices
+    if V.shape[0] == 0:
         raise InputError("no vertex ('v') lines: not an OBJ mesh", path)
-    try:
-        V = np.array([ln.split()[1:4] for ln in lines], dtype=np.float64)
-    except ValueError:
-        raise InputError("malformed 'v' line (expected three numbers)", path) from None
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise InputError("malformed 'v' line (expected three numbers)", path)
-    if not np.all(np.isfinite(V)):
-        raise InputError("vertex coordinates contain NaN or inf", path)
     return V
 
 
 def read_obj_polygons(path: str | os.PathLike) -> list[list[int]]:
-    """The ``f`` lines of an OBJ as 0-based vertex-id lists (``v/vt/vn`` forms accepted)."""
+    """The ``f`` lines of an OBJ as 0-based vertex-id lists (every corner form; indices checked).
+
+    Raises
+    ------
+    InputError
+        As :func:`read_obj_positions`, and faces with fewer than 3 corners or indices out of range.
+    """
     path = Path(path)
-    polys = []
-    for ln in _read_text(path).splitlines():
-        if ln.startswith("f "):
-            try:
-                polys.append([int(tok.split("/")[0]) - 1 for tok in ln.split()[1:]])
-            except ValueError:
-                raise InputError(f"malformed face line {ln[:60]!r}", path) from None
-    return polys
+    return [q.tolist() for q in read_obj(path, read_file_bytes(path)).polygons()]
 
 
 def import_ict_folder(folder: str | os.PathLike, n_face_vertices: int = 9409, n_face_polygons: int = 9230,
