@@ -41,22 +41,14 @@ def _remove_folders(created: list[Path]) -> None:
 def drive(mesh, markers, output, method, params, fmt):
     """Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."""
     from facegeom import registry
-    from facegeom.io import all_or_nothing, check_outputs, read_markers, read_mesh, write_mesh
+    from facegeom.io import all_or_nothing, check_outputs, read_markers, read_mesh
 
     check_outputs([mesh, markers], [] if method == "all" else [output])
     V, F = read_mesh(mesh)
     ids, pos = read_markers(markers, n_vertices=V.shape[0])
     kw = parse_params(params)
     if method != "all":
-        deformer = registry.create("deformers", method, **kw)
-        t = time.perf_counter()
-        deformer.fit(V, F, ids)
-        fit_s = time.perf_counter() - t
-        t = time.perf_counter()
-        Y = deformer.deform(pos)
-        deform_ms = (time.perf_counter() - t) * 1e3
-        write_mesh(output, Y, F)
-        click.echo(f"{method:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {output}")
+        _drive_one(registry.create("deformers", method, **kw), method, V, F, ids, pos, output, output)
         return
     if kw:
         raise click.BadParameter("parameters apply to one method; drop --param with --method all",
@@ -70,18 +62,27 @@ def drive(mesh, markers, output, method, params, fmt):
     try:  # every method's mesh or none (and no folder left behind)
         with all_or_nothing(targets) as tmps:
             for name, target, tmp in zip(names, targets, tmps):
-                deformer = registry.create("deformers", name)
-                t = time.perf_counter()
-                deformer.fit(V, F, ids)
-                fit_s = time.perf_counter() - t
-                t = time.perf_counter()
-                Y = deformer.deform(pos)
-                deform_ms = (time.perf_counter() - t) * 1e3
-                write_mesh(tmp, Y, F)
-                click.echo(f"{name:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {target}")
+                _drive_one(registry.create("deformers", name), name, V, F, ids, pos, tmp, target)
     except BaseException:
         _remove_folders(created)
         raise
+
+
+def _drive_one(deformer, label, V, F, ids, pos, path, shown) -> None:
+    """Fit ``deformer`` on ``V (n,3)``, ``F (m,3)`` with handles ``ids (k,)``, deform to ``pos (k,3)``, write ``path``.
+
+    Prints the fit and deform times with ``shown`` (the final output path; ``path`` may be its temporary file).
+    """
+    from facegeom.io import write_mesh
+
+    t = time.perf_counter()
+    deformer.fit(V, F, ids)
+    fit_s = time.perf_counter() - t
+    t = time.perf_counter()
+    Y = deformer.deform(pos)
+    deform_ms = (time.perf_counter() - t) * 1e3
+    write_mesh(path, Y, F)
+    click.echo(f"{label:<14} fit {fit_s:.3f} s, deform {deform_ms:.2f} ms -> {shown}")
 
 
 @click.command()
