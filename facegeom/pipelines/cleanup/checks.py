@@ -5,6 +5,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.interfaces import as_faces, as_vertices
+from facegeom.pipelines.cleanup.topology import edge_face_counts
 
 __all__ = ["mesh_problems"]
 
@@ -54,8 +55,6 @@ def mesh_problems(V, F) -> dict[str, int]:
     -------
     dict of str -> int
     """
-    import igl
-
     from facegeom.geometry import connected_components
 
     V = np.asarray(V, dtype=np.float64)
@@ -68,24 +67,24 @@ def mesh_problems(V, F) -> dict[str, int]:
     out["degenerate_faces"] = int((rep | (area == 0)).sum())
     out["duplicate_faces"] = int(F.shape[0] - np.unique(np.sort(F, axis=1), axis=0).shape[0])
     out["non_manifold_edges"] = _non_manifold_edges(F)
-    Fg = F[~rep]
-    if Fg.size:
-        vm = np.asarray(igl.is_vertex_manifold(Fg)).ravel()
-        used = np.zeros(vm.size, bool)
-        used[np.unique(Fg)] = True
-        out["non_manifold_vertices"] = int((~vm.astype(bool) & used).sum())
-    else:
-        out["non_manifold_vertices"] = 0
+    out["non_manifold_vertices"] = _non_manifold_vertices(F[~rep])
     out["components"] = connected_components(F, n)[0] - out["unreferenced_vertices"]
     return out
 
 
 def _non_manifold_edges(F) -> int:
-    """How many edges have more than two faces."""
+    """How many edges of the triangles ``F (m, 3)`` have more than two faces."""
+    return edge_face_counts(F)[0]
+
+
+def _non_manifold_vertices(F) -> int:
+    """How many used vertices of the triangles ``F (m, 3)`` are not manifold (libigl's test)."""
+    import igl
+
     F = np.asarray(F, dtype=np.int64)
     if F.size == 0:
         return 0
-    E = np.sort(np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1)
-    n = int(F.max()) + 1
-    _, cnt = np.unique(E[:, 0] * n + E[:, 1], return_counts=True)
-    return int((cnt > 2).sum())
+    vm = np.asarray(igl.is_vertex_manifold(F)).astype(bool).ravel()
+    used = np.zeros(vm.size, bool)
+    used[np.unique(F)] = True
+    return int((~vm & used).sum())

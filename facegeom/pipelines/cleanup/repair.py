@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.pipelines.cleanup.checks import _check_mesh, _non_manifold_edges
+from facegeom.pipelines.cleanup.checks import _check_mesh, _non_manifold_edges, _non_manifold_vertices
 from facegeom.pipelines.cleanup.indexmap import IndexMap
 from facegeom.pipelines.cleanup.meshlab import Progress, _pml, _Run
 from facegeom.pipelines.cleanup.options import parse_tolerance
@@ -323,19 +323,6 @@ def _split_in_numpy(run: _Run) -> None:
     """
     nv0, nv1, nf, details, sec = _cut_corners(run, len(run.report.steps))
     run.add_step(StepReport("repair non-manifold edges (cut)", nv0, nv1, nf, nf, details, sec))
-
-
-def _non_manifold_vertices(F) -> int:
-    """How many vertices of ``F`` (triangles) are not manifold (libigl's test)."""
-    import igl
-
-    F = np.asarray(F, dtype=np.int64)
-    if F.size == 0:
-        return 0
-    vm = np.asarray(igl.is_vertex_manifold(F)).astype(bool).ravel()
-    used = np.zeros(vm.size, bool)
-    used[np.unique(F)] = True
-    return int((~vm & used).sum())
 
 
 def _finish_vertex_repair(run: _Run, step: StepReport) -> None:
