@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
+from facegeom.io.ints import INT64_MAX, INT64_MIN
 
 __all__ = ["MeshData", "read_file_bytes", "text_rows", "split_rows", "parse_floats", "parse_ints", "pick", "check_finite", "quote"]
 
@@ -198,7 +199,7 @@ def parse_ints(tokens: list[bytes], where, path: Path) -> np.ndarray:
         with warnings.catch_warnings():
             warnings.simplefilter("error", DeprecationWarning)
             out = np.fromstring(b" ".join(tokens), dtype=np.int64, sep=" ")
-        if out.size == len(tokens) and not ((out == _INT64.max) | (out == _INT64.min)).any():
+        if out.size == len(tokens) and not ((out == INT64_MAX) | (out == INT64_MIN)).any():
             return out
     except (ValueError, DeprecationWarning):
         pass
@@ -209,12 +210,10 @@ def parse_ints(tokens: list[bytes], where, path: Path) -> np.ndarray:
         raise InputError(f"{where(i)}: {quote(tokens[i])} is not an integer index", path) from None
 
 
-_INT64 = np.iinfo(np.int64)
-
 
 def _int64(token: bytes) -> int:
     v = int(token)
-    if not -(1 << 63) <= v < (1 << 63):
+    if not INT64_MIN <= v <= INT64_MAX:
         raise OverflowError
     return v
 
