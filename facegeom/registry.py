@@ -228,6 +228,7 @@ LINEUPS: dict[str, list[str]] = {
     ],
     "fit": [
         "sem",
+        "sem-ls",
         "sem+=sem:clamp=true,stop=ric",
         "l1reg",
         "l2reg",

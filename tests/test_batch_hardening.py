@@ -204,7 +204,7 @@ def test_cli_isolate_flag(landmarks, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("change, problem", [
     ({"output": "afile"}, "output .*afile: is a file; the output is a folder"),
-    ({"params": {"speed": 3}}, "fitter 'sem' has no parameter 'speed'; valid parameters: exclusion, clamp"),
+    ({"params": {"speed": 3}}, "fitter 'sem-ls' has no parameter 'speed'; valid parameters: exclusion, clamp"),
     ({"params": {"alternations": "banana"}}, "alternations must be a non-negative integer, got 'banana'"),
     ({"params": {"covered_only": "yes"}}, "covered_only must be true or false, got 'yes'"),
     ({"params": {"region": "banana"}}, "region must be a list of vertex ids"),

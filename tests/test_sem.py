@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from facegeom import registry
 from facegeom.errors import InputError
-from facegeom.methods.sem import SEMFitter, sem_gram, sem_vectors
+from facegeom.methods.sem import SEMFitter, SEMLSFitter, sem_gram, sem_orthogonal_gram, sem_vectors
 from facegeom.model import (
     FIT_LANDMARKS_23,
     BlendshapeRig,
@@ -197,3 +197,90 @@ def test_registry_and_bad_input(face_model):
         SEMFitter(exclusion="yes")
     with pytest.raises(InputError, match=r"shape \(K, 30, 3\)"):
         f.fit_many(rig, np.zeros((2, 29, 3)))
+
+
+# --------------------------------------------------------------------------- sem-ls: least-squares coefficients
+
+
+def dense_case(face_model, seed, noise_cm=0.0):
+    """A random identity's rig and a dense expression (every shape active, like a real take frame)."""
+    rng = np.random.default_rng(seed)
+    rig = BlendshapeRig.from_face_model(face_model, face_model.random_identity(rng))
+    w = rng.uniform(0.02, 0.6, rig.n_shapes) * (rng.random(rig.n_shapes) < 0.8)
+    V = rig.evaluate(w)
+    return rig, w, V, V + rng.normal(size=V.shape) * noise_cm
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_orthogonal_path_recovers_a_dense_expression_exactly(face_model, seed):
+    """Noise-free dense target: the least-squares path reaches the truth (the paper's greedy cannot)."""
+    rig, w, V, _ = dense_case(face_model, seed)
+    r = SEMLSFitter().fit(rig, MeshTarget(V))
+    np.testing.assert_allclose(r.weights, w, atol=1e-6)
+    greedy = SEMFitter(clamp=True).fit(rig, MeshTarget(V))
+    assert np.abs(greedy.weights - w).max() > 1e-3  # the published greedy stops short on dense targets
+
+
+def test_orthogonal_path_stays_sparse_on_a_sparse_noisy_target(face_model):
+    """GCV cuts the path: a 3-shape expression under 0.5 mm noise is fitted with few shapes, the true ones first."""
+    rng = np.random.default_rng(4)
+    rig = BlendshapeRig.from_face_model(face_model, face_model.random_identity(rng))
+    names = ["jawOpen", "mouthSmile_L", "eyeBlink_R"]
+    w = rig.weights_from_dict(dict(zip(names, (0.6, 0.5, 0.8))))
+    T = rig.evaluate(w) + rng.normal(size=(rig.n_vertices, 3)) * 0.05
+    r = SEMLSFitter().fit(rig, MeshTarget(T))
+    assert set(rig.names[i] for i in r.info["order"][:3]) == set(names)
+    assert (r.weights > 1e-3).sum() <= 12
+    for n, v in zip(names, (0.6, 0.5, 0.8)):
+        assert abs(r.weights[rig.shape_index(n)] - v) < 0.01
+
+
+def test_orthogonal_gram_batch_bounds_and_degenerate_shapes(face_model):
+    rig, w, V, T = dense_case(face_model, 1, noise_cm=0.05)
+    D, G = rig.delta_matrix(), rig.gram()
+    targets = np.stack([T, rig.evaluate(np.clip(w * 2.5, 0, 1.6)), rig.neutral])
+    d = (targets - rig.neutral).reshape(3, -1)
+    E, O = sem_orthogonal_gram(d @ D, G, (d * d).sum(1), d.shape[1], upper=1.0)
+    for k in range(3):  # the batch equals one target at a time
+        e1, o1 = sem_orthogonal_gram(d[k] @ D, G, d[k] @ d[k], d.shape[1], upper=1.0)
+        np.testing.assert_allclose(E[k], e1, atol=1e-10)
+        np.testing.assert_array_equal(O[k], o1)
+    assert E.min() >= 0 and E.max() <= 1 + 1e-12  # the bounds hold where least squares would leave them
+    assert not E[2].any() and (O[2] == -1).all()  # the neutral: nothing selected
+    # a duplicated shape adds nothing once its twin is selected: no crash, the fit is unchanged
+    D2 = np.c_[D, D[:, 0]]
+    e2, _ = sem_orthogonal_gram(d[0] @ D2, D2.T @ D2, d[0] @ d[0], d.shape[1], upper=1.0)
+    np.testing.assert_allclose(rig.delta_matrix() @ E[0], D2 @ e2, atol=1e-6)
+
+
+def test_sem_ls_fit_many_equals_fit_and_landmarks_follow_the_greedy(face_model, landmark_case):
+    rig, w, V, T = dense_case(face_model, 2, noise_cm=0.05)
+    f = SEMLSFitter()
+    many = f.fit_many(rig, np.stack([T, V]))
+    np.testing.assert_allclose(many[0].weights, f.fit(rig, MeshTarget(T)).weights, atol=1e-9)
+    np.testing.assert_allclose(many[1].weights, f.fit(rig, MeshTarget(V)).weights, atol=1e-9)
+    # landmarks: "auto" keeps the paper's greedy coefficients with the noise-aware stop (sem+)
+    lrig, _, LV, ids, cam = landmark_case
+    tg = LandmarkTarget(cam.project(LV[ids]), ids, cam)
+    np.testing.assert_allclose(f.fit(lrig, tg).weights, SEMFitter(clamp=True, stop="ric").fit(lrig, tg).weights,
+                               atol=1e-12)
+    lsq = SEMLSFitter(coefficients="lsq").fit(lrig, tg)  # least squares on the projected motions also runs
+    assert lsq.weights.min() >= 0 and lsq.weights.max() <= 1 + 1e-12
+
+
+def test_sem_ls_on_a_point_cloud_and_registry(face_model):
+    assert registry.available("fitters")["sem-ls"].endswith("SEMLSFitter")
+    rig = BlendshapeRig.from_face_model(face_model)
+    w = np.zeros(rig.n_shapes)
+    w[rig.shape_index("jawOpen")] = 0.6
+    rng = np.random.default_rng(0)
+    P = rig.evaluate(w)[:6706][rng.choice(6706, 5000, replace=False)] + rng.normal(size=(5000, 3)) * 0.01
+    r = registry.create("fitters", "sem-ls", region=np.arange(6706)).fit(rig, PointCloudTarget(P))
+    paper = SEMFitter(region=np.arange(6706)).fit(rig, PointCloudTarget(P))
+    V = rig.evaluate(w)[:6706]
+    err = [np.linalg.norm(x.vertices[:6706] - V, axis=1).mean() for x in (r, paper)]
+    assert abs(r.weights[rig.shape_index("jawOpen")] - 0.6) < 0.05 and (r.weights > 0.05).sum() <= 4
+    assert err[0] <= 1.1 * err[1] and err[0] < 0.02  # as good as the paper's fit (0.2 mm on 0.1 mm noise)
+    with pytest.raises(InputError, match="coefficients must be 'greedy'"):
+        SEMLSFitter(coefficients="banana")

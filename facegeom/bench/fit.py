@@ -570,7 +570,7 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         report.csv(results["meshes"][0], "meshes")
     if "temporal" in experiments and take is not None:
         name, W = take
-        tspecs = [s for s in specs if s.name in ("sem", "l1reg")]
+        tspecs = [s for s in specs if s.name in ("sem", "sem-ls", "l1reg")]
         results["temporal"], fitted = run_temporal(model, W, tspecs, seed, progress=progress, name=name)
         j = model.expression_index("jawOpen")
         tw = W[:, [j]]

@@ -39,7 +39,7 @@ def batch_cmd(ctx, job_file, output, scheduler, workers, inline, isolate, chunk,
     \b
     Example job (paths relative to the job file):
       operation = "fit"
-      method = "sem"
+      method = "sem-ls"
       inputs = "landmarks/*.csv"
       output = "out/fit"
       truth = "truth/{stem}.json"      # optional ground truth per input

@@ -28,7 +28,7 @@ def demo(ctx, cases, out):
                takes_path=None, synthetic_only=not have_takes, layout_name="ict80", layout_seed=0,
                out=str(Path(out) / "retarget"), no_plot=False, quiet=False)
     click.echo("")
-    ctx.invoke(bench_fit, cases=cases, seed=0, methods="sem;sem+=sem:clamp=true,stop=ric;l1reg;pcadel",
+    ctx.invoke(bench_fit, cases=cases, seed=0, methods="sem-ls;sem;sem+=sem:clamp=true,stop=ric;l1reg;l2reg;pcadel",
                experiments="landmarks,meshes", noise_px=1.0, cloud_cases=1, samplings=1, points=30000,
                take_path=None, takes_path=None, start=0, frames=300, out=str(Path(out) / "fit"), no_plot=False,
                quiet=False)
@@ -49,11 +49,11 @@ def _demo_batch(model, folder: Path, count: int = 128) -> None:
 
     folder = Path(folder).resolve()
     shutil.rmtree(folder, ignore_errors=True)  # generated here, fitted again on every demo
-    click.echo(f"batch: {count} landmark files (random expressions, random head pose, 1 px noise) fitted by SEM "
-               f"on a local Dask cluster")
+    click.echo(f"batch: {count} landmark files (random expressions, random head pose, 1 px noise) fitted by "
+               f"sem-ls (the default fitter) on a local Dask cluster")
     lm, truth = make_landmark_inputs(model, folder / "inputs", count, seed=11)
-    job = job_from_dict({"operation": "fit", "method": "sem", "inputs": str(lm), "output": str(folder / "fit"),
-                         "truth": str(truth / "{stem}.json"), "params": {"clamp": True, "stop": "ric"},
+    job = job_from_dict({"operation": "fit", "method": "sem-ls", "inputs": str(lm), "output": str(folder / "fit"),
+                         "truth": str(truth / "{stem}.json"),
                          "shared": {"focal": FOCAL, "cx": CX, "cy": CY}, "data": str(model.path)},
                         base=folder, source="<demo batch job>")
     res = run_job(job, echo=click.echo)

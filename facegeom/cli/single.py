@@ -123,7 +123,7 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs (neutral.obj + one per shape); "
                    "default: the ICT generic face with its 53 expressions.")
-@click.option("-m", "--method", default="sem", show_default=True, help="A registered fitter (facegeom methods).")
+@click.option("-m", "--method", default="sem-ls", show_default=True, help="A registered fitter (facegeom methods); sem-ls: SEM with least-squares coefficients where the data determine them, sem: the published algorithm.")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Method parameter, repeatable.")
 @click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
 @click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")

@@ -62,7 +62,7 @@ from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
 
-__all__ = ["SEMFitter", "sem_gram", "sem_vectors"]
+__all__ = ["SEMFitter", "SEMLSFitter", "sem_gram", "sem_orthogonal_gram", "sem_vectors"]
 
 
 def _camera(intr, R, t, k) -> PinholeCamera:
@@ -157,6 +157,138 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, selec
     return (e[0], order[0]) if single else (e, order)
 
 
+def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 256):
+    """SEM's selection with least-squares coefficients and a GCV stop, for ``K`` targets at once.
+
+    Each step selects, as the paper does, the remaining candidate of largest
+    expressional similarity ``ESim(dB_i, dT^t)`` with the remaining motion
+    (only candidates that move the face *towards* the target: positive
+    projection). Unlike the paper's greedy, whose coefficient is frozen at
+    selection (eq. 18), all selected coefficients are then re-solved by least
+    squares on the data (orthogonal matching pursuit): the remaining motion is
+    orthogonal to every selected shape, so a candidate correlated with the
+    selection scores low and the selection stays weakly correlated without the
+    exclusion step, and a dense target reaches least-squares accuracy.
+
+    The path stops where generalised cross-validation,
+    ``GCV(k) = m RSS(k) / (m - k)^2``, is smallest over the whole path (it
+    estimates the leave-one-out prediction error without a noise estimate):
+    few shapes where few explain the target, many where the data support them.
+
+    Parameters
+    ----------
+    c : (K, B) or (B,)
+        ``dT . dB_i`` per target and candidate.
+    G : (B, B)
+        Gram matrix ``dB_i . dB_j``.
+    tt : (K,) or scalar
+        ``|dT|^2``.
+    m : int
+        Number of measured values (``3 n`` for a mesh of ``n`` vertices).
+    upper : float or None
+        Upper bound of a coefficient (``None``: only ``e >= 0``). A target whose
+        chosen least-squares coefficients leave ``[0, upper]`` is refitted on its
+        selection with the bounds (bounded least squares).
+    chunk : int
+        Targets updated together (keeps the ``(chunk, B, B)`` inverses in cache).
+
+    Returns
+    -------
+    e : (K, B) or (B,) coefficients
+    order : (K, B) int, the selected candidates in selection order (-1 after the last)
+    """
+    c = np.asarray(c, dtype=np.float64)
+    single = c.ndim == 1
+    c = np.atleast_2d(c)
+    K, B = c.shape
+    G = np.asarray(G, dtype=np.float64)
+    tt = np.broadcast_to(np.asarray(tt, dtype=np.float64), (K,))
+    m = int(m)
+    E = np.zeros((K, B))
+    O = np.full((K, B), -1, dtype=np.int64)
+    for k0 in range(0, K, chunk):
+        E[k0:k0 + chunk], O[k0:k0 + chunk] = _orthogonal_chunk(c[k0:k0 + chunk], G, tt[k0:k0 + chunk], m, upper)
+    return (E[0], O[0]) if single else (E, O)
+
+
+def _orthogonal_chunk(c, G, tt, m, upper):
+    K, B = c.shape
+    diag = np.diag(G).copy()
+    moves = diag > _TINY
+    inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
+    scale = np.maximum(tt, _TINY)
+    Ginv = np.zeros((K, B, B))  # inverse of G on each target's selection, zero elsewhere
+    sel = np.zeros((K, B), dtype=bool)
+    alive = np.broadcast_to(moves, (K, B)).copy()
+    e = np.zeros((K, B))
+    best_e = np.zeros((K, B))
+    best_gcv = m * tt / float(m) ** 2  # the empty selection
+    best_k = np.zeros(K, dtype=np.int64)
+    order = np.full((K, B), -1, dtype=np.int64)
+    rows = np.arange(K)
+    active = np.ones(K, dtype=bool)
+    for step in range(min(B, m - 1)):
+        proj = c - e @ G
+        score = np.where(alive, proj * inv_norm, -np.inf)
+        pick = np.argmax(score, axis=1)
+        sp = score[rows, pick]
+        # a projection at rounding level (the target already reached) is no motion towards it
+        active &= sp > 1e-9 * np.sqrt(scale)
+        if not active.any():
+            break
+        p = pick
+        alive[rows[active], p[active]] = False
+        g = G[p] * sel  # (K, B): the new shape against the selected ones
+        w = np.matmul(Ginv, g[:, :, None])[:, :, 0]
+        schur = diag[p] - np.einsum("ki,ki->k", g, w)
+        # a shape in the span of the selection adds nothing: skip it (and targets that stopped)
+        ok = active & (schur > 1e-10 * diag[p])
+        if not ok.any():
+            continue
+        s = np.where(ok, 1.0 / np.where(ok, schur, 1.0), 0.0)
+        sw = s[:, None] * w
+        Ginv += sw[:, :, None] * w[:, None, :]  # no-op where s = 0
+        a = rows[ok]
+        pa = p[ok]
+        Ginv[a, :, pa] = -sw[ok]
+        Ginv[a, pa, :] = -sw[ok]
+        Ginv[a, pa, pa] = s[ok]
+        sel[a, pa] = True
+        e = np.matmul(Ginv, (c * sel)[:, :, None])[:, :, 0]
+        ea = e[a]
+        order[a, step] = pa
+        rss = np.maximum(tt[a] - np.einsum("ki,ki->k", ea, c[a]), 0.0)
+        k_sel = sel[a].sum(axis=1)
+        gcv = m * rss / (m - k_sel).astype(np.float64) ** 2
+        better = gcv < best_gcv[a]
+        best_gcv[a[better]] = gcv[better]
+        best_e[a[better]] = ea[better]
+        best_k[a[better]] = k_sel[better]
+    # the selection in order, cut where GCV was best
+    out_order = np.full((K, B), -1, dtype=np.int64)
+    for k in range(K):
+        o = order[k][order[k] >= 0][:best_k[k]]
+        out_order[k, :o.size] = o
+    hi = np.inf if upper is None else upper
+    bad = np.flatnonzero(((best_e < -1e-12) | (best_e > hi + 1e-12)).any(axis=1))
+    for k in bad:  # bounded least squares on the chosen selection
+        idx = out_order[k][out_order[k] >= 0]
+        best_e[k] = 0.0
+        best_e[k, idx] = _bounded_gram_lsq(G[np.ix_(idx, idx)], c[k, idx], hi)
+    return best_e, out_order
+
+
+def _bounded_gram_lsq(Gs, cs, upper):
+    """``argmin e.Gs.e - 2 cs.e`` over ``0 <= e <= upper`` (via the Cholesky factor of ``Gs``)."""
+    from scipy.linalg import cholesky, solve_triangular
+
+    n = Gs.shape[0]
+    R = cholesky(Gs + 1e-12 * max(np.trace(Gs) / n, _TINY) * np.eye(n))
+    y = solve_triangular(R, cs, trans="T")
+    x = nnls(R, y)[0]  # the upper bound is rarely reached: try without it first (much faster)
+    return x if x.max(initial=0.0) <= upper else lsq_linear(R, y, bounds=(0.0, upper)).x
+
+
 def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = True, upper: float | None = None):
     """SEM on explicit motion vectors (rows of ``motions (B, D)``, target ``(D,)``), via :func:`sem_gram`."""
     M = np.asarray(motions, dtype=np.float64)
@@ -201,6 +333,16 @@ class SEMFitter(Params):
         risk-inflation threshold of variable selection (Foster & George, 1994),
         about what the best of ``B`` pure-noise directions gains. Meshes and
         landmarks (point clouds: not applied).
+    coefficients : {"greedy", "lsq", "auto"}
+        ``greedy`` (the paper, eq. 18): a coefficient is fixed when its shape is
+        selected. ``lsq``: after each selection all selected coefficients are
+        re-solved by (bounded) least squares, and the selection stops where
+        generalised cross-validation is best (:func:`sem_orthogonal_gram`; on
+        landmarks on the projected motions of eq. 20, on point clouds on the
+        current correspondences); ``stop`` is then not used. ``auto``: ``lsq``
+        for meshes and point clouds, whose thousands of values determine every
+        coefficient, ``greedy`` for landmarks, where a few dozen noisy values
+        cannot and the greedy's frozen coefficients act as shrinkage.
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -209,7 +351,10 @@ class SEMFitter(Params):
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
-                 stop: str = "none"):
+                 stop: str = "none", coefficients: str = "greedy"):
+        if coefficients not in ("greedy", "lsq", "auto"):
+            raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq' or 'auto', got {coefficients!r}")
+        self.coefficients = coefficients
         if stop not in ("none", "ric"):
             raise InputError(f"stop must be 'none' (the paper) or 'ric', got {stop!r}")
         self.stop = stop
@@ -231,7 +376,12 @@ class SEMFitter(Params):
         self.region = None if region is None else _region_ids(region)
 
     def __repr__(self) -> str:
-        return f"SEMFitter(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit})"
+        return (f"{type(self).__name__}(exclusion={self.exclusion}, clamp={self.clamp}, refit={self.refit}, "
+                f"stop={self.stop!r}, coefficients={self.coefficients!r})")
+
+    def _lsq(self, kind: str) -> bool:
+        """Whether targets of ``kind`` ("mesh", "landmarks", "points") get least-squares coefficients."""
+        return self.coefficients == "lsq" or (self.coefficients == "auto" and kind != "landmarks")
 
     @property
     def _upper(self):
@@ -341,6 +491,10 @@ class SEMFitter(Params):
             c = D.T @ (w * dT.ravel())
             G = D.T @ (w[:, None] * D)
             tt = float((w * dT.ravel() ** 2).sum())
+        if self._lsq("mesh"):
+            m = dT.size if target.weights is None else 3 * int((target.weights > 0).sum())
+            e, order = sem_orthogonal_gram(c, G, tt, m, self._upper)
+            return e, {"order": [int(i) for i in order if i >= 0]}
         e, order = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
         if self.stop == "ric":
             resid = max(tt - 2.0 * e @ c + e @ G @ e, 0.0)
@@ -374,6 +528,8 @@ class SEMFitter(Params):
             bad = int(np.flatnonzero(~(np.isfinite(tt) & np.isfinite(c).all(axis=1)))[0])
             raise InputError(f"target {bad} contains NaN or inf")
         G = rig.gram()
+        if self._lsq("mesh"):
+            return sem_orthogonal_gram(c, G, tt, n_flat.size, self._upper)[0]
         e, _ = sem_gram(c, G, tt, self.exclusion, self._upper, self.select)
         if self.stop == "ric":
             resid = np.maximum(tt - 2.0 * np.einsum("kb,kb->k", e, c) + np.einsum("kb,bc,kc->k", e, G, e), 0.0)
@@ -437,6 +593,10 @@ class SEMFitter(Params):
         orders = [None] * len(targets)
 
         def solve(R, t):
+            if self._lsq("landmarks"):
+                e, order = self._lsq_landmarks(rig, ids, L, R, t, *intr)
+                orders[:] = order
+                return e
             e, order = self._sem_landmarks(rig, ids, L, R, t, *intr)
             if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
                 F = rig.neutral[ids][None] + np.tensordot(e, rig.deltas[:, ids], 1)
@@ -554,6 +714,26 @@ class SEMFitter(Params):
             act = g[alive[g].any(axis=1)]
         return e, order
 
+    def _lsq_landmarks(self, rig, ids, L, R, t, f, cx, cy):
+        """``coefficients="lsq"`` on landmarks: :func:`sem_orthogonal_gram` on each target's projected motions.
+
+        The motions are eq. 20's ``Pi(B_i) - Pi(B_1)`` of every candidate at full
+        weight and the target's ``L - Pi(B_1)``, ``2 n`` values per target.
+        """
+        K, n = L.shape[:2]
+        B = rig.n_shapes
+        F1 = rig.neutral[ids]
+        Fi = F1[None] + rig.deltas[:, ids]  # (B, n, 3)
+        e = np.zeros((K, B))
+        order = np.full((K, B), -1, dtype=np.int64)
+        for k in range(K):
+            one = [np.repeat(a[k:k + 1], B + 1, axis=0) for a in (R, t, f, cx, cy)]
+            P = project_many(np.concatenate([F1[None], Fi]), *one)  # (B + 1, n, 2)
+            A = (P[1:] - P[0]).reshape(B, -1)  # (B, 2n)
+            b = (L[k] - P[0]).ravel()
+            e[k], order[k] = sem_orthogonal_gram(A @ b, A @ A.T, float(b @ b), b.size, self._upper)
+        return e, order
+
     def _refit_landmarks(self, rig, ids, L, cam, e):
         sel = np.flatnonzero(e > 0)
         if sel.size == 0:
@@ -603,6 +783,9 @@ class SEMFitter(Params):
         P = closest(F)
         alive = moves.copy()
         order = []
+        gcv_path = self._lsq("points")  # GCV over the path on the current correspondences
+        m_values = F1.size
+        best = (m_values * float(((P - F) ** 2).sum()) / m_values ** 2, e.copy(), 0)
         upper = self._upper
         queries = 0
         for t in range(B):
@@ -664,4 +847,31 @@ class SEMFitter(Params):
             F = F1 + np.tensordot(e, D, axes=1)
             P = closest(F)
             queries += F.shape[0]
+            if gcv_path:
+                k_sel = int((e > 0).sum())
+                if k_sel < m_values:
+                    gcv = m_values * float(((P - F) ** 2).sum()) / (m_values - k_sel) ** 2
+                    if gcv < best[0]:
+                        best = (gcv, e.copy(), len(order))
+        if gcv_path:
+            e, order = best[1], order[:best[2]]
         return e, {"order": order, "points_used": int(region.size), "queries": queries}
+
+
+class SEMLSFitter(SEMFitter):
+    """SEM with least-squares coefficients where the data determine them: facegeom's default fitter (``sem-ls``).
+
+    The paper's selection (largest ESim with the remaining motion) with
+    ``coefficients="auto"``, ``clamp=True`` and ``stop="ric"``: meshes and
+    point clouds get every selected coefficient re-solved by bounded least
+    squares and a selection cut by generalised cross-validation (dense targets
+    reach least-squares accuracy, sparse ones stay sparse); landmarks keep the
+    paper's greedy coefficients with the noise-aware stop. Every parameter is
+    :class:`SEMFitter`'s; only the defaults differ.
+    """
+
+    def __init__(self, exclusion: bool = True, clamp: bool = True, refit: bool = False, alternations: int = 3,
+                 region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
+                 stop: str = "ric", coefficients: str = "auto"):
+        super().__init__(exclusion, clamp, refit, alternations, region, max_points, select, covered_only, stop,
+                         coefficients)
