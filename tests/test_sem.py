@@ -241,13 +241,13 @@ def test_orthogonal_gram_batch_bounds_and_degenerate_shapes(face_model):
     D, G = rig.delta_matrix(), rig.gram()
     targets = np.stack([T, rig.evaluate(np.clip(w * 2.5, 0, 1.6)), rig.neutral])
     d = (targets - rig.neutral).reshape(3, -1)
-    E, O = sem_orthogonal_gram(d @ D, G, (d * d).sum(1), d.shape[1], upper=1.0)
+    E, orders = sem_orthogonal_gram(d @ D, G, (d * d).sum(1), d.shape[1], upper=1.0)
     for k in range(3):  # the batch equals one target at a time
         e1, o1 = sem_orthogonal_gram(d[k] @ D, G, d[k] @ d[k], d.shape[1], upper=1.0)
         np.testing.assert_allclose(E[k], e1, atol=1e-10)
-        np.testing.assert_array_equal(O[k], o1)
+        np.testing.assert_array_equal(orders[k], o1)
     assert E.min() >= 0 and E.max() <= 1 + 1e-12  # the bounds hold where least squares would leave them
-    assert not E[2].any() and (O[2] == -1).all()  # the neutral: nothing selected
+    assert not E[2].any() and (orders[2] == -1).all()  # the neutral: nothing selected
     # a duplicated shape adds nothing once its twin is selected: no crash, the fit is unchanged
     D2 = np.c_[D, D[:, 0]]
     e2, _ = sem_orthogonal_gram(d[0] @ D2, D2.T @ D2, d[0] @ d[0], d.shape[1], upper=1.0)

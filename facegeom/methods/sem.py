@@ -205,10 +205,10 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
     tt = np.broadcast_to(np.asarray(tt, dtype=np.float64), (K,))
     m = int(m)
     E = np.zeros((K, B))
-    O = np.full((K, B), -1, dtype=np.int64)
+    orders = np.full((K, B), -1, dtype=np.int64)
     for k0 in range(0, K, chunk):
-        E[k0:k0 + chunk], O[k0:k0 + chunk] = _orthogonal_chunk(c[k0:k0 + chunk], G, tt[k0:k0 + chunk], m, upper)
-    return (E[0], O[0]) if single else (E, O)
+        E[k0:k0 + chunk], orders[k0:k0 + chunk] = _orthogonal_chunk(c[k0:k0 + chunk], G, tt[k0:k0 + chunk], m, upper)
+    return (E[0], orders[0]) if single else (E, orders)
 
 
 def _orthogonal_chunk(c, G, tt, m, upper):
