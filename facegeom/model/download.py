@@ -272,8 +272,9 @@ def _fetch_file(pup, path: str, base: str, progress, commit: str) -> Path:
     except requests.exceptions.HTTPError as exc:
         r = exc.response
         status = f"{r.status_code} {r.reason}" if r is not None else "an error"
-        raise DownloadError(f"the server answered {status} for {url}; is ${URL_ENV_VAR} a mirror of "
-                            f"ICT-FaceKit at commit {commit[:7]}?", path) from None
+        hint = f"; is ${URL_ENV_VAR} a mirror of ICT-FaceKit at commit {commit[:7]}?" \
+            if os.environ.get(URL_ENV_VAR) else ""
+        raise DownloadError(f"the server answered {status} for {url}{hint}", path) from None
     except (requests.exceptions.ConnectionError, requests.exceptions.Timeout) as exc:
         raise DownloadError(_offline_message(base, _short_reason(exc))) from None
     except requests.exceptions.RequestException as exc:  # e.g. the body cut short twice
