@@ -41,11 +41,20 @@ def _original_folder() -> Path | None:
 
 
 @pytest.fixture(scope="module")
-def original():
+def original(tmp_path_factory):
+    """A miniature ICT-FaceKit checkout: ``FaceXModel/`` with the seven files, and ``LICENSE`` when found."""
     folder = _original_folder()
     if folder is None:
         pytest.skip("the original ICT-FaceKit files are not present (run `facegeom data fetch` or use ../shared)")
-    return folder
+    root = tmp_path_factory.mktemp("ict-mini")
+    mini = root / dl.MODEL_FOLDER
+    mini.mkdir()
+    for n in NAMES:
+        shutil.copyfile(folder / n, mini / n)
+    lic = next((p for p in (folder.parent / dl.LICENSE_COPY, folder.parent / dl.LICENSE_PATH) if p.is_file()), None)
+    if lic is not None:
+        shutil.copyfile(lic, root / dl.LICENSE_PATH)
+    return mini
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +124,7 @@ class Mirror:
 @pytest.fixture
 def mirror(original, monkeypatch, tmp_path):
     files = {f"{dl.MODEL_FOLDER}/{n}": (original / n).read_bytes() for n in NAMES}
-    lic = original.parent / dl.LICENSE_COPY
+    lic = original.parent / dl.LICENSE_PATH
     if lic.is_file():
         files[dl.LICENSE_PATH] = lic.read_bytes()
     m = Mirror(files)
