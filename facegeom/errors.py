@@ -32,5 +32,9 @@ class DataNotFoundError(InputError):
     """The face-model data bundle was found nowhere."""
 
 
+class DownloadError(DataNotFoundError):
+    """The face-model files could not be downloaded: no network, a server error, or a file failing its hash."""
+
+
 class SolveError(FacegeomError, ValueError):
     """A system cannot be solved as posed (e.g. a component with no label)."""

@@ -1,4 +1,5 @@
-"""Shared fixtures: the real face data (read from ../shared or $FACEGEOM_DATA) and small synthetic meshes."""
+"""Shared fixtures: the real face data (the data lookup: $FACEGEOM_DATA, ../shared, the user cache) and small
+synthetic meshes. `make test` fetches the data first when none is found (`facegeom data fetch --if-missing`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -13,8 +14,8 @@ def face_model():
 
     try:
         return load_face_model()
-    except DataNotFoundError as exc:  # pragma: no cover - CI always has the data
-        pytest.skip(f"real face data not available: {exc}")
+    except DataNotFoundError as exc:  # pragma: no cover - CI always has the data; `make test` fetches it
+        pytest.skip(f"real face data not available (run `facegeom data fetch`): {exc}")
 
 
 @pytest.fixture(scope="session")

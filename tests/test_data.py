@@ -24,6 +24,7 @@ def test_locate_order(tmp_path, monkeypatch, face_model):
 def test_not_found_names_all_three_places(tmp_path, monkeypatch):
     monkeypatch.setenv(fd.ENV_VAR, str(tmp_path / "nowhere"))
     monkeypatch.setattr(fd, "default_data_path", lambda: tmp_path / "also-nowhere")
+    monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "empty-cache"))  # the last place: the user cache
     with pytest.raises(DataNotFoundError) as e:
         fd.locate_data()
     msg = str(e.value)

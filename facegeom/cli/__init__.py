@@ -8,6 +8,7 @@
 - ``cleanup``: ``clean``, ``decimate`` and ``crop``, mesh clean-up with index maps.
 - ``view``: the ``view`` group, the interactive polyscope viewer.
 - ``batch``: ``batch``, one operation over many inputs on Dask.
+- ``data``: the ``data`` group: fetch the face model (verified), build the bundle from a local copy, ``info``.
 - ``flags``: library messages rewritten with command-line flag names.
 
 Only this layer speaks of command-line flags.

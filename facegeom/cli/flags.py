@@ -26,6 +26,7 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "Pass path=PATH or set FACEGEOM_TAKES": "Pass --takes PATH or set FACEGEOM_TAKES",  # model.locate_takes(path)
     "pass drop_lost=True": "pass --drop-lost-markers",  # pipelines.cleanup.carry_vertex_csv(drop_lost=)
     "the vertex target must be": "--vertices must be",  # pipelines.cleanup.decimate(vertices=)
+    "pass verify=False": "pass --no-verify",  # model.download.build_bundle(verify=) / data build --no-verify
 }
 
 

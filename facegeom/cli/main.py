@@ -17,6 +17,7 @@ from facegeom.cli.batch import batch_cmd
 from facegeom.cli.bench import bench
 from facegeom.cli.cleanup import clean_cmd, crop_cmd, decimate_cmd
 from facegeom.cli.context import Context
+from facegeom.cli.data import data
 from facegeom.cli.demo import demo
 from facegeom.cli.flags import as_flags
 from facegeom.cli.single import animate, drive, fit, retarget
@@ -30,7 +31,8 @@ DEPENDENCIES = ("numpy", "scipy", "libigl", "pymeshlab", "polyscope", "click", "
 @click.version_option(__version__, prog_name="facegeom")
 @click.option("--data", "data", type=click.Path(), default=None, envvar=None,
               help="Face data bundle (folder or .npz). Default: $FACEGEOM_DATA, "
-                   "else ../shared/data/ict-face-light next to the repository.")
+                   "else ../shared/data/ict-face-light next to the repository, else the user cache "
+                   "(see `facegeom data info`; `facegeom data fetch` downloads it).")
 @click.pass_context
 def cli(ctx, data):
     """facegeom: face driving, expression retargeting and blendshape fitting on libigl."""
@@ -114,3 +116,4 @@ cli.add_command(decimate_cmd)
 cli.add_command(crop_cmd)
 cli.add_command(view)
 cli.add_command(batch_cmd)
+cli.add_command(data)

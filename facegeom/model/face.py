@@ -4,7 +4,10 @@ The bundle is never part of this project; it is found, in this order, at
 
 1. the path given on the command line (``--data``) or to :func:`locate_data`,
 2. the environment variable ``FACEGEOM_DATA``,
-3. ``../shared/data/ict-face-light`` relative to the repository root.
+3. ``../shared/data/ict-face-light`` relative to the repository root (a
+   development checkout only; an installed package has no repository),
+4. the user cache, ``ict-face-light/`` in :func:`cache_folder` (where
+   ``facegeom data fetch`` builds it, see :mod:`facegeom.model.download`).
 
 A path may name the folder or the ``.npz`` itself. See the bundle's README for
 its keys. :func:`import_ict_folder` reads the original ICT-FaceKit layout (one
@@ -26,7 +29,11 @@ from facegeom.io.formats.obj import read_obj
 
 __all__ = [
     "ENV_VAR",
+    "CACHE_ENV_VAR",
     "TAKES_ENV_VAR",
+    "cache_folder",
+    "cache_bundle_folder",
+    "data_places",
     "default_takes_path",
     "locate_takes",
     "BUNDLE_NAME",
@@ -42,6 +49,7 @@ __all__ = [
 ]
 
 ENV_VAR = "FACEGEOM_DATA"
+CACHE_ENV_VAR = "FACEGEOM_CACHE"
 BUNDLE_NAME = "ict_face_light.npz"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 REQUIRED_KEYS = (
@@ -61,6 +69,30 @@ def default_data_path() -> Path:
     return REPO_ROOT.parent / "shared" / "data" / "ict-face-light"
 
 
+def _in_repository() -> bool:
+    """Whether this package runs from a source checkout (an installed wheel has no repository root)."""
+    return (REPO_ROOT / "pyproject.toml").is_file()
+
+
+def cache_folder() -> Path:
+    """The user cache of facegeom: ``$FACEGEOM_CACHE``, else the system's cache folder for ``facegeom``.
+
+    The system folder is pooch's ``os_cache("facegeom")`` (``~/.cache/facegeom``
+    on Linux, ``~/Library/Caches/facegeom`` on macOS). It is not created here.
+    """
+    env = os.environ.get(CACHE_ENV_VAR)
+    if env:
+        return Path(env).expanduser()
+    import pooch  # lazy: only needed when the data is looked for in the cache
+
+    return Path(pooch.os_cache("facegeom"))
+
+
+def cache_bundle_folder() -> Path:
+    """Where ``facegeom data fetch`` puts the bundle: ``ict-face-light/`` in :func:`cache_folder`."""
+    return cache_folder() / "ict-face-light"
+
+
 def _as_bundle_file(p: Path) -> Path | None:
     if p.is_file():
         return p
@@ -69,15 +101,40 @@ def _as_bundle_file(p: Path) -> Path | None:
     return None
 
 
+def data_places(path: str | os.PathLike | None = None) -> list[tuple[str, Path | None, Path | None]]:
+    """The places of the lookup order, each with the bundle found there.
+
+    Parameters
+    ----------
+    path : path, optional
+        The explicit path (``--data`` on the command line).
+
+    Returns
+    -------
+    list of (str, Path or None, Path or None)
+        ``(what, where, bundle)`` for the path argument, ``$FACEGEOM_DATA``,
+        the development folder and the user cache, in this order; ``where`` is
+        None when the place does not apply (no path given, variable not set,
+        not running from a repository), ``bundle`` the ``.npz`` found there or None.
+    """
+    env = os.environ.get(ENV_VAR)
+    places = [
+        ("the path argument", None if path is None else Path(path)),
+        (f"${ENV_VAR}", Path(env) if env else None),
+        ("the development folder", default_data_path() if _in_repository() else None),
+        ("the user cache", cache_bundle_folder()),
+    ]
+    return [(what, where, None if where is None else _as_bundle_file(where)) for what, where in places]
+
+
 def locate_data(path: str | os.PathLike | None = None) -> Path:
-    """Find the bundle's ``.npz``: ``path``, else ``$FACEGEOM_DATA``, else the default.
+    """Find the bundle's ``.npz``: ``path``, else ``$FACEGEOM_DATA``, else the development folder, else the cache.
 
     Raises
     ------
     DataNotFoundError
-        Naming the three places that were looked at.
+        Naming the places that were looked at and how to fetch the data.
     """
-    tried = []
     if path is not None:
         found = _as_bundle_file(Path(path))
         if found:
@@ -86,6 +143,7 @@ def locate_data(path: str | os.PathLike | None = None) -> Path:
         raise DataNotFoundError(
             f"face data not found at the given path {path} (expected a folder holding {BUNDLE_NAME}, or the file)"
         )
+    tried = []
     env = os.environ.get(ENV_VAR)
     if env:
         found = _as_bundle_file(Path(env))
@@ -94,15 +152,22 @@ def locate_data(path: str | os.PathLike | None = None) -> Path:
         tried.append(f"${ENV_VAR}={env}")
     else:
         tried.append(f"${ENV_VAR} (not set)")
-    default = default_data_path()
-    found = _as_bundle_file(default)
+    if _in_repository():
+        default = default_data_path()
+        found = _as_bundle_file(default)
+        if found:
+            return found
+        tried.append(str(default))
+    cache = cache_bundle_folder()
+    found = _as_bundle_file(cache)
     if found:
         return found
-    tried.append(str(default))
+    tried.append(f"the user cache {cache}")
     raise DataNotFoundError(
         f"face data ({BUNDLE_NAME}) not found; looked at: the path argument (not given), "
         + ", ".join(tried)
-        + f". Pass path=PATH or set {ENV_VAR}."
+        + ". Download it with `facegeom data fetch` (about 400 MB), or: "
+        + f"Pass path=PATH or set {ENV_VAR}."
     )
 
 
