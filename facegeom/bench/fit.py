@@ -503,7 +503,7 @@ def plot(results, specs, fitted, weights):
 
 
 def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
-         take=None, echo=print, progress=True, plot_it=True):
+         take=None, echo=print, progress=True, plot_it=True, takes=None, realistic_count=0, identity_fitters=None):
     """Run the selected fitting experiments and write their report.
 
     Fitters whose plugin cannot be built (an optional peer such as eos) are
@@ -540,6 +540,14 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         Show progress bars.
     plot_it : bool
         Also write the plot.
+    takes : list of (str, (T, E) array), optional
+        Real takes for the realistic protocol (:mod:`facegeom.bench.fit_realistic`),
+        which runs first, on ``realistic_count`` cases, for the experiments among
+        ``landmarks``, ``meshes`` and ``clouds`` (clouds: ``cloud_cases`` cases).
+    realistic_count : int
+        Cases of the realistic protocol (0: not run).
+    identity_fitters : dict, optional
+        Identity fitters per experiment for the realistic protocol's ``fitted`` mode.
 
     Returns
     -------
@@ -554,6 +562,12 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     """
     specs = available_specs(specs, echo)
     report = Report(out, "fit", echo)
+    realistic_table = ""
+    if takes and realistic_count:
+        from facegeom.bench import fit_realistic
+
+        _, realistic_table = fit_realistic.main(model, specs, experiments, takes, realistic_count, seed, report,
+                                                identity_fitters, cloud_cases, min(points, 10000), echo, progress)
     cases = fitting_cases(model, count, seed)
     results, fitted, tw = {}, None, None
     if "landmarks" in experiments:
@@ -577,8 +591,13 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         fitted = {k: v[:, [j]] for k, v in fitted.items()}
         report.csv(results["temporal"], "temporal")
     table = summarize(results, specs)
+    if realistic_table:
+        table = (realistic_table + "\n\nThe paper's protocol (sparse expressions, known identity, exact intrinsics)"
+                 "\n\n" + table)
     clouds = f", {cloud_cases} x {samplings} point clouds of {points} points" if "clouds" in results else ""
-    note = f"{count} targets (seed {seed}), landmark noise {noise_px} px{clouds}; {machine_note()}"
+    note = (f"paper protocol: {count} targets (seed {seed}), landmark noise {noise_px} px{clouds}; "
+            + (f"realistic protocol: {realistic_count} cases from {len(takes)} takes; " if realistic_table else "")
+            + machine_note())
     report.summary(table, note)
     if plot_it:
         report.plot(lambda: plot(results, specs, fitted, tw))

@@ -176,12 +176,15 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
 @click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the take window.")
 @click.option("--frames", default=300, show_default=True, type=click.IntRange(3), help="Frames of the take window.")
+@click.option("--realistic-cases", default=40, show_default=True, type=click.IntRange(0),
+              help="Cases of the realistic protocol (real-take expressions, random identities, unknown identity, "
+                   "noise, partial scans), run first; 0 skips it.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/fit", show_default=True)
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
 def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, take_path,
-              takes_path, start, frames, out, no_plot, quiet):
+              takes_path, start, frames, realistic_cases, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
     from facegeom.errors import InputError
@@ -194,6 +197,11 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
     specs = parse_methods(methods, "fitters", LINEUPS["fit"])
     model = obj.face_model()
     take = None
+    takes = []
+    if realistic_cases and {"landmarks", "meshes", "clouds"} & set(ex):
+        takes = _all_takes(model, takes_path)
+        if not takes:
+            click.echo("no takes found: skipping the realistic protocol (give --takes or set FACEGEOM_TAKES)", err=True)
     if "temporal" in ex:
         from facegeom.io import find_takes, ict_weights, read_take
         from facegeom.model import default_takes_path, locate_takes
@@ -208,7 +216,22 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
         else:
             click.echo("no takes found: skipping the temporal experiment", err=True)
     bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
-            progress=not quiet, plot_it=not no_plot)
+            progress=not quiet, plot_it=not no_plot, takes=takes, realistic_count=realistic_cases)
+
+
+def _all_takes(model, takes_path) -> list:
+    """Every take found (``--takes``, ``$FACEGEOM_TAKES``, the default folder) as ``(name, ICT weights)``."""
+    from facegeom.errors import DataNotFoundError
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import locate_takes
+
+    try:
+        folder = locate_takes(takes_path)
+    except DataNotFoundError:
+        if takes_path:
+            raise
+        return []
+    return [(p.stem, ict_weights(read_take(p), model.expression_names)) for p in find_takes(folder)]
 
 
 @bench.command("scaling")
