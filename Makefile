@@ -28,7 +28,7 @@ test: face-data
 
 # the viewer's README images (renders of the ICT face data: generated here, never committed)
 images: $(STAMP)
-	$(BIN)/python -m viewer.make_images --out docs/images
+	$(BIN)/python -m facegeom.viewer.make_images --out docs/images
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -8,5 +8,7 @@ Face driving (``facegeom.deformers`` entry points):
 - ``biharmonic``: libigl's biharmonic (k-harmonic) deformation
 - ``markers-only``: the reference "markers move, nothing else"
 
-``facegeom`` never imports this package; it finds these classes through entry points.
+Installed as ``facegeom.baselines`` (the repository keeps the top-level ``baselines/``
+folder; ``pyproject.toml`` maps it). facegeom's other modules never import this package;
+they find these classes through entry points.
 """

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from baselines._common import fit_inputs, require_handle_per_component
+from facegeom.baselines._common import fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
 from facegeom.geometry import adjacency, cotangent_laplacian
 from facegeom.interfaces import Params, as_positions, check_fitted

@@ -4,7 +4,7 @@ from __future__ import annotations
 import igl
 import numpy as np
 
-from baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
+from facegeom.baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
 from facegeom.interfaces import Params, as_positions, check_fitted, is_integer
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from baselines._common import apply_displacement_map, fit_inputs
+from facegeom.baselines._common import apply_displacement_map, fit_inputs
 from facegeom.errors import InputError
 from facegeom.interfaces import Params, as_positions, check_fitted, is_finite_number, is_integer
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines._common import fit_inputs
+from facegeom.baselines._common import fit_inputs
 from facegeom.interfaces import Params, as_positions, check_fitted
 
 

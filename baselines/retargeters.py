@@ -5,7 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 
-from baselines.rbf import KERNELS
+from facegeom.baselines.rbf import KERNELS
 from facegeom.errors import InputError
 from facegeom.interfaces import Params, check_fitted, is_finite_number, is_integer
 from facegeom.methods.tangent import TangentSolver

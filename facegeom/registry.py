@@ -7,7 +7,8 @@ Groups (declared in ``pyproject.toml``, also by third-party packages):
 - ``facegeom.fitters``     -> :class:`facegeom.interfaces.Fitter`
 
 The CLI, the viewer and the comparison scripts list and build every method the
-same way: ``create("deformers", "tangent", d=3)``.
+same way: ``create("deformers", "tangent", d=3)``. A kind may also be named in the
+singular (``"deformer"``, ``"retargeter"``, ``"fitter"``), as :func:`facegeom.create` users do.
 
 Method specs: a registered name plus parameters, parsed from text like
 ``label=name:k=v,k=v`` (:func:`parse_method`, :func:`parse_methods`) and built
@@ -25,10 +26,18 @@ KINDS = ("deformers", "retargeters", "fitters")
 __all__ = ["KINDS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method", "parse_methods", "LINEUPS"]
 
 
-def _group(kind: str) -> str:
+def _kind(kind: str) -> str:
+    """The plural kind (``"deformer"`` -> ``"deformers"``); an unknown kind is an InputError naming the known ones."""
+    if isinstance(kind, str) and kind + "s" in KINDS:
+        return kind + "s"
     if kind not in KINDS:
-        raise InputError(f"unknown method kind {kind!r}; choose one of {', '.join(KINDS)}")
-    return f"facegeom.{kind}"
+        raise InputError(f"unknown method kind {kind!r}; choose one of {', '.join(k[:-1] for k in KINDS)} "
+                         f"(or the plural: {', '.join(KINDS)})")
+    return kind
+
+
+def _group(kind: str) -> str:
+    return f"facegeom.{_kind(kind)}"
 
 
 def available(kind: str) -> dict[str, str]:
@@ -39,6 +48,7 @@ def available(kind: str) -> dict[str, str]:
 
 def get(kind: str, name: str) -> type:
     """Load and return the class registered as ``name`` in ``kind``."""
+    kind = _kind(kind)
     eps = {ep.name: ep for ep in entry_points(group=_group(kind))}
     if name not in eps:
         names = ", ".join(sorted(eps)) or "none installed"
@@ -49,11 +59,16 @@ def get(kind: str, name: str) -> type:
 def create(kind: str, name: str, **params):
     """Build the method ``name`` of ``kind`` with constructor ``params``.
 
+    ``kind`` is ``"deformers"``, ``"retargeters"`` or ``"fitters"`` (or the singular);
+    ``name`` a registered plugin name (:func:`available`). An unknown kind or name is an
+    :class:`InputError` that lists the known ones.
+
     An unknown parameter name (for a :class:`~facegeom.interfaces.Params`
     method: not in its ``param_names()``) is an :class:`InputError` listing the
     valid ones; the constructor checks the values (an InputError naming the parameter).
     """
     cls = get(kind, name)
+    kind = _kind(kind)
     valid = cls.param_names() if hasattr(cls, "param_names") else None
     unknown = [k for k in params if valid is not None and k not in valid]
     if unknown:
@@ -180,6 +195,7 @@ def parse_methods(text: str, kind: str, defaults: list[str]) -> list[MethodSpec]
     InputError
         A malformed spec or a name not registered in ``kind``.
     """
+    kind = _kind(kind)
     specs = [parse_method(s) for s in (defaults if text == "all" else text.split(";")) if s.strip()]
     known = available(kind)
     for s in specs:

@@ -2,66 +2,77 @@
 
 Layers (a module imports only from its own layer or below):
 
-1. core: errors, interfaces, registry, constants, native
+1. core: errors, interfaces, registry, constants, native, version
 2. files and numerics: io/, geometry, linalg, metrics
 3. the model: model/ (face, rig, targets, camera, pose, landmarks, layouts, ...)
-4. methods: methods/ and the top-level ``baselines`` package
+4. methods: methods/ and ``facegeom.baselines`` (the repository's ``baselines/`` folder)
 5. pipelines that compose methods: pipelines/ (animate, cleanup, batch)
-6. front ends that run methods for people: bench/ (comparison protocols) and the
-   ``viewer`` package; siblings, neither imports the other
+6. front ends that run methods for people: bench/ (comparison protocols) and
+   ``facegeom.viewer`` (the repository's ``viewer/`` folder); siblings, neither imports the other
 7. the command line: cli/ and ``python -m facegeom``, which wires every front end
 
+The package root ``facegeom/__init__.py`` is the public facade (lazy re-exports of the main
+classes, :func:`facegeom.create`): it sits above everything and nothing inside the project
+imports a name from it. An internal module imports each name from the module that defines
+it (``from facegeom import registry`` is a submodule import, which is fine;
+``from facegeom import TangentDeformer`` is not).
+
 Every import counts, also one inside a function (a lazy import is still a
-dependency). ``facegeom`` reaches ``baselines`` only through entry points.
-A new module must be placed in a layer here, so this test also fails on a
-module nobody placed.
+dependency). facegeom's own modules other than ``facegeom.baselines`` reach the baselines
+only through entry points. A new module must be placed in a layer here, so this test also
+fails on a module nobody placed.
 """
 from __future__ import annotations
 
 import ast
 import re
+import tomllib
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("facegeom", "baselines", "viewer")
+# repository folder -> installed package (pyproject.toml's [tool.setuptools] package-dir)
+PACKAGES = {"facegeom": "facegeom", "baselines": "facegeom.baselines", "viewer": "facegeom.viewer"}
+FACADE = "facegeom"  # the package root: above every layer, imported by nobody inside the project
 
 LAYERS: dict[str, int] = {
-    "facegeom": 1,  # the package root: version and the error classes only
     "facegeom.errors": 1,
     "facegeom.interfaces": 1,
     "facegeom.registry": 1,
     "facegeom.constants": 1,
     "facegeom.native": 1,
+    "facegeom.version": 1,
     "facegeom.io": 2,
     "facegeom.geometry": 2,
     "facegeom.linalg": 2,
     "facegeom.metrics": 2,
     "facegeom.model": 3,
     "facegeom.methods": 4,
-    "baselines": 4,
+    "facegeom.baselines": 4,
     "facegeom.pipelines": 5,
     "facegeom.bench": 6,
-    "viewer": 6,
+    "facegeom.viewer": 6,
     "facegeom.cli": 7,
     "facegeom.__main__": 7,
 }
-NAMES = {1: "core", 2: "files/numerics", 3: "model", 4: "methods", 5: "pipelines", 6: "bench/viewer", 7: "cli"}
-SIBLINGS = ("facegeom.bench", "viewer")  # same layer, but neither may import the other
+NAMES = {1: "core", 2: "files/numerics", 3: "model", 4: "methods", 5: "pipelines", 6: "bench/viewer", 7: "cli",
+         8: "package root"}
+SIBLINGS = ("facegeom.bench", "facegeom.viewer")  # same layer, but neither may import the other
 
 
 def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    """The installed module name of a source file (``baselines/rbf.py`` -> ``facegeom.baselines.rbf``)."""
+    folder, *parts = path.relative_to(ROOT).with_suffix("").parts
     if parts[-1] == "__init__":
         parts.pop()
-    return ".".join(parts)
+    return ".".join([PACKAGES[folder], *parts])
 
 
 def modules() -> dict[str, Path]:
     out = {}
-    for pkg in PACKAGES:
-        for p in sorted((ROOT / pkg).rglob("*.py")):
+    for folder in PACKAGES:
+        for p in sorted((ROOT / folder).rglob("*.py")):
             out[module_name(p)] = p
     return out
 
@@ -70,6 +81,8 @@ MODULES = modules()
 
 
 def layer_of(mod: str) -> int | None:
+    if mod == FACADE:
+        return max(NAMES)
     best = None
     for prefix, layer in LAYERS.items():
         if (mod == prefix or mod.startswith(prefix + ".")) and (best is None or len(prefix) > len(best[0])):
@@ -78,7 +91,12 @@ def layer_of(mod: str) -> int | None:
 
 
 def imports_of(mod: str, path: Path) -> list[tuple[str, int]]:
-    """Internal modules imported by ``mod`` (anywhere in the file), with line numbers."""
+    """Internal modules imported by ``mod`` (anywhere in the file), with line numbers.
+
+    ``from facegeom import registry`` counts as an import of ``facegeom.registry`` only;
+    ``from facegeom import X`` for anything that is not a submodule counts as an import of
+    the package root.
+    """
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     is_pkg = path.name == "__init__.py"
     out = []
@@ -92,11 +110,13 @@ def imports_of(mod: str, path: Path) -> list[tuple[str, int]]:
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
-            names = [target] + [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in MODULES]
+            subs = [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in MODULES]
+            whole = target != FACADE or len(subs) < len(node.names)
+            names = ([target] if whole else []) + subs
         else:
             continue
         for n in names:
-            if n.split(".")[0] in PACKAGES:
+            if n.split(".")[0] == "facegeom":
                 out.append((n, node.lineno))
     return out
 
@@ -130,10 +150,30 @@ def test_bench_and_viewer_do_not_import_each_other():
     assert not bad, bad
 
 
+def _in(mod: str, pkg: str) -> bool:
+    return mod == pkg or mod.startswith(pkg + ".")
+
+
 def test_facegeom_reaches_baselines_only_through_entry_points():
-    bad = [f"{mod} imports {dep}" for mod, deps in GRAPH.items() if mod.startswith("facegeom")
-           for dep, _ in deps if dep.split(".")[0] == "baselines"]
+    """Only the baselines themselves import ``facegeom.baselines``; everything else asks the registry."""
+    bad = [f"{mod} imports {dep}" for mod, deps in GRAPH.items() if not _in(mod, "facegeom.baselines")
+           for dep, _ in deps if _in(dep, "facegeom.baselines")]
     assert not bad, bad
+
+
+def test_nothing_inside_imports_names_from_the_package_root():
+    """The root is the public facade: internal code imports from the defining module."""
+    bad = [f"{MODULES[mod].relative_to(ROOT)}:{line}: {mod} imports from the package root"
+           for mod, deps in GRAPH.items() for dep, line in deps if dep == FACADE and mod != FACADE]
+    assert not bad, "import these from the module that defines them:\n" + "\n".join(bad)
+
+
+def test_the_source_folders_are_the_installed_packages():
+    """PACKAGES here is pyproject's package-dir mapping, so the layer table speaks of installed names."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    assert {v: k for k, v in config["package-dir"].items()} == PACKAGES
+    folders = sorted(module_name(p.parent / "__init__.py") for folder in PACKAGES for p in (ROOT / folder).rglob("__init__.py"))
+    assert sorted(config["packages"]) == folders, "list every package in pyproject's [tool.setuptools] packages"
 
 
 def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -184,7 +224,10 @@ def test_no_import_cycles():
 
 def test_the_rule_catches_an_upward_import_and_a_cycle():
     """The checks above can fail: a made-up graph with one upward import and one cycle."""
-    assert layer_of("facegeom.io.mesh") == 2 and layer_of("facegeom.cli.main") == 7 and layer_of("viewer.app") == 6
+    assert layer_of("facegeom.io.mesh") == 2 and layer_of("facegeom.cli.main") == 7
+    assert layer_of("facegeom.viewer.app") == 6 and layer_of("facegeom.baselines.rbf") == 4
+    assert layer_of("facegeom") == 8 and layer_of("facegeom.unplaced") is None
+    assert module_name(ROOT / "baselines" / "rbf.py") == "facegeom.baselines.rbf"
     assert layer_of("facegeom.model.rig") < layer_of("facegeom.pipelines.batch")
     cyc = strongly_connected({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}})
     assert sorted(map(len, cyc)) == [1, 3]

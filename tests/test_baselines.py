@@ -5,10 +5,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from baselines.laplacian import LaplacianDeformer
-from baselines.libigl_deformers import ARAPDeformer, BiharmonicDeformer
-from baselines.rbf import RBFDeformer
-from baselines.reference import MarkersOnly
+from facegeom.baselines.laplacian import LaplacianDeformer
+from facegeom.baselines.libigl_deformers import ARAPDeformer, BiharmonicDeformer
+from facegeom.baselines.rbf import RBFDeformer
+from facegeom.baselines.reference import MarkersOnly
 from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import NotFittedError
 

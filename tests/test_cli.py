@@ -68,6 +68,6 @@ def test_every_registered_deformer_builds_with_no_arguments():
 def test_facegeom_does_not_import_baselines():
     code = ("import sys, facegeom, facegeom.cli.main, facegeom.model.face, facegeom.io.mesh, facegeom.geometry, "
             "facegeom.registry, facegeom.linalg; "
-            "print(any(m == 'baselines' or m.startswith('baselines.') for m in sys.modules))")
+            "print(any(m == 'facegeom.baselines' or m.startswith('facegeom.baselines.') for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.strip()
     assert out == "False"

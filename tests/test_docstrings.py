@@ -1,5 +1,5 @@
 """Every public definition is documented: module-level functions and classes, and the public
-methods of public classes, in facegeom, baselines and viewer (array shapes go in the docstrings)."""
+methods of public classes, in facegeom/, baselines/ and viewer/ (array shapes go in the docstrings)."""
 from __future__ import annotations
 
 import ast

@@ -1,4 +1,4 @@
-"""The eos peer fitter (baselines.eos_peer): eos's camera + NNLS blendshape fit on our rig's landmarks."""
+"""The eos peer fitter (facegeom.baselines.eos_peer): eos's camera + NNLS blendshape fit on our rig's landmarks."""
 import sys
 import time
 
@@ -7,7 +7,7 @@ import pytest
 
 eos = pytest.importorskip("eos")
 
-from baselines.eos_peer import EosFitter  # noqa: E402
+from facegeom.baselines.eos_peer import EosFitter  # noqa: E402
 from facegeom.errors import InputError  # noqa: E402
 from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PointCloudTarget, look_at_camera
 

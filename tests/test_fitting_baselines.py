@@ -4,7 +4,7 @@ import time
 import numpy as np
 import pytest
 
-from baselines.fitters import L1RegFitter, L2RegFitter, PCADelFitter, PCAExpFitter
+from facegeom.baselines.fitters import L1RegFitter, L2RegFitter, PCADelFitter, PCAExpFitter
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Fitter
 from facegeom.metrics import landmark_normalized_error

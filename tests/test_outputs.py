@@ -338,10 +338,10 @@ def test_write_into_an_unwritable_folder_names_the_output(files, capsys):
 
 
 def test_screenshot_into_an_unwritable_folder_fails_before_rendering(tmp_path, capsys, monkeypatch):
-    import viewer.drive
+    import facegeom.viewer.drive
 
     ro = _unwritable_folder(tmp_path)
-    monkeypatch.setattr(viewer.drive, "DriveView", lambda *a, **k: pytest.fail("rendered anyway"))
+    monkeypatch.setattr(facegeom.viewer.drive, "DriveView", lambda *a, **k: pytest.fail("rendered anyway"))
     shot = ro / "shot.png"
     code, so, err = run_main(["view", "drive", "--screenshot", shot], capsys)
     assert code == 2 and "wrote" not in so, (so, err)
@@ -354,7 +354,7 @@ def test_screenshot_into_an_unwritable_folder_fails_before_rendering(tmp_path, c
 
 def test_screenshot_that_did_not_come_out_is_an_error(tmp_path, capsys, monkeypatch, face_model):
     ps = pytest.importorskip("polyscope")
-    from viewer.app import init_polyscope
+    from facegeom.viewer.app import init_polyscope
 
     try:
         init_polyscope(headless=True)

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from baselines.retargeters import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
 from facegeom import registry
+from facegeom.baselines.retargeters import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
 from facegeom.errors import InputError, SolveError
 from facegeom.methods.tangent_retarget import TangentRetargeter, marker_affine_fit, temporal_windows
 

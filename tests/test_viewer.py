@@ -16,12 +16,12 @@ import pytest
 ps = pytest.importorskip("polyscope")
 
 from facegeom.errors import InputError  # noqa: E402
-from viewer.app import NO_DISPLAY, check_display, display_available  # noqa: E402
+from facegeom.viewer.app import NO_DISPLAY, check_display, display_available  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def headless():
-    from viewer.app import init_polyscope
+    from facegeom.viewer.app import init_polyscope
 
     try:
         backend = init_polyscope(headless=True)
@@ -117,7 +117,7 @@ def test_cli_screenshot(tmp_path, face_model):
 
 
 def test_drive_view_nudge_drag_and_parameters(scene, face_model, tmp_path):
-    from viewer.drive import DriveView
+    from facegeom.viewer.drive import DriveView
 
     v = DriveView(face_model, "rbf;tangent", seed=1, expression="jaw-open")
     v.setup_scene(1200, 700, headless=True)
@@ -176,7 +176,7 @@ def test_drive_view_nudge_drag_and_parameters(scene, face_model, tmp_path):
 
 
 def test_retarget_view_playback(scene, face_model, tmp_path):
-    from viewer.playback import RetargetView, load_sequence
+    from facegeom.viewer.playback import RetargetView, load_sequence
 
     seq = load_sequence(face_model, synthetic=True, frames=40, seed=3)
     v = RetargetView(face_model, seq, "copy;tangent", labels=5)
@@ -206,7 +206,7 @@ def test_retarget_view_playback(scene, face_model, tmp_path):
 
 
 def test_animate_view(scene, face_model, tmp_path):
-    from viewer.playback import AnimateView, load_sequence
+    from facegeom.viewer.playback import AnimateView, load_sequence
 
     seq = load_sequence(face_model, synthetic=True, frames=30, seed=4)
     v = AnimateView(face_model, seq, "copy;tangent", "rbf", labels=5)
@@ -231,7 +231,7 @@ def test_animate_view(scene, face_model, tmp_path):
 
 
 def test_fit_view(scene, face_model, tmp_path):
-    from viewer.fit import FitView
+    from facegeom.viewer.fit import FitView
 
     v = FitView(face_model, "sem;l1reg;pcadel", case=2, kind="mesh")
     assert set(v.results) == {"sem", "l1reg", "pcadel"}

@@ -2,14 +2,14 @@
 
 Views (each behind ``facegeom view <name>``; ``--screenshot PATH`` renders headless):
 
-- :class:`viewer.drive.DriveView`: source | every deformer | true target, per-vertex
+- :class:`facegeom.viewer.drive.DriveView`: source | every deformer | true target, per-vertex
   error colours (mm), markers dragged or nudged live through each deformer's ``deform``;
-- :class:`viewer.playback.RetargetView` / :class:`viewer.playback.AnimateView`: an
+- :class:`facegeom.viewer.playback.RetargetView` / :class:`facegeom.viewer.playback.AnimateView`: an
   actor's take beside the retargeted (and driven) character, play/pause, per-frame errors;
-- :class:`viewer.fit.FitView`: a landmark or mesh target beside every fitter's face,
+- :class:`facegeom.viewer.fit.FitView`: a landmark or mesh target beside every fitter's face,
   with the coefficients by blendshape name.
 
 Methods come from the plugin registry (:mod:`facegeom.registry`), cases from the
-benchmark protocols (:mod:`facegeom.bench`). ``python -m viewer.make_images``
-regenerates the README images. Shared machinery is in :mod:`viewer.app`.
+benchmark protocols (:mod:`facegeom.bench`). ``python -m facegeom.viewer.make_images``
+regenerates the README images. Shared machinery is in :mod:`facegeom.viewer.app`.
 """

@@ -28,7 +28,7 @@ from facegeom.metrics import face_errors_mm
 from facegeom.model import KINDS, layout, named_expression, random_sparse_expression
 from facegeom.model.scenarios import driving_cases
 from facegeom.registry import LINEUPS, MethodSpec, parse_methods
-from viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
 

@@ -22,7 +22,7 @@ from facegeom.errors import FacegeomError, InputError
 from facegeom.model import FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, look_at_camera
 from facegeom.model.scenarios import fitting_cases
 from facegeom.registry import LINEUPS, MethodSpec, parse_methods
-from viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]
 

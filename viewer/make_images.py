@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m viewer.make_images --out docs/images [--only drive,fit] [--size 1600x900]
+    python -m facegeom.viewer.make_images --out docs/images [--only drive,fit] [--size 1600x900]
 
 Writes ``view-drive.png``, ``view-retarget.png``, ``view-animate.png`` and
 ``view-fit.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
@@ -35,7 +35,7 @@ def _sequence(model, takes):
 
     from facegeom.io import find_takes, ict_weights, read_take
     from facegeom.model import locate_takes
-    from viewer.playback import load_sequence
+    from facegeom.viewer.playback import load_sequence
 
     n = TAKE["frames"]
     try:
@@ -61,28 +61,28 @@ def _peak(seq) -> int:
 def build(name: str, model, takes=None):
     """The view ``name`` with the README's settings."""
     if name == "drive":
-        from viewer.drive import DriveView
+        from facegeom.viewer.drive import DriveView
 
         return DriveView(model, **DRIVE)
     if name == "retarget":
-        from viewer.playback import RetargetView
+        from facegeom.viewer.playback import RetargetView
 
         seq = _sequence(model, takes)
         return RetargetView(model, seq, RETARGET_METHODS, TAKE["labels"], frame=_peak(seq))
     if name == "animate":
-        from viewer.playback import AnimateView
+        from facegeom.viewer.playback import AnimateView
 
         seq = _sequence(model, takes)
         return AnimateView(model, seq, labels=TAKE["labels"], frame=_peak(seq), **ANIMATE)
     if name == "fit":
-        from viewer.fit import FitView
+        from facegeom.viewer.fit import FitView
 
         return FitView(model, **FIT)
     raise ValueError(f"unknown view {name!r}; choose from {', '.join(VIEWS)}")
 
 
 def main(argv=None) -> int:
-    """Command line of ``python -m viewer.make_images``: render the views of ``--only`` into ``--out``.
+    """Command line of ``python -m facegeom.viewer.make_images``: render the views of ``--only`` into ``--out``.
 
     Parameters
     ----------
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     int
         Exit status: 0 on success, 2 on a facegeom error (one line on stderr).
     """
-    ap = argparse.ArgumentParser(prog="python -m viewer.make_images", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m facegeom.viewer.make_images", description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="docs/images", help="output folder (default: docs/images)")
     ap.add_argument("--only", default=",".join(VIEWS), help=f"comma-separated subset of {', '.join(VIEWS)}")
     ap.add_argument("--size", default="1600x900", help="image size WxH (default: 1600x900)")
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     try:
         from facegeom.model import load_face_model
-        from viewer.app import init_polyscope, parse_size
+        from facegeom.viewer.app import init_polyscope, parse_size
 
         names = [x.strip() for x in args.only.split(",") if x.strip()]
         bad = [x for x in names if x not in VIEWS]

@@ -28,7 +28,7 @@ from facegeom.model import layout
 from facegeom.model import performance as sq
 from facegeom.pipelines.animate import drive_frames, face_error_mm
 from facegeom.registry import LINEUPS, parse_method, parse_methods
-from viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
 __all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView"]
 

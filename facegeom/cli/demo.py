@@ -66,7 +66,7 @@ def _demo_batch(model, folder: Path, count: int = 128) -> None:
 def _demo_viewer(obj_model, path: Path) -> None:
     """The demo's last step: the face-driving comparison as a PNG; the viewer itself when a display is present."""
     try:
-        from viewer.drive import DriveView
+        from facegeom.viewer.drive import DriveView
     except ImportError as exc:  # polyscope missing: the tables above are the demo's result
         click.echo(f"viewer skipped ({exc})")
         return

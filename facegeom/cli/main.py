@@ -12,7 +12,6 @@ from importlib.metadata import PackageNotFoundError, version
 
 import click
 
-from facegeom import __version__
 from facegeom.cli.batch import batch_cmd
 from facegeom.cli.bench import bench
 from facegeom.cli.cleanup import clean_cmd, crop_cmd, decimate_cmd
@@ -23,6 +22,7 @@ from facegeom.cli.flags import as_flags
 from facegeom.cli.single import animate, drive, fit, retarget
 from facegeom.cli.view import view
 from facegeom.errors import FacegeomError
+from facegeom.version import __version__
 
 DEPENDENCIES = ("numpy", "scipy", "libigl", "pymeshlab", "polyscope", "click", "tqdm", "matplotlib", "cholespy")
 

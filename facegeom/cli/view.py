@@ -14,7 +14,7 @@ __all__ = ["view"]
 
 
 def _size(text: str) -> tuple[int, int]:
-    from viewer.app import parse_size
+    from facegeom.viewer.app import parse_size
 
     return parse_size(text)
 
@@ -94,7 +94,7 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
                screenshot, size):
     """Source | every deformer | true target, error colours (mm); drag or nudge a marker, all update live."""
     from facegeom.errors import InputError
-    from viewer.app import check_display
+    from facegeom.viewer.app import check_display
 
     check_display(screenshot)
     _check_screenshot(screenshot)
@@ -107,7 +107,7 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
             delta = []
         if len(delta) != 3:
             raise InputError(f"--nudge must be three comma-separated numbers (mm), got {nudge!r}")
-    from viewer.drive import DriveView
+    from facegeom.viewer.drive import DriveView
 
     v = DriveView(obj.face_model(), methods, seed=seed, expression=expression, intensity=intensity,
                   layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case)
@@ -128,12 +128,12 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
 def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames, labels, seed, frame, screenshot,
                   size):
     """Play a take on the actor beside the character's retargeted markers, per-frame errors."""
-    from viewer.app import check_display
+    from facegeom.viewer.app import check_display
 
     check_display(screenshot)
     _check_screenshot(screenshot, take_path)
     _size(size)
-    from viewer.playback import RetargetView, load_sequence
+    from facegeom.viewer.playback import RetargetView, load_sequence
 
     model = obj.face_model()
     seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
@@ -149,12 +149,12 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
 def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, start, frames, labels, seed, frame,
                  screenshot, size):
     """Play the actor beside the driven character mesh (per-vertex error) and the true character."""
-    from viewer.app import check_display
+    from facegeom.viewer.app import check_display
 
     check_display(screenshot)
     _check_screenshot(screenshot, take_path)
     _size(size)
-    from viewer.playback import AnimateView, load_sequence
+    from facegeom.viewer.playback import AnimateView, load_sequence
 
     model = obj.face_model()
     seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
@@ -178,12 +178,12 @@ def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, s
 def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size):
     """A target beside every fitter's face (error colours) and its coefficients by blendshape name."""
     from facegeom.errors import InputError
-    from viewer.app import check_display
+    from facegeom.viewer.app import check_display
 
     check_display(screenshot)
     _check_screenshot(screenshot, target_path)
     _size(size)
-    from viewer.fit import FitView
+    from facegeom.viewer.fit import FitView
 
     mesh = None
     if target_path is not None:

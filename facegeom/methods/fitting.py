@@ -1,6 +1,6 @@
 """Shared pieces of blendshape fitting: target dispatch, pose alternation, results.
 
-Every fitter (SEM in :mod:`facegeom.methods.sem`, the baselines in ``baselines.fitters``)
+Every fitter (SEM in :mod:`facegeom.methods.sem`, the baselines in ``facegeom.baselines.fitters``)
 takes a :class:`~facegeom.model.rig.BlendshapeRig` and one of the targets of
 :mod:`facegeom.model.rig` and returns a :class:`~facegeom.interfaces.FitResult`
 (``weights`` in the rig's shape order, ``vertices`` the fitted face, ``info``).

@@ -92,8 +92,8 @@ def write_manifest(job: Job, spec: dict, overwrite: bool) -> None:
     InputError
         The folder holds the results of a job with other settings.
     """
-    from facegeom import __version__
     from facegeom.io import atomic_path
+    from facegeom.version import __version__
 
     path = job.output / MANIFEST_NAME
     want = {"config": spec["config"], "operation": spec["operation"], "method": spec["method"],
