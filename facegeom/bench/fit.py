@@ -32,6 +32,7 @@ import time
 import numpy as np
 
 from facegeom import metrics as fm
+from facegeom.bench.common import available_specs, face_area_triangles, progress_bar, projector, sample_surface
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
@@ -48,31 +49,9 @@ from facegeom.model import (
     look_at_camera,
 )
 from facegeom.model.scenarios import fitting_cases
-from facegeom.registry import MethodSpec
 
 EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
 KEY_SHAPES = ("jawOpen", "eyeBlink_L", "eyeBlink_R", "mouthSmile_L", "mouthSmile_R", "browInnerUp_L", "mouthFunnel")
-
-
-def available_specs(specs: list[MethodSpec], echo=print) -> list[MethodSpec]:
-    """The specs whose plugin can be built (an optional peer such as eos may be missing)."""
-    out = []
-    for s in specs:
-        try:
-            s.build("fitters")
-        except FacegeomError as exc:
-            echo(f"skipping {s.label}: {exc}")
-            continue
-        out.append(s)
-    return out
-
-
-def _progress(items, desc, progress):
-    try:
-        from tqdm import tqdm
-        return tqdm(items, desc=desc, unit="fit", disable=not progress)
-    except ImportError:  # pragma: no cover
-        return items
 
 
 def _common(rig, r, w_true, V_true):
@@ -82,16 +61,6 @@ def _common(rig, r, w_true, V_true):
             "vertex_mm": fm.mean_vertex_error_mm(r.vertices, V_true, np.arange(FACE_AREA)),
             "n_active": int((np.abs(r.weights) > 1e-3).sum()), "precision": sup.precision, "recall": sup.recall,
             "coef_mae": sup.mean_abs_error}
-
-
-def _projector(r, cam):
-    """How a landmark fit sees the face: its estimated pinhole camera, or a peer's affine camera (eos)."""
-    if "camera" in r.info:
-        return r.info["camera"].project
-    if "affine_camera" in r.info:
-        A = np.asarray(r.info["affine_camera"], dtype=np.float64)
-        return lambda X: np.c_[X, np.ones(len(X))] @ A[:2].T
-    return cam.project
 
 
 def _fit(spec, rig, target):
@@ -144,7 +113,7 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
     fit_ids, eval_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
     eye_ids = lm[list(INNER_EYE_CORNERS)]
     rows = []
-    for ci, c in enumerate(_progress(cases, "landmarks", progress)):
+    for ci, c in enumerate(progress_bar(cases, "landmarks", progress)):
         rig = BlendshapeRig.from_face_model(model, c.identity)
         V = rig.evaluate(c.weights)
         cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
@@ -154,7 +123,7 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
         target = LandmarkTarget(uv_fit, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
         for spec in specs:
             r, dt = _fit(spec, rig, target)
-            proj = _projector(r, cam)
+            proj = projector(r, cam)
             row = {"case": ci, "method": spec.label, "time_ms": dt * 1e3,
                    "ne_eval": fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io),
                    "ne_fit": fm.normalized_error(proj(r.vertices[fit_ids]), uv_fit, io),
@@ -208,34 +177,6 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
 
 
 # --------------------------------------------------------------------------- point clouds
-def face_area_triangles(model) -> np.ndarray:
-    """The triangles of the face area: those whose three vertices lie in ``[0, FACE_AREA)``.
-
-    Parameters
-    ----------
-    model : FaceModel
-        The ICT face model.
-
-    Returns
-    -------
-    (m', 3) int64
-        The matching rows of ``model.triangles``, in their order.
-    """
-    T = model.triangles
-    return T[(T < FACE_AREA).all(axis=1)]
-
-
-def sample_surface(V, tris, count, rng) -> np.ndarray:
-    """``count`` points uniformly distributed (by area) on the triangles."""
-    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    k = rng.choice(len(tris), count, p=area / area.sum())
-    u = rng.random((count, 2))
-    flip = u.sum(axis=1) > 1
-    u[flip] = 1 - u[flip]
-    return a[k] + u[:, :1] * (b[k] - a[k]) + u[:, 1:] * (c[k] - a[k])
-
-
 def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, seed=0, progress=True):
     """The point-cloud experiment: fit noisy surface samples of every case's face with every method.
 
@@ -280,7 +221,7 @@ def run_clouds(model, cases, specs, samplings=10, points=30000, noise_cm=0.02, s
     region = np.arange(FACE_AREA)
     rows = []
     work = [(ci, c, s) for ci, c in enumerate(cases) for s in range(samplings)]
-    for ci, c, s in _progress(work, "clouds", progress):
+    for ci, c, s in progress_bar(work, "clouds", progress):
         rig = BlendshapeRig.from_face_model(model, c.identity)
         V = rig.evaluate(c.weights)
         P = sample_surface(V, tris, points, rng) + rng.normal(size=(points, 3)) * noise_cm
@@ -334,7 +275,7 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
     """
     rows, throughput = [], []
     rigs = {}
-    for ci, c in enumerate(_progress(cases, "meshes", progress)):
+    for ci, c in enumerate(progress_bar(cases, "meshes", progress)):
         rig = BlendshapeRig.from_face_model(model, c.identity)
         rigs[ci] = rig
         V = rig.evaluate(c.weights)
@@ -383,7 +324,7 @@ def run_temporal(model, weights, specs, seed=0, noise_px=0.5, progress=True, nam
     unposed = PinholeCamera(cam.focal, cam.cx, cam.cy)
     T = weights.shape[0]
     fitted = {s.label: np.zeros_like(weights) for s in specs}
-    for t in _progress(range(T), "temporal", progress):
+    for t in progress_bar(range(T), "temporal", progress):
         V = rig.evaluate(weights[t])
         uv = cam.project(V[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
         for s in specs:

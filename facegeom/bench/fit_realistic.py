@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facegeom import metrics as fm
-from facegeom.bench.fit import _progress, _projector, available_specs, face_area_triangles, sample_surface
+from facegeom.bench.common import available_specs, face_area_triangles, progress_bar, projector, sample_surface
 from facegeom.bench.report import format_table
 from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
@@ -152,7 +152,7 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
     fit_ids, eval_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
     eye_ids = lm[list(INNER_EYE_CORNERS)]
     rows = []
-    for ci, c in enumerate(_progress(cases, "realistic landmarks", progress)):
+    for ci, c in enumerate(progress_bar(cases, "realistic landmarks", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
         cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
@@ -167,7 +167,7 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
                     r, dt = _fit(spec, rig, target)
                 except FacegeomError:
                     continue
-                proj = _projector(r, cam)
+                proj = projector(r, cam)
                 rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, noise_px=c.noise_px, yaw=c.yaw,
                                  ne_eval=fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io)))
     return rows
@@ -191,7 +191,7 @@ def run_meshes(model, cases, specs, modes=("generic", "oracle"), identity_fitter
     """
     rng = np.random.default_rng(7320)
     rows = []
-    for ci, c in enumerate(_progress(cases, "realistic meshes", progress)):
+    for ci, c in enumerate(progress_bar(cases, "realistic meshes", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
         seen = coverage(model, c)
@@ -218,7 +218,7 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
     tris = face_area_triangles(model)
     region = np.arange(FACE_AREA)
     rows = []
-    for ci, c in enumerate(_progress(cases, "realistic clouds", progress)):
+    for ci, c in enumerate(progress_bar(cases, "realistic clouds", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
         seen = coverage(model, c)
