@@ -8,6 +8,7 @@ hashes are the real ones. No test touches the internet.
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import socket
@@ -155,6 +156,11 @@ def test_fetch_builds_the_bundle_in_the_cache(mirror, registry, original, tmp_pa
     cache = tmp_path / "cache"
     assert out == cache / "ict-face-light" / fd.BUNDLE_NAME  # $FACEGEOM_CACHE honoured
     assert (cache / "ICT-FaceKit" / registry.commit / dl.MODEL_FOLDER / "jawOpen.obj").is_file()
+    # downloaded files honour the umask (pooch's temporary files are 0600)
+    mask = os.umask(0)
+    os.umask(mask)
+    for f in (cache / "ICT-FaceKit" / registry.commit / dl.MODEL_FOLDER).iterdir():
+        assert f.stat().st_mode & 0o777 == 0o666 & ~mask, f
     # the announcement: file count and size up front, from the registry; the address of $FACEGEOM_DATA_URL
     size = sum(registry.files[f"{dl.MODEL_FOLDER}/{n}"][1] for n in NAMES)
     assert f"7 files, {size / 1e6:.1f} MB" in lines[0] and "3 expressions, 2 identities" in lines[0]

@@ -34,7 +34,7 @@ from typing import Iterable, Sequence
 
 from facegeom.errors import InputError
 
-__all__ = ["atomic_path", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
+__all__ = ["atomic_path", "new_file_mode", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
            "read_csv_rows"]
 
 
@@ -48,6 +48,11 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def new_file_mode() -> int:
+    """The mode a new file gets from ``open()``: ``0o666`` less the process umask."""
+    return 0o666 & ~_umask()
 
 
 def _create_temporary(folder: Path, target: Path, mode: int, shown: Path) -> Path:

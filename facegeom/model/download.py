@@ -268,7 +268,9 @@ def _fetch_file(pup, path: str, base: str, progress, commit: str) -> Path:
     url = base + path
     downloader = pooch.HTTPDownloader(progressbar=progress if progress is not None else False, timeout=TIMEOUT_S)
     try:
-        return Path(pup.fetch(path, downloader=downloader))
+        got = Path(pup.fetch(path, downloader=downloader))
+        _honour_umask(got)
+        return got
     except requests.exceptions.HTTPError as exc:
         r = exc.response
         status = f"{r.status_code} {r.reason}" if r is not None else "an error"
@@ -285,6 +287,17 @@ def _fetch_file(pup, path: str, base: str, progress, commit: str) -> Path:
         detail = f"expected {m.group(1)}, got {m.group(2)}" if m else str(exc)
         raise DownloadError(f"SHA-256 mismatch after downloading it twice from {url}: {detail}; the server "
                             f"(or a proxy) serves a different file", path) from None
+
+
+def _honour_umask(path: Path) -> None:
+    """Give a downloaded file the mode ``open()`` would (pooch's temporary files are ``0600``)."""
+    from facegeom.io.files import new_file_mode
+
+    try:
+        if path.stat().st_mode & 0o777 == 0o600:
+            os.chmod(path, new_file_mode())
+    except OSError:  # a read-only cache shared by someone else: leave it
+        pass
 
 
 def _pooch_for(registry: Registry, base: str, extra: Mapping[str, str] | None = None):
