@@ -14,7 +14,8 @@ The public API, importable from here::
 - fitting targets and the camera: :class:`MeshTarget`, :class:`LandmarkTarget`,
   :class:`PointCloudTarget`, :class:`PinholeCamera`
 - facegeom's own methods: :class:`TangentDeformer`, :class:`TangentRetargeter`,
-  :class:`SEMFitter`; any registered method (baselines, plugins) by name with
+  :class:`SEMFitter` (the published SEM) and :class:`SEMLSFitter` (``sem-ls``,
+  the default fitter); any registered method (baselines, plugins) by name with
   :func:`create` (``create("deformer", "rbf")``)
 - meshes: :func:`read_mesh`, :func:`write_mesh`
 - errors: :class:`FacegeomError`, :class:`InputError`, :class:`DataNotFoundError`
@@ -33,7 +34,7 @@ from facegeom.errors import DataNotFoundError, FacegeomError, InputError
 
 if TYPE_CHECKING:  # what static tools see; at run time the names load on first use
     from facegeom.io.mesh import read_mesh, write_mesh
-    from facegeom.methods.sem import SEMFitter
+    from facegeom.methods.sem import SEMFitter, SEMLSFitter
     from facegeom.methods.tangent import TangentDeformer
     from facegeom.methods.tangent_retarget import TangentRetargeter
     from facegeom.model.camera import PinholeCamera
@@ -55,6 +56,7 @@ _LAZY = {
     "TangentDeformer": "facegeom.methods.tangent",
     "TangentRetargeter": "facegeom.methods.tangent_retarget",
     "SEMFitter": "facegeom.methods.sem",
+    "SEMLSFitter": "facegeom.methods.sem",
     "read_mesh": "facegeom.io.mesh",
     "write_mesh": "facegeom.io.mesh",
     "create": "facegeom.registry",
@@ -72,6 +74,7 @@ __all__ = [
     "PinholeCamera",
     "PointCloudTarget",
     "SEMFitter",
+    "SEMLSFitter",
     "TangentDeformer",
     "TangentRetargeter",
     "__version__",

@@ -22,6 +22,7 @@ PUBLIC = {
     "TangentDeformer": "facegeom.methods.tangent",
     "TangentRetargeter": "facegeom.methods.tangent_retarget",
     "SEMFitter": "facegeom.methods.sem",
+    "SEMLSFitter": "facegeom.methods.sem",
     "read_mesh": "facegeom.io.mesh",
     "write_mesh": "facegeom.io.mesh",
     "create": "facegeom.registry",

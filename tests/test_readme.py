@@ -30,7 +30,7 @@ BLOCKS = python_blocks(README.read_text(encoding="utf-8"))
 def test_the_section_has_the_three_tasks():
     joined = "\n".join(BLOCKS)
     assert len(BLOCKS) >= 3
-    for name in ("TangentDeformer", "TangentRetargeter", "SEMFitter"):
+    for name in ("TangentDeformer", "TangentRetargeter", "SEMLSFitter"):
         assert name in joined, name
 
 
