@@ -68,6 +68,29 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
     keep = np.unique(np.asarray([] if keep is None else keep, dtype=np.int64))
     if keep.size and (keep.min() < 0 or keep.max() >= V.shape[0]):
         raise InputError(f"vertex to preserve out of range: the mesh has {V.shape[0]} vertices")
+    V2, F2, imap, run = _decimate_once(V, F, target, keep, preserve_boundary, preserve_topology, progress)
+    retried = False
+    if not preserve_topology and _defects(V2, F2) and not _defects(V, F):
+        # the collapses made non-manifold parts on a clean input: redo it with the link condition
+        # (pymeshlab's preservetopology), which refuses exactly such collapses
+        run._say("  the collapses made non-manifold edges: decimating again with preserve_topology")
+        V2, F2, imap, run = _decimate_once(V, F, target, keep, preserve_boundary, True, progress)
+        retried = True
+    rep = run.close(V2, F2, imap)
+    if retried:
+        rep.notes.append("decimated with preserve_topology: without it the edge collapses made non-manifold edges")
+    _add_notes(rep, V2, F2, target, F, keep, imap)
+    return V2, F2, imap, rep
+
+
+def _defects(V: np.ndarray, F: np.ndarray) -> int:
+    """Non-manifold edges and vertices and duplicate faces of ``(V, F)``."""
+    bad = mesh_problems(V, F)
+    return bad["non_manifold_edges"] + bad["non_manifold_vertices"] + bad["duplicate_faces"]
+
+
+def _decimate_once(V, F, target, keep, preserve_boundary, preserve_topology, progress):
+    """One decimation of the checked mesh: ``(V2, F2, index map, run)``."""
     run = _Run("decimate", V, F, progress)
     if keep.size:
         _protect(run, keep)
@@ -88,9 +111,7 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
     lost = keep[imap.old_to_new[keep] < 0]
     if lost.size:
         raise InputError(f"decimation could not preserve vertex {int(lost[0])} ({lost.size} lost)")
-    rep = run.close(V2, F2, imap)
-    _add_notes(rep, V2, F2, target, F, keep, imap)
-    return V2, F2, imap, rep
+    return V2, F2, imap, run
 
 
 def _protect(run: _Run, keep: np.ndarray) -> None:
