@@ -99,8 +99,10 @@ def write_coefficients(path, fit, names, files) -> Path:
               help="Identity fitter parameter, repeatable (e.g. -p noise_px=2 -p n_identities=50).")
 @click.option("--coefficients", type=click.Path(dir_okay=False), default=None,
               help="Also write the identity coefficients, per-target weights and poses (.json).")
+@click.option("--with-expressions", is_flag=True,
+              help="The targets are not neutral: fit an expression per target too (default: neutral frames).")
 @click.pass_obj
-def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coefficients):
+def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coefficients, with_expressions):
     """Fit one identity to TARGETS (neutral frames of one person) and write the user-specific rig.
 
     Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
@@ -108,10 +110,14 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coe
     from facegeom.io import check_outputs
     from facegeom.methods.identity import IdentityFitter
 
+    from facegeom.errors import InputError
+
     check_outputs(list(targets), [output] + ([coefficients] if coefficients else []))
+    if coefficients and Path(coefficients).suffix.lower() != ".json":
+        raise InputError("the coefficients file must be .json", coefficients)
     model = obj.face_model()
     kinds, tgs = read_targets(targets, model, kind, focal, cx, cy)
-    fitter = IdentityFitter(**parse_params(params))
+    fitter = IdentityFitter(**{"expressions": with_expressions, **parse_params(params)})
     fit = fitter.fit(model, tgs)
     write_rig(fit.rig, output)
     if coefficients:

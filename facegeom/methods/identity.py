@@ -101,6 +101,10 @@ from facegeom.model import (
 __all__ = ["IdentityFit", "IdentityFitter", "fit_identity"]
 
 TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
+CLOUD_STRIDE = 3  # point clouds: the data term uses every CLOUD_STRIDE-th vertex of the face area
+NEUTRAL_PRECISION = 1e12  # expressions=False: the weights' prior precision (holds them at 0)
+CLOUD_SIGMA0_MM = 16.0  # point clouds: sigma of the first round (halved each round down to noise_mm)
+CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
 
 
 @dataclass
@@ -246,6 +250,12 @@ class IdentityFitter(Params):
         Standard deviation ``s_w`` of the weak Gaussian prior on each expression weight.
     expression_l1 : float >= 0
         Rate of an exponential (sparsity) prior on the weights, ``E += 2 l1 sum(w)``.
+    expressions : bool
+        Fit an expression per target; False: the targets are neutral faces
+        (the weights are held at 0), the SEM paper's protocol for building a
+        user's rig, and the only way several images add identity information:
+        with a free expression per image, each image's 46 landmark numbers are
+        mostly spent on its own 53 weights.
     n_identities : int or None
         Fit the leading modes only (None: all ``I``).
     rigid : bool
@@ -263,7 +273,7 @@ class IdentityFitter(Params):
     """
 
     def __init__(self, noise_px: float = 1.0, noise_mm: float = 0.5, expression_prior: float = 1.0,
-                 expression_l1: float = 5.0, n_identities=None, rigid: bool = True, region=None, rounds: int = 10,
+                 expression_l1: float = 5.0, expressions: bool = True, n_identities=None, rigid: bool = True, region=None, rounds: int = 10,
                  icp_iterations: int = 100, tol: float = 1e-6):
         for name, v in (("noise_px", noise_px), ("noise_mm", noise_mm), ("expression_prior", expression_prior),
                         ("tol", tol)):
@@ -274,8 +284,10 @@ class IdentityFitter(Params):
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if n_identities is not None and (not is_integer(n_identities) or n_identities < 0):
             raise InputError(f"n_identities must be a non-negative integer or None, got {n_identities!r}")
-        if not isinstance(rigid, (bool, np.bool_)):
-            raise InputError(f"rigid must be true or false, got {rigid!r}")
+        for name, v in (("rigid", rigid), ("expressions", expressions)):
+            if not isinstance(v, (bool, np.bool_)):
+                raise InputError(f"{name} must be true or false, got {v!r}")
+        self.expressions = bool(expressions)
         if region is not None:
             r = np.asarray(region)
             if r.ndim != 1 or r.size == 0 or not np.issubdtype(r.dtype, np.integer) or r.min() < 0:
@@ -341,8 +353,8 @@ class IdentityFitter(Params):
             if ids.max() >= n:
                 raise InputError(f"region: vertex id {int(ids.max())} is out of range [0, {n})")
             return ids
-        if kind == "points" and n > FACE_AREA:
-            return np.arange(FACE_AREA)
+        if kind == "points":  # every third vertex of the face area: fast, and still ~2 per point spacing
+            return np.arange(0, min(n, FACE_AREA), CLOUD_STRIDE)
         return None
 
     # ------------------------------------------------------------------ fit
@@ -410,6 +422,7 @@ class IdentityFitter(Params):
             rounds = 1  # meshes in the model frame: one linear solve is exact
         r = 0
         for r in range(1, rounds + 1):
+            state.anneal(r)
             H, g = state.normal_equations(x)
             z = _box_qp(H, g, n_id + 6 * len(state.free_poses))
             x = np.r_[z[:n_id], z[n_id + 6 * len(state.free_poses):]]
@@ -464,7 +477,9 @@ class _State:
         self.corr: list = [None] * K  # clouds: the matched point of each region vertex
         self.prev: list = [None] * K
         self.trees: list = [None] * K
+        self.samples: list = [None] * K
         self.changed = True
+        self.annealing = False
         self.free_poses = [k for k, tg in enumerate(targets)
                            if (isinstance(tg, LandmarkTarget) and not tg.camera.posed)
                            or (not isinstance(tg, LandmarkTarget) and fitter.rigid)]
@@ -484,6 +499,8 @@ class _State:
                 self.sub[k] = (ids, A, G, wts)
                 if isinstance(tg, PointCloudTarget):
                     self.trees[k] = cKDTree(tg.points)
+                    step = max(1, -(-tg.n_points // CLOUD_SAMPLES))
+                    self.samples[k] = np.arange(0, tg.n_points, step)
 
     # ------------------------------------------------------------------ faces
     def _coef(self, x, k):
@@ -531,11 +548,33 @@ class _State:
                     self.R[k], self.t[k] = _kabsch(self._face3d(x, k), self._data3d(k), self.sub[k][3])
 
     def _match(self, x, k):
+        """Symmetric closest points of cloud ``k``, folded into one weighted target per region vertex.
+
+        Each region vertex ``j`` is pulled to its closest cloud point (weight 1)
+        and to the mean ``Ybar_j`` of the ``c_j`` (sub-sampled) cloud points whose
+        closest vertex it is (weight ``s c_j``, ``s`` = vertices / points, so both
+        directions weigh the same): the same quadratic as a mesh target at
+        ``(p_j + s c_j Ybar_j) / (1 + s c_j)`` with weight ``1 + s c_j``. The
+        second direction keeps the face from shrinking onto part of the scan.
+        """
+        tg = self.targets[k]
         F = self._face3d(x, k) @ self.R[k].T + self.t[k]
         _, j = self.trees[k].query(F)
-        self.changed = self.changed or self.prev[k] is None or not np.array_equal(j, self.prev[k])
-        self.prev[k] = j
-        self.corr[k] = self.targets[k].points[j]
+        sub = self.samples[k]
+        _, i = cKDTree(F).query(tg.points[sub])
+        m = F.shape[0]
+        c = np.bincount(i, minlength=m).astype(np.float64)
+        S = np.zeros((m, 3))
+        np.add.at(S, i, tg.points[sub])
+        scale = m / float(sub.size)
+        wts = 1.0 + scale * c
+        key = (j, i)
+        self.changed = self.changed or self.prev[k] is None or not (
+            np.array_equal(j, self.prev[k][0]) and np.array_equal(i, self.prev[k][1]))
+        self.prev[k] = key
+        self.corr[k] = (tg.points[j] + scale * S) / wts[:, None]
+        A = self.sub[k][1]
+        self.sub[k] = (self.sub[k][0], A, A.T @ (A * np.repeat(wts, 3)[:, None]), wts)
 
     def apply_pose_steps(self, p):
         """Apply the Gauss-Newton pose steps ``p (6 P,)`` (rotation vector, translation) of the free poses."""
@@ -558,6 +597,21 @@ class _State:
             if isinstance(tg, PointCloudTarget):
                 self._match(x, k)
 
+    def anneal(self, r):
+        """Point clouds: sigma starts at ``CLOUD_SIGMA0_MM`` and halves every round down to ``noise_mm``.
+
+        With correspondences from the mean face, a first solve at the true
+        noise level fits the wrong matches with all the modes and stays in that
+        local minimum; a large sigma first (the prior dominates: a smooth,
+        probable face) and a shrinking one after is coarse-to-fine ICP.
+        """
+        unit = 1.0 / CM_TO_MM
+        for k, kind in enumerate(self.kinds):
+            if kind == "points":
+                self.sig[k] = max(self.f.noise_mm, CLOUD_SIGMA0_MM * 0.5 ** (r - 1)) * unit
+        self.annealing = any(kind == "points" and self.sig[k] > self.f.noise_mm * unit * (1 + 1e-12)
+                             for k, kind in enumerate(self.kinds))
+
     def cameras(self):
         """The posed camera per landmark target, None for 3-D targets."""
         return list(self.cams)
@@ -576,7 +630,7 @@ class _State:
         g = np.zeros(N)
         H[np.arange(n_id), np.arange(n_id)] = 1.0  # identity prior N(0, 1)
         ex = np.arange(w0, N)
-        H[ex, ex] = 1.0 / self.f.expression_prior ** 2
+        H[ex, ex] = 1.0 / self.f.expression_prior ** 2 if self.f.expressions else NEUTRAL_PRECISION
         g[ex] -= self.f.expression_l1  # the exponential (sparsity) prior: E += 2 l1 sum(w), w >= 0
         slot = {k: i for i, k in enumerate(self.free_poses)}
         for k, tg in enumerate(self.targets):
@@ -644,7 +698,7 @@ class _State:
 
     def settled(self, E, E_prev, tol):
         """Whether the loop may stop: the energy no longer changes and (clouds) the correspondences neither."""
-        if any(isinstance(t, PointCloudTarget) for t in self.targets) and self.changed:
+        if any(isinstance(t, PointCloudTarget) for t in self.targets) and (self.changed or self.annealing):
             return False
         return bool(np.isfinite(E_prev) and abs(E_prev - E) <= tol * max(E, 1e-300))
 
