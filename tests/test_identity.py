@@ -255,3 +255,34 @@ def test_cli_bad_input_one_line(face_model, tmp_path, args, problem):
     assert r.returncode == 2, r.stderr
     assert problem in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "r.npz").exists()
+
+
+# --------------------------------------------------------------------------- the eos peer
+def _eos_peer():
+    from importlib.metadata import entry_points
+
+    eps = {ep.name: ep for ep in entry_points(group="facegeom.identity")}
+    assert {"facegeom", "eos"} <= set(eps)
+    try:
+        return eps["eos"].load()()
+    except InputError as exc:  # pragma: no cover - eos-py is a test dependency
+        pytest.skip(str(exc))
+
+
+def test_eos_identity_peer(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    ids = face_model.landmarks
+    fit = _eos_peer().fit(face_model, unposed(V, ids, 10))
+    assert isinstance(fit, IdentityFit) and fit.identity.shape == (face_model.n_identities,)
+    assert fit.weights.shape == (1, face_model.n_expressions) and fit.cameras == [None]
+    assert fit.info["rms"][0] < 5.0 and fit.info["affine_camera"].shape == (3, 4)
+    assert fit.rig.n_shapes == face_model.n_expressions
+
+
+def test_eos_identity_peer_refuses_meshes(face_model):
+    peer = _eos_peer()
+    with pytest.raises(InputError, match="landmarks only"):
+        peer.fit(face_model, MeshTarget(face_model.neutral))
+    with pytest.raises(InputError, match="one image"):
+        peer.fit(face_model, [MeshTarget(face_model.neutral)] * 2)

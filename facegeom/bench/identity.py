@@ -9,13 +9,19 @@ and bounds, so only the identity differs):
 
 - ``generic``: the generic neutral (no identity modes), expression and pose fitted;
 - ``identity``: identity, pose and expression fitted;
-- ``oracle``: the true identity's neutral, expression and pose fitted.
+- ``oracle``: the true identity's neutral, expression and pose fitted;
+- ``eos`` (landmarks, one image, when eos-py is installed): the peer
+  ``eos.fitting.fit_shape_and_pose`` on the ICT arrays (entry point ``eos`` of
+  the ``facegeom.identity`` group, ``baselines.eos_identity``), with eos's
+  default regularisers and its affine camera (NE through that camera).
 
 Protocols:
 
 - ``landmarks``: one image, 640 x 480, focal 1000 px **known**, pose unknown
   (yaw U(-30, 30), pitch U(-10, 10) degrees), 1 px noise; fitted on the 23
-  ``bench fit`` landmarks, NE on the 26 unused ones (against their clean
+  ``bench fit`` landmarks plus the 17 jaw-contour ones (40: with the 23 alone
+  a frame has 46 numbers for 53 weights + 6 pose, and the expression can
+  explain anything the identity could), NE on the 26 unused ones (against their clean
   projections, through each fit's camera, normalised by the true inner-eye
   distance);
 - ``frames``: 5 images of one person (each its own expression, yaw and noise),
@@ -55,9 +61,9 @@ from facegeom.model import (
 )
 
 PROTOCOLS = ("landmarks", "frames", "mesh", "cloud")
-CONDITIONS = ("generic", "identity", "oracle")
+CONDITIONS = ("generic", "identity", "oracle", "eos")
 
-__all__ = ["CONDITIONS", "PROTOCOLS", "main", "make_people", "run", "summarize"]
+__all__ = ["CONDITIONS", "PROTOCOLS", "identity_peer", "main", "make_people", "run", "summarize"]
 
 
 @dataclasses.dataclass
@@ -100,6 +106,24 @@ def _models(model, identity):
     return {"generic": (model, 0), "identity": (model, None), "oracle": (oracle, 0)}
 
 
+def identity_peer(name="eos"):
+    """The identity fitter registered as ``name`` in the ``facegeom.identity`` entry points, or None.
+
+    None when it is not registered or cannot be built (eos-py not installed).
+    """
+    from importlib.metadata import entry_points
+
+    from facegeom.errors import FacegeomError
+
+    eps = {ep.name: ep for ep in entry_points(group="facegeom.identity")}
+    if name not in eps:
+        return None
+    try:
+        return eps[name].load()()
+    except (FacegeomError, ImportError):
+        return None
+
+
 def _fit(fitter_params, model, n_id, targets):
     f = IdentityFitter(**{**fitter_params, "n_identities": n_id})
     t = time.perf_counter()
@@ -117,20 +141,26 @@ def _rows(protocol, pi, person, cond, r, dt, truths, model, extra=None):
                "aligned_mm": _aligned_mm(V, T),
                "coef_mae": float(np.abs(r.weights[k] - person.weights[k]).mean()),
                "identity_rms": (float(np.sqrt(np.mean((r.identity - person.identity) ** 2)))
-                                if cond == "identity" else float("nan"))}
+                                if cond in ("identity", "eos") else float("nan"))}
         if extra is not None:
             row.update(extra(k, r))
         rows.append(row)
     return rows
 
 
-def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points=30000, seed=0, progress=True):
-    """Fit every person of ``people`` under ``protocol`` in the three conditions -> list of row dicts."""
+def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points=30000, seed=0, progress=True,
+        jaw=True):
+    """Fit every person of ``people`` under ``protocol`` in the three conditions -> list of row dicts.
+
+    ``jaw``: landmark protocols fit the 17 jaw-contour landmarks too (40 in all), else the 23 of ``bench fit``.
+    """
     params = dict(params or {})
     rng = np.random.default_rng([int(seed), 77, PROTOCOLS.index(protocol)])
     lm = model.landmarks
-    fit_ids, eval_ids, eye_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)], lm[list(INNER_EYE_CORNERS)]
+    fit_lm = (tuple(range(17)) if jaw else ()) + FIT_LANDMARKS_23
+    fit_ids, eval_ids, eye_ids = lm[list(fit_lm)], lm[list(EVAL_LANDMARKS_26)], lm[list(INNER_EYE_CORNERS)]
     tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
+    peer = identity_peer("eos") if protocol == "landmarks" else None
     rows = []
     items = people
     try:
@@ -151,7 +181,13 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
 
             def extra(k, r, evals=evals):
                 uv_eval, io = evals[k]
-                return {"ne_eval": fm.normalized_error(r.cameras[k].project(r.vertices(k)[eval_ids]), uv_eval, io)}
+                X = r.vertices(k)[eval_ids]
+                if r.cameras[k] is not None:
+                    uv = r.cameras[k].project(X)
+                else:  # an affine camera (eos)
+                    A = r.info["affine_camera"]
+                    uv = np.c_[X, np.ones(len(X))] @ A[:2].T
+                return {"ne_eval": fm.normalized_error(uv, uv_eval, io)}
         elif protocol == "mesh":
             targets = []
             for T in truths:
@@ -175,6 +211,10 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
         for cond, (mdl, n_id) in _models(model, p.identity).items():
             r, dt = _fit({"noise_px": noise_px, "noise_mm": noise_mm, **params}, mdl, n_id, targets)
             rows += _rows(protocol, pi, p, cond, r, dt, truths_l, model, extra)
+        if protocol == "landmarks" and peer is not None:
+            t = time.perf_counter()
+            r = peer.fit(model, targets)
+            rows += _rows(protocol, pi, p, "eos", r, time.perf_counter() - t, truths_l, model, extra)
     return rows
 
 
@@ -196,6 +236,8 @@ def summarize(rows) -> str:
                 continue
             gen = _median(rows, "vertex_mm", condition="generic", **sel)
             for cond in CONDITIONS:
+                if not any(r["condition"] == cond and all(r[k] == x for k, x in sel.items()) for r in rows):
+                    continue
                 v = _median(rows, "vertex_mm", condition=cond, **sel)
                 table.append([proto, kind, cond, v, _median(rows, "aligned_mm", condition=cond, **sel),
                               f"{100 * (v / gen - 1):+.0f} %", 100 * _median(rows, "ne_eval", condition=cond, **sel),
@@ -218,7 +260,7 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     report.csv(rows)
     table = summarize(rows)
     dense = "dense = frames of the real takes" if dense_weights is not None else "no takes: sparse only"
-    note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 used, "
+    note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw used, "
             f"focal known, pose unknown (yaw +-30 deg), 1 px; frames: {frames} images per person; mesh / cloud: "
             f"0.5 mm noise; {machine_note()}")
     report.summary(table, note)

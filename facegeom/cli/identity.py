@@ -107,10 +107,9 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coe
 
     Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
     """
+    from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.methods.identity import IdentityFitter
-
-    from facegeom.errors import InputError
 
     check_outputs(list(targets), [output] + ([coefficients] if coefficients else []))
     if coefficients and Path(coefficients).suffix.lower() != ".json":
