@@ -24,8 +24,15 @@ Protocols:
   explain anything the identity could), NE on the 26 unused ones (against their clean
   projections, through each fit's camera, normalised by the true inner-eye
   distance);
-- ``frames``: 5 images of one person (each its own expression, yaw and noise),
-  one identity for all; errors per frame;
+- ``neutral``: the SEM paper's protocol (Sec. V-A; ``facegeom identity`` then
+  ``facegeom fit --rig``): the identity from 5 *neutral* images of the person
+  (``expressions=False``), then each of 5 expression images fitted
+  separately on that user-specific rig (expression and pose; the identity
+  held); generic / oracle fit the same expression images on the generic / true
+  neutral; the identity condition's time includes its share of the identity fit;
+- ``frames``: 5 expression images of one person (each its own expression, yaw
+  and noise), one identity for all fitted jointly with the 5 expressions;
+  errors per frame;
 - ``mesh``: the face in correspondence with 0.5 mm Gaussian noise per coordinate,
   under a random rigid motion;
 - ``cloud``: 30,000 points sampled by area on the face area, 0.5 mm noise.
@@ -47,7 +54,7 @@ from scipy.spatial.transform import Rotation
 from facegeom import metrics as fm
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
-from facegeom.methods.identity import IdentityFitter
+from facegeom.methods.identity import IdentityFit, IdentityFitter
 from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -60,7 +67,7 @@ from facegeom.model import (
     random_sparse_expression,
 )
 
-PROTOCOLS = ("landmarks", "frames", "mesh", "cloud")
+PROTOCOLS = ("landmarks", "neutral", "frames", "mesh", "cloud")
 CONDITIONS = ("generic", "identity", "oracle", "eos")
 
 __all__ = ["CONDITIONS", "PROTOCOLS", "identity_peer", "main", "make_people", "run", "summarize"]
@@ -171,8 +178,15 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
     for pi, p in enumerate(items):
         truths = [model.face(p.identity, w) for w in p.weights]
         extra = None
-        if protocol in ("landmarks", "frames"):
+        if protocol in ("landmarks", "frames", "neutral"):
             targets, evals = [], []
+            neutrals = []
+            if protocol == "neutral":
+                N = model.face(p.identity)
+                for _ in range(len(truths)):
+                    cam = look_at_camera(N, yaw=rng.uniform(-30, 30), pitch=rng.uniform(-10, 10))
+                    uv = cam.project(N[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
+                    neutrals.append(LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
             for T in truths:
                 cam = look_at_camera(T, yaw=rng.uniform(-30, 30), pitch=rng.uniform(-10, 10))
                 uv = cam.project(T[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
@@ -208,14 +222,37 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
             targets, truths_l = targets[:1], truths[:1]
         else:
             truths_l = truths
+        kw = {"noise_px": noise_px, "noise_mm": noise_mm, **params}
         for cond, (mdl, n_id) in _models(model, p.identity).items():
-            r, dt = _fit({"noise_px": noise_px, "noise_mm": noise_mm, **params}, mdl, n_id, targets)
+            if protocol == "neutral":
+                r, dt = _two_step(model, cond, p.identity, neutrals, targets, kw)
+            else:
+                r, dt = _fit(kw, mdl, n_id, targets)
             rows += _rows(protocol, pi, p, cond, r, dt, truths_l, model, extra)
         if protocol == "landmarks" and peer is not None:
             t = time.perf_counter()
             r = peer.fit(model, targets)
             rows += _rows(protocol, pi, p, "eos", r, time.perf_counter() - t, truths_l, model, extra)
     return rows
+
+
+def _two_step(model, cond, true_identity, neutrals, targets, kw):
+    """The ``neutral`` protocol: an identity (fitted to the neutral images, or none, or the truth), then each
+    target's expression and pose on that identity's rig, one target at a time -> ``(IdentityFit, seconds)``."""
+    t = time.perf_counter()
+    if cond == "identity":
+        a = IdentityFitter(**{**kw, "expressions": False}).fit(model, neutrals).identity
+    elif cond == "oracle":
+        a = np.asarray(true_identity, dtype=np.float64)
+    else:
+        a = np.zeros(model.n_identities)
+    user = dataclasses.replace(model, neutral=model.identity_neutral(a).astype(np.float32))
+    fits = [IdentityFitter(**{**kw, "n_identities": 0}).fit(user, tg) for tg in targets]
+    dt = time.perf_counter() - t
+    r = IdentityFit(a, np.concatenate([f.weights for f in fits]), tuple(f.kinds[0] for f in fits),
+                    [f.cameras[0] for f in fits], np.concatenate([f.rotations for f in fits]),
+                    np.concatenate([f.translations for f in fits]), {"time_s": dt}, model)
+    return r, dt
 
 
 def _median(rows, key, **where):
@@ -255,13 +292,13 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     for proto in protocols:
         n = cloud_count if proto == "cloud" else count
         people = make_people(model, n, seed + PROTOCOLS.index(proto), dense_weights,
-                             frames if proto == "frames" else 1)
+                             frames if proto in ("frames", "neutral") else 1)
         rows += run(model, proto, people, params, seed=seed, progress=progress)
     report.csv(rows)
     table = summarize(rows)
     dense = "dense = frames of the real takes" if dense_weights is not None else "no takes: sparse only"
     note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw used, "
-            f"focal known, pose unknown (yaw +-30 deg), 1 px; frames: {frames} images per person; mesh / cloud: "
+            f"focal known, pose unknown (yaw +-30 deg), 1 px; neutral / frames: {frames} images per person; mesh / cloud: "
             f"0.5 mm noise; {machine_note()}")
     report.summary(table, note)
     report.done()
