@@ -291,8 +291,8 @@ def test_eos_identity_peer_refuses_meshes(face_model):
 def test_bench_identity_small(face_model, tmp_path):
     from facegeom.bench import identity as bi
 
-    rows, table = bi.main(face_model, ("landmarks", "neutral", "mesh"), 1, 3, tmp_path, frames=2, echo=lambda s: None,
-                          progress=False)
+    rows, _ = bi.main(face_model, ("landmarks", "neutral", "mesh"), 1, 3, tmp_path, frames=2, echo=lambda s: None,
+                      progress=False)
     conds = {(r["protocol"], r["condition"]) for r in rows}
     assert {("landmarks", "identity"), ("neutral", "oracle"), ("mesh", "generic")} <= conds
     assert (tmp_path / "identity.csv").is_file() and "| neutral" in (tmp_path / "identity-summary.md").read_text()
