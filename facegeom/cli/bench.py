@@ -234,6 +234,42 @@ def _all_takes(model, takes_path) -> list:
     return [(p.stem, ict_weights(read_take(p), model.expression_names)) for p in find_takes(folder)]
 
 
+@bench.command("identity")
+@click.option("--cases", default=20, show_default=True, type=click.IntRange(1, 10000), help="People per protocol.")
+@click.option("--cloud-cases", default=4, show_default=True, type=click.IntRange(1, 10000), help="People for clouds.")
+@click.option("--frames", default=5, show_default=True, type=click.IntRange(2, 100), help="Images per person (frames).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--protocols", default="landmarks,neutral,frames,mesh,cloud", show_default=True,
+              help="Comma-separated subset of landmarks, neutral, frames, mesh, cloud.")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Identity fitter parameter.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of takes for the dense expressions (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/identity", show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_identity(obj: Context, cases, cloud_cases, frames, seed, protocols, params, takes_path, out, quiet):
+    """Identity fitting: generic neutral vs identity fitted vs true identity, on landmarks, frames, meshes, clouds."""
+    import numpy as np
+
+    from facegeom.bench import identity as bi
+    from facegeom.cli.context import parse_params
+    from facegeom.errors import InputError
+    from facegeom.model import default_takes_path
+
+    pr = tuple(x.strip() for x in protocols.split(",") if x.strip())
+    bad = [x for x in pr if x not in bi.PROTOCOLS]
+    if bad or not pr:
+        raise InputError(f"--protocols: unknown {bad[0] if bad else 'empty'!r}; choose from {', '.join(bi.PROTOCOLS)}")
+    model = obj.face_model()
+    dense = None
+    if takes_path or default_takes_path().is_dir():
+        dense = np.concatenate([W for _, W in _load_takes(model, takes_path)])
+    else:
+        click.echo("no takes found: sparse expressions only", err=True)
+    bi.main(model, pr, cases, seed, Path(out), dense, parse_params(params), frames, cloud_cases, echo=click.echo,
+            progress=not quiet)
+
+
 @bench.command("scaling")
 @click.option("--levels", default="0,1,2", show_default=True,
               help="Subdivision levels of the face (0: 9,409 vertices, 1: ~37k, 2: ~150k).")

@@ -19,6 +19,7 @@ from facegeom.cli.context import Context
 from facegeom.cli.data import data
 from facegeom.cli.demo import demo
 from facegeom.cli.flags import as_flags
+from facegeom.cli.identity import identity_cmd
 from facegeom.cli.single import animate, drive, fit, retarget
 from facegeom.cli.view import view
 from facegeom.errors import FacegeomError
@@ -117,3 +118,4 @@ cli.add_command(crop_cmd)
 cli.add_command(view)
 cli.add_command(batch_cmd)
 cli.add_command(data)
+cli.add_command(identity_cmd)

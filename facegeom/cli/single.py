@@ -131,8 +131,15 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Coefficients by shape name (.json or .csv).")
 @click.option("--mesh-out", type=click.Path(dir_okay=False), default=None, help="Also write the fitted face mesh.")
-@click.pass_obj
-def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out):
+@click.option("--identity", is_flag=True,
+              help="Also fit the person's identity (face model modes, pose and expression together); the weights "
+                   "are the joint fit's, or with an explicit --method that fitter's on the fitted rig.")
+@click.option("--id-param", "id_params", multiple=True, metavar="KEY=VALUE",
+              help="With --identity: identity fitter parameter, repeatable (e.g. --id-param noise_px=2).")
+@click.option("--rig-out", type=click.Path(), default=None,
+              help="With --identity: write the user-specific rig (.npz or a new OBJ folder).")
+@click.pass_context
+def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out, identity, id_params, rig_out):
     """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
     import numpy as np
 
@@ -141,10 +148,25 @@ def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, out
     from facegeom.model import load_rig
     from facegeom.pipelines.single import fit_file, write_fit
 
-    check_outputs([target, rig_path], [output, mesh_out])
-    rig = load_rig(rig_path, obj.face_model)
+    obj: Context = ctx.obj
+    check_outputs([target, rig_path], [output, mesh_out, rig_out])
     tp = Path(target)
-    r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy)
+    if identity or rig_out or id_params:
+        from facegeom.cli.identity import fit_identity_target, write_rig
+        from facegeom.errors import InputError
+
+        if not identity:
+            raise InputError("--rig-out and --id-param go with --identity")
+        if rig_path:
+            raise InputError("--identity fits the rig from the face model: drop --rig")
+        explicit = ctx.get_parameter_source("method") != click.core.ParameterSource.DEFAULT
+        r, rig, method = fit_identity_target(obj, tp, kind, focal, cx, cy, id_params, method, parse_params(params),
+                                             explicit)
+        if rig_out:
+            write_rig(rig, rig_out)
+    else:
+        rig = load_rig(rig_path, obj.face_model)
+        r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy)
     active = r.active
     with all_or_nothing([output] + ([mesh_out] if mesh_out else [])) as tmps:  # the weights and the mesh, or neither
         write_fit(tmps[0], rig.names, r, method, str(tp), time_s=r.seconds)
@@ -155,6 +177,8 @@ def fit(obj: Context, target, kind, rig_path, method, params, focal, cx, cy, out
         click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
     if mesh_out:
         click.echo(f"wrote {mesh_out}")
+    if rig_out:
+        click.echo(f"wrote {rig_out}")
 
 
 @click.command()

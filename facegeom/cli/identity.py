@@ -1,0 +1,158 @@
+"""``facegeom identity`` and ``facegeom fit --identity``: a person's identity from their faces -> a user-specific rig.
+
+The protocol of the SEM paper (Sec. V-A): the identity is fitted to one or
+several neutral frames of a subject (:class:`~facegeom.methods.identity.IdentityFitter`),
+the user-specific rig is written, and ``facegeom fit --rig RIG`` then fits
+expressions on it.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from facegeom.cli.context import Context, parse_params
+
+TARGET_HELP = ("What the TARGETS are: meshes in correspondence with the model, landmark CSVs (vertex_id,u,v) or "
+               "point clouds (auto: .csv = landmarks, a mesh with the model's vertex count = mesh, else points).")
+
+
+def read_targets(paths, model, kind="auto", focal=None, cx=None, cy=None):
+    """Read every target file for ``model`` (as ``facegeom fit`` reads one) -> ``(kinds, targets)``."""
+    from facegeom.model import BlendshapeRig, read_fit_target
+
+    rig = BlendshapeRig.from_face_model(model)
+    kinds, targets = [], []
+    for p in paths:
+        k, t = read_fit_target(Path(p), rig, kind, focal, cx, cy)
+        kinds.append(k)
+        targets.append(t)
+    return kinds, targets
+
+
+def write_rig(rig, path) -> Path:
+    """Write ``rig`` to ``path``: an ``.npz`` (:meth:`BlendshapeRig.save_npz`), else a new folder of OBJs.
+
+    The OBJ folder is written into a temporary folder next to it and renamed
+    into place, so it appears complete or not at all.
+    """
+    from facegeom.errors import InputError
+
+    path = Path(path)
+    if path.suffix.lower() == ".npz":
+        return rig.save_npz(path)
+    if path.suffix:
+        raise InputError(f"unsupported rig format {path.suffix!r}; use .npz or a folder name (OBJ folder)", path)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise InputError("the rig folder already exists and is not empty", path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError("the parent folder does not exist", path)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
+    try:
+        rig.write_obj_folder(tmp)
+        if path.exists():
+            path.rmdir()
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def write_coefficients(path, fit, names, files) -> Path:
+    """Write the identity coefficients and, per target, its file, kind, weights by name, pose and RMS (JSON)."""
+    from facegeom.errors import InputError
+    from facegeom.io import atomic_path
+
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        raise InputError("the coefficients file must be .json", path)
+    data = {
+        "identity": [float(a) for a in fit.identity],
+        "targets": [{"file": str(f), **pose, "weights": {n: float(x) for n, x in zip(names, w)},
+                     "rms": float(rms)}
+                    for f, pose, w, rms in zip(files, fit.pose_dicts(), fit.weights, fit.info["rms"])],
+        "time_s": float(fit.info["time_s"]),
+        "rounds": int(fit.info["rounds"]),
+    }
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+    return path
+
+
+@click.command("identity")
+@click.argument("targets", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="The user-specific rig: an .npz, or a new folder of OBJs (neutral.obj + one per expression).")
+@click.option("--kind", type=click.Choice(["auto", "mesh", "landmarks", "points"]), default="auto", show_default=True,
+              help=TARGET_HELP)
+@click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
+@click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
+@click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
+              help="Identity fitter parameter, repeatable (e.g. -p noise_px=2 -p n_identities=50).")
+@click.option("--coefficients", type=click.Path(dir_okay=False), default=None,
+              help="Also write the identity coefficients, per-target weights and poses (.json).")
+@click.option("--with-expressions", is_flag=True,
+              help="The targets are not neutral: fit an expression per target too (default: neutral frames).")
+@click.pass_obj
+def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coefficients, with_expressions):
+    """Fit one identity to TARGETS (neutral frames of one person) and write the user-specific rig.
+
+    Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
+    """
+    from facegeom.errors import InputError
+    from facegeom.io import check_outputs
+    from facegeom.methods.identity import IdentityFitter
+
+    check_outputs(list(targets), [output] + ([coefficients] if coefficients else []))
+    if coefficients and Path(coefficients).suffix.lower() != ".json":
+        raise InputError("the coefficients file must be .json", coefficients)
+    model = obj.face_model()
+    kinds, tgs = read_targets(targets, model, kind, focal, cx, cy)
+    fitter = IdentityFitter(**{"expressions": with_expressions, **parse_params(params)})
+    fit = fitter.fit(model, tgs)
+    write_rig(fit.rig, output)
+    if coefficients:
+        write_coefficients(coefficients, fit, fit.rig.names, targets)
+    a = fit.identity
+    click.echo(f"identity from {len(tgs)} target(s) ({', '.join(sorted(set(kinds)))}) in "
+               f"{fit.info['time_s'] * 1e3:.1f} ms, {fit.info['rounds']} rounds; |a| = {np.linalg.norm(a):.2f} "
+               f"over {a.size} modes -> {output}")
+    for f, k, rms in zip(targets, kinds, fit.info["rms"]):
+        click.echo(f"  {Path(f).name:<24} {k:<9} rms {rms:.3g} {'px' if k == 'landmarks' else 'mm'}")
+
+
+def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, method, method_params, explicit_method):
+    """``facegeom fit --identity``: identity + expression for one target.
+
+    Returns ``(outcome, rig, label)``: a :class:`~facegeom.pipelines.single.FitOutcome`
+    (the joint fit's weights, or those of ``method`` refitted on the user's rig
+    when ``explicit_method``), the user-specific rig and the method label.
+    """
+    import time
+
+    from facegeom import registry
+    from facegeom.methods.identity import IdentityFitter
+    from facegeom.pipelines.single import FitOutcome
+
+    model = obj.face_model()
+    (k,), (tg,) = read_targets([target], model, kind, focal, cx, cy)
+    fitter = IdentityFitter(**parse_params(params))
+    t = time.perf_counter()
+    fit = fitter.fit(model, tg)
+    rig = fit.rig
+    if explicit_method:
+        m = registry.create("fitters", method, **method_params)
+        r = m.fit(rig, tg)
+        cam = r.info.get("camera")
+        out = FitOutcome(k, r.weights, cam, r.vertices, time.perf_counter() - t)
+        return out, rig, f"identity+{method}"
+    out = FitOutcome(k, fit.weights[0], fit.cameras[0], fit.vertices(0), time.perf_counter() - t)
+    return out, rig, "identity"

@@ -1,0 +1,300 @@
+"""Identity fitting (facegeom.methods.identity) and its command line, on the real ICT face model."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from facegeom import registry
+from facegeom.errors import InputError
+from facegeom.io import write_mesh
+from facegeom.methods.identity import IdentityFit, IdentityFitter
+from facegeom.model import (
+    FIT_LANDMARKS_23,
+    BlendshapeRig,
+    LandmarkTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    look_at_camera,
+)
+
+FACE = 6706
+
+
+def face_mm(A, B):
+    return float(np.linalg.norm(A[:FACE] - B[:FACE], axis=1).mean() * 10)
+
+
+def aligned_mm(A, B):
+    """Face error after the best rigid alignment (a pose / gauge offset removed)."""
+    X, Y = A[:FACE] - A[:FACE].mean(0), B[:FACE] - B[:FACE].mean(0)
+    U, _, Vt = np.linalg.svd(X.T @ Y)
+    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    return float(np.linalg.norm(X @ R.T - Y, axis=1).mean() * 10)
+
+
+@pytest.fixture(scope="module")
+def person(face_model):
+    rng = np.random.default_rng(11)
+    a = face_model.random_identity(rng)
+    w = np.zeros(face_model.n_expressions)
+    w[[face_model.expression_index("jawOpen"), face_model.expression_index("mouthSmile_L")]] = [0.6, 0.4]
+    return a, w
+
+
+def unposed(V, ids, yaw, rng=None, noise=0.0, pitch=0.0):
+    cam = look_at_camera(V, yaw=yaw, pitch=pitch)
+    uv = cam.project(V[ids])
+    if rng is not None:
+        uv = uv + rng.normal(size=uv.shape) * noise
+    return LandmarkTarget(uv, ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
+
+
+def test_mesh_exact_recovery(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    fit = IdentityFitter(noise_mm=1e-3, rigid=False).fit(face_model, MeshTarget(V))
+    assert isinstance(fit, IdentityFit)
+    assert np.abs(fit.identity - a).max() < 1e-5
+    assert np.abs(fit.weights[0] - w).max() < 1e-6
+    assert face_mm(fit.vertices(), V) < 1e-4
+
+
+def test_mesh_rigid_motion_recovered(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    R = Rotation.from_rotvec([0.2, -0.4, 0.1]).as_matrix()
+    fit = IdentityFitter(noise_mm=1e-3).fit(face_model, MeshTarget(V @ R.T + [1.0, -2.0, 3.0]))
+    assert np.abs(fit.identity - a).max() < 1e-4 and np.abs(fit.weights[0] - w).max() < 1e-5
+    assert np.allclose(fit.rotations[0], R, atol=1e-6)
+    assert np.allclose(fit.posed_vertices(), V @ R.T + [1.0, -2.0, 3.0], atol=1e-5)
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(rotvec=st.lists(st.floats(-0.6, 0.6), min_size=3, max_size=3),
+       shift=st.lists(st.floats(-20, 20), min_size=3, max_size=3))
+def test_rigid_motion_leaves_the_identity_unchanged(face_model, person, rotvec, shift):
+    """Property: moving a noisy mesh target rigidly changes the pose, not the identity or the expression."""
+    a, w = person
+    rng = np.random.default_rng(0)
+    V = face_model.face(a, w) + rng.normal(size=(face_model.n_vertices, 3)) * 0.05
+    fitter = IdentityFitter()
+    ref = fitter.fit(face_model, MeshTarget(V))
+    R = Rotation.from_rotvec(rotvec).as_matrix()
+    moved = fitter.fit(face_model, MeshTarget(V @ R.T + shift))
+    assert np.abs(moved.identity - ref.identity).max() < 1e-5
+    assert np.abs(moved.weights - ref.weights).max() < 1e-6
+
+
+def test_point_cloud(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    rng = np.random.default_rng(2)
+    P = V[:FACE][rng.choice(FACE, 5000, replace=False)] + [0.1, -0.05, 0.05]
+    fit = IdentityFitter().fit(face_model, PointCloudTarget(P))
+    start = face_mm(face_model.face(), V)  # the mean face: where the fit starts
+    assert face_mm(fit.posed_vertices(), V + [0.1, -0.05, 0.05]) < 0.7 * start
+    assert fit.info["rms"][0] < 1.5  # mm, closest-point distances
+    assert fit.weights[0, face_model.expression_index("jawOpen")] > 0.3
+    assert fit.kinds == ("points",)
+
+
+def test_landmarks_one_image(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    ids = face_model.landmarks
+    tg = unposed(V, ids, yaw=15, rng=np.random.default_rng(1), noise=1.0)
+    fit = IdentityFitter().fit(face_model, tg)
+    generic = IdentityFitter(n_identities=0).fit(face_model, tg)
+    assert face_mm(fit.vertices(), V) < 0.8 * face_mm(generic.vertices(), V)
+    assert fit.info["rms"][0] < 1.5 and fit.cameras[0].posed
+    assert fit.info["time_s"] < 1.0
+
+
+def test_landmarks_several_images(face_model, person):
+    """Neutral frames (the SEM protocol): more views, a better identity; free expressions: per-frame results."""
+    a, _ = person
+    ids = face_model.landmarks
+    rng = np.random.default_rng(4)
+    neutral = face_model.face(a)
+    frames = [unposed(neutral, ids, yaw, rng, 0.2) for yaw in (-25, -10, 0, 10, 25)]
+    fit = IdentityFitter(expressions=False).fit(face_model, frames)
+    assert fit.weights.shape == (5, face_model.n_expressions) and len(fit.cameras) == 5
+    assert np.abs(fit.weights).max() < 1e-6
+    one = IdentityFitter(expressions=False).fit(face_model, frames[2])
+    err_many = aligned_mm(fit.rig.neutral, neutral)
+    assert err_many < 0.5 * aligned_mm(face_model.face(), neutral)
+    assert err_many < aligned_mm(one.rig.neutral, neutral)
+    free = IdentityFitter().fit(face_model, frames)
+    assert free.weights.shape == (5, face_model.n_expressions) and max(free.info["rms"]) < 1.5
+
+
+def test_rig_round_trip_and_every_fitter_accepts_it(face_model, person, tmp_path):
+    a, w = person
+    fit = IdentityFitter(noise_mm=1e-3, rigid=False).fit(face_model, MeshTarget(face_model.face(a, w)))
+    rig = fit.rig
+    assert np.allclose(rig.neutral, face_model.face(fit.identity), atol=1e-9)
+    assert np.array_equal(rig.deltas, np.asarray(face_model.expression_deltas, dtype=np.float64))
+    back = BlendshapeRig.from_npz(rig.save_npz(tmp_path / "rig.npz"))
+    assert np.array_equal(back.neutral, rig.neutral) and back.names == rig.names
+    (tmp_path / "objs").mkdir()
+    objs = BlendshapeRig.from_obj_folder(rig.write_obj_folder(tmp_path / "objs"))
+    assert np.abs(objs.neutral - rig.neutral).max() < 1e-5
+    V = rig.evaluate(w)
+    ids = face_model.landmarks
+    for name in registry.available("fitters"):
+        try:
+            m = registry.create("fitters", name)
+        except InputError:  # an optional peer that is not installed
+            continue
+        target = unposed(V, ids, 10) if name == "eos" else MeshTarget(V)
+        r = m.fit(rig, target)
+        assert r.weights.shape == (rig.n_shapes,)
+        if name != "eos":
+            assert face_mm(r.vertices, V) < 1.0, name
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda m: [], "no target"),
+    (lambda m: ["x"], "must be a MeshTarget"),
+    (lambda m: MeshTarget(np.zeros((10, 3))), "the mesh has 10 vertices"),
+    (lambda m: LandmarkTarget(np.zeros((3, 2)), [0, 1, 2], PinholeCamera(1000, 320, 240)), "at least 4 landmarks"),
+    (lambda m: LandmarkTarget(np.zeros((4, 2)), [0, 1, 2, 10 ** 6], PinholeCamera(1000, 320, 240)), "out of range"),
+])
+def test_bad_targets(face_model, make, message):
+    with pytest.raises(InputError, match=message) as e:
+        IdentityFitter().fit(face_model, make(face_model))
+    assert "\n" not in str(e.value) and "--" not in str(e.value)
+
+
+@pytest.mark.parametrize("kw", [{"noise_px": 0}, {"noise_mm": -1}, {"rounds": 0}, {"n_identities": -2},
+                                {"rigid": "yes"}, {"expression_l1": -1}, {"region": []}, {"expressions": 1}])
+def test_bad_parameters(kw):
+    with pytest.raises(InputError):
+        IdentityFitter(**kw)
+
+
+def test_not_a_model():
+    with pytest.raises(InputError, match="FaceModel"):
+        IdentityFitter().fit(object(), MeshTarget(np.zeros((4, 3))))
+
+
+# --------------------------------------------------------------------------- command line
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "facegeom", *args], check=False, capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def write_landmarks(path, ids, uv):
+    path.write_text("vertex_id,u,v\n" + "".join(f"{i},{float(u)!r},{float(v)!r}\n" for i, (u, v) in zip(ids, uv)))
+
+
+def test_cli_identity_then_fit_on_the_rig(face_model, person, tmp_path):
+    a, w = person
+    ids = face_model.landmarks
+    neutral = face_model.face(a)
+    files = []
+    for k, yaw in enumerate((-20, 0, 20)):
+        cam = look_at_camera(neutral, yaw=yaw)
+        write_landmarks(tmp_path / f"n{k}.csv", ids, cam.project(neutral[ids]))
+        files.append(str(tmp_path / f"n{k}.csv"))
+    cam = look_at_camera(neutral)
+    intr = ["--focal", str(cam.focal), "--cx", str(cam.cx), "--cy", str(cam.cy)]
+    r = run("identity", *files, *intr, "-o", str(tmp_path / "rig.npz"), "--coefficients", str(tmp_path / "c.json"))
+    assert r.returncode == 0, r.stderr
+    rig = BlendshapeRig.from_npz(tmp_path / "rig.npz")
+    assert face_mm(rig.neutral, neutral) < 0.5 * face_mm(face_model.face(), neutral)
+    c = json.loads((tmp_path / "c.json").read_text())
+    assert len(c["identity"]) == face_model.n_identities and len(c["targets"]) == 3
+    # expressions on the user's rig
+    V = face_model.face(a, w)
+    fit_ids = ids[list(FIT_LANDMARKS_23)]
+    write_landmarks(tmp_path / "e.csv", fit_ids, look_at_camera(V, yaw=10).project(V[fit_ids]))
+    r = run("fit", str(tmp_path / "e.csv"), *intr, "--rig", str(tmp_path / "rig.npz"), "-m", "l1reg",
+            "-o", str(tmp_path / "w.json"))
+    assert r.returncode == 0, r.stderr
+    got = json.loads((tmp_path / "w.json").read_text())["weights"]
+    assert abs(got["jawOpen"] - 0.6) < 0.15
+    # identity and expression in one go, rig as an OBJ folder
+    r = run("fit", str(tmp_path / "e.csv"), *intr, "--identity", "-o", str(tmp_path / "w2.json"),
+            "--rig-out", str(tmp_path / "objs"), "--id-param", "noise_px=1.5")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "objs" / "neutral.obj").is_file() and (tmp_path / "objs" / "jawOpen.obj").is_file()
+    assert set(json.loads((tmp_path / "w2.json").read_text())["weights"]) == set(face_model.expression_names)
+
+
+def test_cli_fit_identity_mesh(face_model, person, tmp_path):
+    a, w = person
+    write_mesh(tmp_path / "t.obj", face_model.face(a, w), face_model.triangles)
+    r = run("fit", str(tmp_path / "t.obj"), "--identity", "-m", "l2reg", "-o", str(tmp_path / "w.json"),
+            "--rig-out", str(tmp_path / "r.npz"))
+    assert r.returncode == 0, r.stderr
+    got = json.loads((tmp_path / "w.json").read_text())["weights"]
+    assert abs(got["jawOpen"] - 0.6) < 0.02 and abs(got["mouthSmile_L"] - 0.4) < 0.02
+    assert face_mm(BlendshapeRig.from_npz(tmp_path / "r.npz").neutral, face_model.face(a)) < 0.05
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["identity", "missing.obj", "-o", "r.npz"], "file not found"),
+    (["identity", "lm.csv", "-o", "r.npz"], "need the camera"),
+    (["identity", "t.obj", "-o", "r.txt"], "unsupported rig format"),
+    (["identity", "t.obj", "-o", "r.npz", "-p", "noise_mm=0"], "noise_mm must be a positive number"),
+    (["identity", "t.obj", "-o", "r.npz", "--coefficients", "c.txt"], "must be .json"),
+    (["fit", "t.obj", "-o", "w.json", "--rig-out", "r.npz"], "go with --identity"),
+    (["fit", "t.obj", "-o", "w.json", "--identity", "--rig", "t.obj"], "drop --rig"),
+])
+def test_cli_bad_input_one_line(face_model, tmp_path, args, problem):
+    write_mesh(tmp_path / "t.obj", face_model.neutral, face_model.triangles)
+    (tmp_path / "lm.csv").write_text("vertex_id,u,v\n1,2,3\n4,5,6\n7,8,9\n10,11,12\n")
+    r = run(*args, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert problem in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "r.npz").exists()
+
+
+# --------------------------------------------------------------------------- the eos peer
+def _eos_peer():
+    from importlib.metadata import entry_points
+
+    eps = {ep.name: ep for ep in entry_points(group="facegeom.identity")}
+    assert {"facegeom", "eos"} <= set(eps)
+    try:
+        return eps["eos"].load()()
+    except InputError as exc:  # pragma: no cover - eos-py is a test dependency
+        pytest.skip(str(exc))
+
+
+def test_eos_identity_peer(face_model, person):
+    a, w = person
+    V = face_model.face(a, w)
+    ids = face_model.landmarks
+    fit = _eos_peer().fit(face_model, unposed(V, ids, 10))
+    assert isinstance(fit, IdentityFit) and fit.identity.shape == (face_model.n_identities,)
+    assert fit.weights.shape == (1, face_model.n_expressions) and fit.cameras == [None]
+    assert fit.info["rms"][0] < 5.0 and fit.info["affine_camera"].shape == (3, 4)
+    assert fit.rig.n_shapes == face_model.n_expressions
+
+
+def test_eos_identity_peer_refuses_meshes(face_model):
+    peer = _eos_peer()
+    with pytest.raises(InputError, match="landmarks only"):
+        peer.fit(face_model, MeshTarget(face_model.neutral))
+    with pytest.raises(InputError, match="one image"):
+        peer.fit(face_model, [MeshTarget(face_model.neutral)] * 2)
+
+
+def test_bench_identity_small(face_model, tmp_path):
+    from facegeom.bench import identity as bi
+
+    rows, _ = bi.main(face_model, ("landmarks", "neutral", "mesh"), 1, 3, tmp_path, frames=2, echo=lambda s: None,
+                      progress=False)
+    conds = {(r["protocol"], r["condition"]) for r in rows}
+    assert {("landmarks", "identity"), ("neutral", "oracle"), ("mesh", "generic")} <= conds
+    assert (tmp_path / "identity.csv").is_file() and "| neutral" in (tmp_path / "identity-summary.md").read_text()
+    mesh = {r["condition"]: r["vertex_mm"] for r in rows if r["protocol"] == "mesh"}
+    assert mesh["identity"] < 0.2 < mesh["generic"]
