@@ -1,5 +1,6 @@
 """End-to-end: `facegeom fit` on the real ICT rig (mesh, landmarks, point cloud), its files and bad input."""
 import json
+import os
 import subprocess
 import sys
 
@@ -124,7 +125,7 @@ def test_bench_fit_small(tmp_path, face_model):
     out = tmp_path / "bf"
     r = run("bench", "fit", "--cases", "3", "--cloud-cases", "1", "--samplings", "1", "--points", "5000",
             "--experiments", "landmarks,clouds,meshes", "--methods", "sem;sem-ric=sem:clamp=true,stop=ric",
-            "--quiet", "--out", str(out))
+            "--realistic-cases", "0", "--quiet", "--out", str(out))
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader(open(out / "fit-landmarks.csv")))
     assert len(rows) == 3 * 2
@@ -135,3 +136,28 @@ def test_bench_fit_small(tmp_path, face_model):
     assert "Point clouds" in (out / "fit-summary.md").read_text()
     r = run("bench", "fit", "--experiments", "landmarks,bogus")
     assert r.returncode == 2 and "bogus" in r.stderr
+
+
+def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model):
+    """Real-take expressions on random identities: generic, fitted and true identity; the tables lead the summary."""
+    import csv
+
+    from facegeom.model import default_takes_path
+
+    if not (default_takes_path().is_dir() or os.environ.get("FACEGEOM_TAKES")):
+        pytest.skip("no ARKit takes (../shared/data/arkit-takes or $FACEGEOM_TAKES)")
+    out = tmp_path / "bf"
+    r = run("bench", "fit", "--cases", "1", "--realistic-cases", "2", "--cloud-cases", "1", "--samplings", "1",
+            "--points", "2000", "--experiments", "landmarks,meshes,clouds", "--methods", "sem-ls", "--quiet",
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    summary = (out / "fit-summary.md").read_text()
+    assert summary.index("Realistic: landmarks") < summary.index("The paper's protocol")
+    mesh = list(csv.DictReader(open(out / "fit-realistic-meshes.csv")))
+    assert {x["identity"] for x in mesh} == {"generic", "fitted", "oracle"} and len(mesh) == 2 * 3
+    err = {(x["case"], x["identity"]): float(x["vertex_mm"]) for x in mesh}
+    for case in ("0", "1"):  # 0.5 mm noise on a partial scan: the true identity's rig fits far better than the generic
+        assert err[case, "oracle"] < 0.2 < 1.0 < err[case, "generic"]
+        assert err[case, "fitted"] < 0.5 * err[case, "generic"]
+    lms = list(csv.DictReader(open(out / "fit-realistic-landmarks.csv")))
+    assert all(0 <= float(x["ne_eval"]) < 0.3 for x in lms) and len(lms) == 2 * 3

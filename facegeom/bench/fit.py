@@ -488,7 +488,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     realistic_count : int
         Cases of the realistic protocol (0: not run).
     identity_fitters : dict, optional
-        Identity fitters per experiment for the realistic protocol's ``fitted`` mode.
+        Identity fitters per experiment for the realistic protocol's ``fitted`` mode
+        (default: :func:`facegeom.bench.fit_realistic.identity_fitters`; ``{}``: no fitted mode).
 
     Returns
     -------
@@ -507,6 +508,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     if takes and realistic_count:
         from facegeom.bench import fit_realistic
 
+        if identity_fitters is None:
+            identity_fitters = fit_realistic.identity_fitters(model)
         _, realistic_table = fit_realistic.main(model, specs, experiments, takes, realistic_count, seed, report,
                                                 identity_fitters, cloud_cases, min(points, 10000), echo, progress)
     cases = fitting_cases(model, count, seed)

@@ -12,7 +12,8 @@ in four ways, and each is part of every case here:
   neutral (what a user without an identity fit has), with the rig of a fitted
   identity when an identity fitter is given, and with the true identity's rig
   (the oracle), so the tables show what identity costs;
-- **landmarks**: the 23 fit landmarks seen by a pinhole camera turned by yaw
+- **landmarks**: 40 landmarks (the paper's 23 fit landmarks and the 17 of the jaw contour, which
+  every 68-point detector gives and which carry the face's outline) seen by a pinhole camera turned by yaw
   U(-30, 30) and pitch U(-15, 15) degrees, Gaussian noise of U(0.5, 2) px per
   case, and a focal length given to the fitter off by a factor U(0.7, 1.3)
   (a photo without calibration: the fitters keep the wrong focal, and the pose
@@ -52,8 +53,8 @@ from facegeom.model import (
     look_at_camera,
 )
 
-__all__ = ["RealisticCase", "realistic_cases", "run_landmarks", "run_meshes", "run_clouds", "summarize",
-           "IDENTITY_MODES"]
+__all__ = ["RealisticCase", "realistic_cases", "identity_fitters", "FIT_LANDMARKS_40", "run_landmarks", "run_meshes",
+           "run_clouds", "summarize", "IDENTITY_MODES"]
 
 IDENTITY_MODES = ("generic", "fitted", "oracle")
 MESH_NOISE_CM = 0.05  # 0.5 mm
@@ -125,8 +126,12 @@ def _fit(spec, rig, target, region=None):
     return r, time.perf_counter() - t
 
 
+FIT_LANDMARKS_40 = tuple(range(17)) + tuple(FIT_LANDMARKS_23)
+"""The realistic protocol's fit landmarks: the jaw contour (0-16) and the paper's 23."""
+
+
 def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, progress=True):
-    """Fit the 23 noisy landmarks of every case (pose unknown, focal off) with every method and identity mode.
+    """Fit the 40 noisy landmarks of every case (pose unknown, focal off) with every method and identity mode.
 
     Parameters
     ----------
@@ -149,7 +154,7 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
     """
     rng = np.random.default_rng(7319)
     lm = model.landmarks
-    fit_ids, eval_ids = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
+    fit_ids, eval_ids = lm[list(FIT_LANDMARKS_40)], lm[list(EVAL_LANDMARKS_26)]
     eye_ids = lm[list(INNER_EYE_CORNERS)]
     rows = []
     for ci, c in enumerate(progress_bar(cases, "realistic landmarks", progress)):
@@ -236,6 +241,20 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
     return rows
 
 
+def identity_fitters(model) -> dict:
+    """The ``fitted`` identity mode: :class:`~facegeom.methods.identity.IdentityFitter` (defaults) per target kind.
+
+    Each returns the user-specific rig fitted from the target itself (identity,
+    expression and pose jointly; the expression methods then fit that rig).
+    """
+    from facegeom.methods.identity import IdentityFitter
+
+    def fit(target):
+        return IdentityFitter().fit(model, [target]).rig
+
+    return {"landmarks": fit, "meshes": fit, "clouds": fit}
+
+
 def _stat(rows, mode, method, key, how=np.mean):
     v = np.array([r[key] for r in rows if r["identity"] == mode and r["method"] == method], dtype=float)
     v = v[np.isfinite(v)]
@@ -243,7 +262,7 @@ def _stat(rows, mode, method, key, how=np.mean):
 
 
 TITLES = {
-    "landmarks": "Realistic: landmarks (real-take expressions on random identities; 23 landmarks, yaw ±30°, "
+    "landmarks": "Realistic: landmarks (real-take expressions on random identities; 40 landmarks, yaw ±30°, "
                  "noise 0.5-2 px, focal off by up to ±30 %; pose estimated)",
     "meshes": "Realistic: corresponding meshes (real-take expressions on random identities; 0.5 mm noise; "
               "face area minus a side strip observed)",
