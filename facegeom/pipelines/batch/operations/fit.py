@@ -1,7 +1,16 @@
-"""``fit``: blendshape coefficients of landmark files (a chunk at a time when the fitter can), meshes, clouds."""
+"""``fit``: blendshape coefficients of landmark files (a chunk at a time when the fitter can), meshes, clouds.
+
+With ``shared.identity = true`` the job first fits one identity per subject
+folder (every input of the folder, jointly: :class:`~facegeom.methods.identity.IdentityFitter`),
+writes it as ``identity.npz`` (a :class:`~facegeom.model.rig.BlendshapeRig`) next to the
+folder's outputs, and fits every input's expression on that subject's rig. A worker fits a
+folder's identity once and keeps it; two workers given inputs of one folder fit the same
+identity (the fit is deterministic), and only the folder's first input writes it.
+"""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -17,7 +26,10 @@ from facegeom.pipelines.batch.operations.base import (
     timed,
 )
 
-__all__ = ["FitOperation"]
+__all__ = ["FitOperation", "IDENTITY_FILE"]
+
+IDENTITY_FILE = "identity.npz"
+"""The rig of a subject folder's fitted identity, written next to the folder's outputs."""
 
 
 class FitOperation(Operation):
@@ -65,13 +77,29 @@ class FitOperation(Operation):
         if landmarks and not cam[0] > 0:
             raise job_error(job.source, f"shared.focal must be a positive number (pixels), got {cam[0]!r}")
         fitter = check_method(job, "fitters")
-        spec["shared"] = {"rig": rig, "kind": kind, "camera": cam,
+        identity = job.shared.get("identity", False)
+        if not isinstance(identity, bool):
+            raise job_error(job.source, f"shared.identity must be true or false, got {identity!r}")
+        folders: dict = {}
+        if identity:
+            if rig is not None:
+                raise job_error(job.source, "shared.identity fits the face model's identity: it cannot be combined "
+                                            "with shared.rig")
+            spec["data"] = need_data(job, "the identity step")
+            for f in files:
+                folders.setdefault(str(f.parent), []).append(str(f))
+        spec["shared"] = {"rig": rig, "kind": kind, "camera": cam, "identity": identity, "folders": folders,
                           "vectorised": "landmarks" in batched_targets(fitter)}
         spec["stamp"] = stamp([rig] if rig else [spec.get("data")])
 
     def outputs(self, job, spec, src, stem):
-        """One output per target: the weights file ``<stem>.<format>`` (``json`` or ``csv``); no extra item data."""
-        return [stem.with_name(stem.name + "." + spec["format"])], {}
+        """The weights file ``<stem>.<format>`` (``json`` or ``csv``); with the identity step, the first input of
+        each subject folder also writes the folder's ``identity.npz``."""
+        outs = [stem.with_name(stem.name + "." + spec["format"])]
+        folder = spec["shared"]["folders"].get(str(src.parent))
+        if folder and folder[0] == str(src):
+            outs.append(stem.parent / IDENTITY_FILE)
+        return outs, {}
 
     def _is_landmarks(self, spec, path: str) -> bool:
         kind = spec["shared"]["kind"]
@@ -96,7 +124,37 @@ class FitOperation(Operation):
         rig = load_rig(spec["shared"]["rig"], lambda: load_model(spec))
         rig.gram()  # the Gram matrix, once per worker
         rig.delta_matrix()
-        return {"rig": rig, "fitter": registry.create("fitters", spec["method"], **spec["params"])}
+        return {"rig": rig, "fitter": registry.create("fitters", spec["method"], **spec["params"]), "subjects": {}}
+
+    def subject_rig(self, state, spec, folder: str):
+        """The rig of ``folder``'s fitted identity (fitted on the folder's inputs once per worker).
+
+        An input that cannot be read is left out of the identity fit (its own fit reports it);
+        a folder with no readable input raises.
+        """
+        if folder not in state["subjects"]:
+            from facegeom.methods.identity import IdentityFitter
+            from facegeom.model import read_fit_target
+
+            cam = spec["shared"]["camera"]
+            targets = []
+            for f in spec["shared"]["folders"][folder]:
+                try:
+                    targets.append(read_fit_target(f, state["rig"], spec["shared"]["kind"], *cam)[1])
+                except InputError:
+                    continue
+            if not targets:
+                raise InputError("no input of the subject folder could be read for its identity", folder)
+            subject = IdentityFitter().fit(load_model(spec), targets).rig
+            subject.gram()
+            subject.delta_matrix()
+            state["subjects"][folder] = subject
+        return state["subjects"][folder]
+
+    def _rig_of(self, state, spec, item):
+        if not spec["shared"].get("identity"):
+            return state["rig"]
+        return self.subject_rig(state, spec, str(Path(item["input"]).parent))
 
     def compute(self, state, spec, items):
         """Fit a chunk: the landmark files together when the fitter batches them, the others one by one.
@@ -113,10 +171,25 @@ class FitOperation(Operation):
             ``(B,)`` float64; no vertices from a batch fit) or the exception, and
             seconds.
         """
+        if spec["shared"].get("identity"):  # one subject (rig) at a time
+            groups: dict = {}
+            for it in items:
+                groups.setdefault(str(Path(it["input"]).parent), []).append(it)
+            for folder, group in groups.items():
+                try:
+                    rig = self.subject_rig(state, spec, folder)
+                except Exception as exc:  # noqa: BLE001 - the folder's items fail, the others go on
+                    yield from ((it, exc, 0.0) for it in group)
+                    continue
+                yield from self._compute(rig, state, spec, group)
+            return
+        yield from self._compute(state["rig"], state, spec, items)
+
+    def _compute(self, rig, state, spec, items):
         from facegeom.model import read_fit_target
         from facegeom.pipelines.single import FitOutcome, fit_file
 
-        rig, fitter = state["rig"], state["fitter"]
+        fitter = state["fitter"]
         cam = spec["shared"]["camera"]
         batch = [it for it in items if spec["shared"]["vectorised"] and self._is_landmarks(spec, it["input"])]
         in_batch = {it["index"] for it in batch}
@@ -153,6 +226,8 @@ class FitOperation(Operation):
         from facegeom.pipelines.single import write_fit
 
         write_fit(item["outputs"][0], state["rig"].names, result, spec["method"], item["input"])
+        if len(item["outputs"]) > 1:  # the subject folder's identity
+            self._rig_of(state, spec, item).save_npz(item["outputs"][1])
         return {"active": int(result.active.size)}
 
     def evaluate(self, state, spec, item, result, truth):
