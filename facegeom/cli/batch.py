@@ -48,8 +48,8 @@ def batch_cmd(ctx, job_file, output, scheduler, workers, inline, isolate, chunk,
       [shared]
       focal = 1000.0
       cx = 320.0
-      # identity = true                # one identity per subject folder (identity.npz), then expressions on it
       cy = 240.0
+      # identity = true                # one identity per subject folder (identity.npz), then expressions on it
     """
     from facegeom.pipelines.batch import load_job, run_job
 
