@@ -141,6 +141,10 @@ def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
     # the copy reference is far off; the tangent framework is far better with 10 labels
     assert sum(err[("tangent", "10")]) < 0.5 * sum(err[("copy", "10")])
     assert (tmp_path / "rt" / "retarget.png").stat().st_size > 1000
+    # the realistic protocol first: 5/10/20 uneven labels, clean and with 0.2 mm noise on capture and labels
+    real = list(csv.DictReader(open(tmp_path / "rt" / "retarget-realistic.csv")))
+    assert len(real) == 3 * 3 * 2 * 3 and {x["noise_mm"] for x in real} == {"0.0", "0.2"}
+    assert r.stdout.index("realistic protocol") < r.stdout.index("| Frob.") and "tangent / best baseline" in r.stdout
 
 
 def test_bench_retarget_bad_takes_folder(tmp_path, face_model):

@@ -72,6 +72,8 @@ def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, 
               help="Folder of ARKit take CSVs (or one CSV). Default: $FACEGEOM_TAKES, "
                    "else ../shared/data/arkit-takes next to the repository.")
 @click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes (no real recordings needed).")
+@click.option("--realistic/--no-realistic", default=True, show_default=True,
+              help="First the realistic protocol: 5/10/20 uneven labels, clean and with 0.2 mm capture and label noise.")
 @click.option("--layout", "layout_name", default="ict80", show_default=True, help="Marker layout.")
 @click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/retarget", show_default=True,
@@ -79,8 +81,8 @@ def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, 
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, layout_name,
-                   layout_seed, out, no_plot, quiet):
+def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, realistic,
+                   layout_name, layout_seed, out, no_plot, quiet):
     """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
     from facegeom.bench import retarget as br
     from facegeom.errors import InputError
@@ -96,7 +98,7 @@ def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes
     model = obj.face_model()
     takes = [] if synthetic_only else _load_takes(model, takes_path)
     br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
-            echo=click.echo, plot_it=not no_plot, progress=not quiet)
+            echo=click.echo, plot_it=not no_plot, progress=not quiet, realistic=realistic)
 
 
 def _load_takes(model, takes_path):
