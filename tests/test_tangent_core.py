@@ -115,7 +115,7 @@ def test_too_few_labels_is_a_clear_error():
 
 CONFIGS = [
     {},  # the defaults
-    {"d": 3, "field": "position", "align": "none", "smoothness": 0.0},  # the paper's plain configuration
+    {"d": 3, "field": "position", "align": "none", "smoothness": 0.0, "beta": None},  # the paper's plain configuration
     {"rings": 2, "d": 3, "smoothness": 0.0},
     {"beta": 1e6},
 ]
@@ -150,7 +150,7 @@ def test_paper_configuration_reproduces_affine_motion():
     V, F, h = _mesh_and_handles()
     A = np.array([[1.2, 0.1, 0.0], [0.0, 0.9, 0.3], [0.1, 0.0, 1.1]])
     moved = V @ A.T + [0.5, -1, 2]
-    d = TangentDeformer(d=3, field="position", align="none", smoothness=0.0).fit(V, F, h)
+    d = TangentDeformer(d=3, field="position", align="none", smoothness=0.0, beta=None).fit(V, F, h)
     np.testing.assert_allclose(d.deform(moved[h]), moved, atol=1e-8)
 
 
