@@ -364,16 +364,19 @@ def kabsch_many(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None)
     """:func:`kabsch` of ``P (m,3)`` onto every frame of ``Q (T,m,3)``, weights ``(T,m)``: ``R (T,3,3)``, ``t (T,3)``.
     """
     T, m = Q.shape[:2]
+    p0, q0 = P.mean(axis=0), Q.mean(axis=1)  # both centred first: no cancellation far from the origin
+    Pc, Qc = P - p0, Q - q0[:, None, :]
     if weights is None:
-        mp, mq = np.broadcast_to(P.mean(axis=0), (T, 3)), Q.mean(axis=1)
-        WQ = Q / m
+        mp, mq = np.zeros((T, 3)), np.zeros((T, 3))
+        WQ = Qc / m
     else:
         w = weights / weights.sum(axis=1, keepdims=True)  # (T, m)
-        mp, WQ = w @ P, Q * w[:, :, None]
+        mp, WQ = w @ Pc, Qc * w[:, :, None]
         mq = WQ.sum(axis=1)
     # H_t = sum_i w_ti (P_i - mp_t)(Q_ti - mq_t)^T = P^T (w_t Q_t) - mp_t mq_t^T: one (3, m) @ (m, 3T) product
-    H = (P.T @ WQ.transpose(1, 0, 2).reshape(m, 3 * T)).reshape(3, T, 3).transpose(1, 0, 2)
+    H = (Pc.T @ WQ.transpose(1, 0, 2).reshape(m, 3 * T)).reshape(3, T, 3).transpose(1, 0, 2)
     H = H - mp[:, :, None] * mq[:, None, :]
+    mp, mq = mp + p0, mq + q0
     U, _, Vt = np.linalg.svd(H)
     V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
     s = np.sign(np.linalg.det(V @ Ut))
