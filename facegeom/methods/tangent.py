@@ -366,16 +366,15 @@ def kabsch_many(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None)
     T, m = Q.shape[:2]
     p0, q0 = P.mean(axis=0), Q.mean(axis=1)  # both centred first: no cancellation far from the origin
     Pc, Qc = P - p0, Q - q0[:, None, :]
+    # one small product per frame (np.matmul over the stack), so a frame's result does not depend on the batch
     if weights is None:
         mp, mq = np.zeros((T, 3)), np.zeros((T, 3))
-        WQ = Qc / m
+        H = np.matmul(Pc.T, Qc) / m
     else:
         w = weights / weights.sum(axis=1, keepdims=True)  # (T, m)
-        mp, WQ = w @ Pc, Qc * w[:, :, None]
-        mq = WQ.sum(axis=1)
-    # H_t = sum_i w_ti (P_i - mp_t)(Q_ti - mq_t)^T = P^T (w_t Q_t) - mp_t mq_t^T: one (3, m) @ (m, 3T) product
-    H = (Pc.T @ WQ.transpose(1, 0, 2).reshape(m, 3 * T)).reshape(3, T, 3).transpose(1, 0, 2)
-    H = H - mp[:, :, None] * mq[:, None, :]
+        mp, mq = np.einsum("tm,mj->tj", w, Pc), np.einsum("tm,tmj->tj", w, Qc)
+        # H_t = sum_i w_ti (P_i - mp_t)(Q_ti - mq_t)^T = (w_t P)^T Q_t - mp_t mq_t^T
+        H = np.matmul(Pc.T[None] * w[:, None, :], Qc) - mp[:, :, None] * mq[:, None, :]
     mp, mq = mp + p0, mq + q0
     U, _, Vt = np.linalg.svd(H)
     V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
