@@ -212,7 +212,9 @@ LINEUPS: dict[str, list[str]] = {
         "laplacian-plain=laplacian:mode=plain",
         "arap",
         "biharmonic",
-        "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0",
+        "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0,beta=None",
+        "tangent-issue3=tangent:smoothness=1,align=rigid,beta=None",
+        "tangent-exact=tangent:beta=None",
         "tangent",
     ],
     "scaling": [

@@ -94,10 +94,16 @@ def test_drive_component_without_marker(tmp_path, face_model):
 
 def test_bench_drive_small(tmp_path, face_model):
     out = tmp_path / "bench"
-    r = run("bench", "drive", "--cases", "2", "--methods", "markers-only;biharmonic;tangent", "--out", str(out),
-            "--quiet")
+    r = run("bench", "drive", "--cases", "2", "--realistic-cases", "2", "--noise", "0,0.5",
+            "--methods", "markers-only;biharmonic;tangent", "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
     assert "| method" in r.stdout and "tangent" in r.stdout
+    # the realistic protocol comes first: 2 cases x 2 noise levels x 3 methods, and tangent's ratio to the best baseline
+    assert r.stdout.index("realistic protocol") < r.stdout.index("paper protocol")
+    assert "tangent / best baseline" in r.stdout and "noise 0.5 mm" in r.stdout
+    real = list(csv.DictReader(open(out / "drive-realistic.csv")))
+    assert len(real) == 12 and {x["noise_mm"] for x in real} == {"0.0", "0.5"}
+    assert all(40 <= int(x["markers"]) <= 120 for x in real)
     rows = list(csv.DictReader(open(out / "drive.csv")))
     assert len(rows) == 6
     by = {(r["case"], r["method"]): float(r["mean_mm"]) for r in rows}
@@ -108,8 +114,13 @@ def test_bench_drive_small(tmp_path, face_model):
 
 
 def test_bench_bad_method_spec():
-    r = run("bench", "drive", "--cases", "1", "--methods", "tangent:rings")
+    r = run("bench", "drive", "--cases", "1", "--realistic-cases", "0", "--methods", "tangent:rings")
     assert r.returncode == 2 and "key=value" in r.stderr
+
+
+def test_bench_drive_bad_noise():
+    r = run("bench", "drive", "--cases", "1", "--noise", "0,x")
+    assert r.returncode == 2 and "--noise" in r.stderr
 
 
 def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
@@ -130,6 +141,10 @@ def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
     # the copy reference is far off; the tangent framework is far better with 10 labels
     assert sum(err[("tangent", "10")]) < 0.5 * sum(err[("copy", "10")])
     assert (tmp_path / "rt" / "retarget.png").stat().st_size > 1000
+    # the realistic protocol first: 5/10/20 uneven labels, clean and with 0.2 mm noise on capture and labels
+    real = list(csv.DictReader(open(tmp_path / "rt" / "retarget-realistic.csv")))
+    assert len(real) == 3 * 3 * 2 * 3 and {x["noise_mm"] for x in real} == {"0.0", "0.2"}
+    assert r.stdout.index("realistic protocol") < r.stdout.index("| Frob.") and "tangent / best baseline" in r.stdout
 
 
 def test_bench_retarget_bad_takes_folder(tmp_path, face_model):

@@ -14,7 +14,15 @@ def bench():
 
 
 @bench.command("drive")
-@click.option("--cases", default=50, show_default=True, type=click.IntRange(1, 10000), help="Source/target pairs.")
+@click.option("--cases", default=50, show_default=True, type=click.IntRange(0, 10000),
+              help="Source/target pairs of the paper protocol (0: skip it).")
+@click.option("--realistic-cases", default=20, show_default=True, type=click.IntRange(0, 10000),
+              help="Cases of the realistic protocol, reported first (0: skip it).")
+@click.option("--noise", "noise_levels", default="0,0.2,0.5", show_default=True,
+              help="Marker-noise levels of the realistic protocol (mm per coordinate, comma-separated).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help="Folder of ARKit take CSVs for the realistic protocol's dense expressions. Default: "
+                   "$FACEGEOM_TAKES, else ../shared/data/arkit-takes; without takes, dense synthetic expressions.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of identities and expressions.")
 @click.option("--methods", default="all", show_default=True,
               help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t1=tangent:rings=1'.")
@@ -26,15 +34,29 @@ def bench():
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_drive(obj: Context, cases, seed, methods, layout_name, layout_seed, out, no_plot, quiet):
-    """Face driving on the real ICT face: every deformer, errors in mm, times (cf. the paper's Fig. 10)."""
+def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, seed, methods, layout_name, layout_seed,
+                out, no_plot, quiet):
+    """Face driving on the real ICT face: every deformer, errors in mm, times (realistic protocol, then Fig. 10's)."""
     from facegeom.bench import drive as bd
+    from facegeom.errors import InputError
     from facegeom.registry import LINEUPS, parse_methods
 
+    try:
+        noise = [float(x) for x in noise_levels.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--noise must be comma-separated numbers (mm), got {noise_levels!r}") from None
+    if not noise or any(not (0 <= x < 100) for x in noise):
+        raise InputError(f"--noise levels must lie in [0, 100) mm, got {noise_levels!r}")
     specs = parse_methods(methods, "deformers", LINEUPS["drive"])
     model = obj.face_model()
+    takes = []
+    if realistic_cases:
+        try:
+            takes = _load_takes(model, takes_path)
+        except InputError as exc:
+            click.echo(f"no takes ({exc}); the realistic protocol uses dense synthetic expressions", err=True)
     bd.main(model, specs, cases, seed, layout_name, layout_seed, Path(out), progress=not quiet,
-            echo=click.echo, plot_it=not no_plot)
+            echo=click.echo, plot_it=not no_plot, realistic_cases=realistic_cases, takes=takes, noise_mm=noise)
 
 
 @bench.command("retarget")
@@ -50,6 +72,8 @@ def bench_drive(obj: Context, cases, seed, methods, layout_name, layout_seed, ou
               help="Folder of ARKit take CSVs (or one CSV). Default: $FACEGEOM_TAKES, "
                    "else ../shared/data/arkit-takes next to the repository.")
 @click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes (no real recordings needed).")
+@click.option("--realistic/--no-realistic", default=True, show_default=True,
+              help="First the realistic protocol: 5/10/20 uneven labels, clean and with 0.2 mm capture and label noise.")
 @click.option("--layout", "layout_name", default="ict80", show_default=True, help="Marker layout.")
 @click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/retarget", show_default=True,
@@ -57,8 +81,8 @@ def bench_drive(obj: Context, cases, seed, methods, layout_name, layout_seed, ou
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, layout_name,
-                   layout_seed, out, no_plot, quiet):
+def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, realistic,
+                   layout_name, layout_seed, out, no_plot, quiet):
     """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
     from facegeom.bench import retarget as br
     from facegeom.errors import InputError
@@ -74,7 +98,7 @@ def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes
     model = obj.face_model()
     takes = [] if synthetic_only else _load_takes(model, takes_path)
     br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
-            echo=click.echo, plot_it=not no_plot, progress=not quiet)
+            echo=click.echo, plot_it=not no_plot, progress=not quiet, realistic=realistic)
 
 
 def _load_takes(model, takes_path):

@@ -38,13 +38,22 @@ from facegeom.model.landmarks import (
 from facegeom.model.layouts import farthest_points, ict80, layout, random_layout
 from facegeom.model.pose import estimate_pose, estimate_poses, project_many, reprojection_rms
 from facegeom.model.rig import BlendshapeRig
-from facegeom.model.scenarios import ExpressionCase, SparseExpressionCase, driving_cases, fitting_cases
+from facegeom.model.scenarios import (
+    ExpressionCase,
+    RealisticDrivingCase,
+    SparseExpressionCase,
+    driving_cases,
+    fitting_cases,
+    realistic_driving_cases,
+)
 from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
 
 __all__ = [
     "ExpressionCase",
     "SparseExpressionCase",
     "driving_cases",
+    "realistic_driving_cases",
+    "RealisticDrivingCase",
     "fitting_cases",
     "BUNDLE_NAME",
     "CACHE_ENV_VAR",
