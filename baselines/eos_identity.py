@@ -31,25 +31,13 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from facegeom.baselines.eos_peer import _import_eos
 from facegeom.errors import InputError, SolveError
 from facegeom.interfaces import Params, is_finite_number, is_integer
 from facegeom.methods.identity import IdentityFit
 from facegeom.model import LandmarkTarget
 
 __all__ = ["EosIdentityFitter"]
-
-_NOT_INSTALLED = "eos is not installed: pip install 'facegeom[eos]' (eos-py)"
-
-
-def _import_eos():
-    try:
-        import eos
-        import eos.fitting
-        import eos.morphablemodel
-    except ImportError:
-        raise InputError(_NOT_INSTALLED) from None
-    return eos
-
 
 class EosIdentityFitter(Params):
     """Identity + camera + expression from one image's landmarks with ``eos.fitting.fit_shape_and_pose``.

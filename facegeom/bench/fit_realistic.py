@@ -126,6 +126,18 @@ def _fit(spec, rig, target, region=None):
     return r, time.perf_counter() - t
 
 
+def _fits(model, case, target, specs, modes, identity_fitter, region=None):
+    """Yield ``(mode, rig, spec, result, seconds)`` for every identity mode and method that fits ``target``."""
+    fitted = identity_fitter(target) if (identity_fitter is not None and "fitted" in modes) else None
+    for mode, rig in _rigs(model, case, modes, fitted).items():
+        for spec in specs:
+            try:
+                r, dt = _fit(spec, rig, target, region)
+            except FacegeomError:  # a method that does not fit this kind of target (eos: landmarks only)
+                continue
+            yield mode, rig, spec, r, dt
+
+
 FIT_LANDMARKS_40 = tuple(range(17)) + tuple(FIT_LANDMARKS_23)
 """The realistic protocol's fit landmarks: the jaw contour (0-16) and the paper's 23."""
 
@@ -165,16 +177,10 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
         uv_eval = cam.project(V[eval_ids])
         io = fm.interocular_distance(*cam.project(V[eye_ids]))
         target = LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal * c.focal_factor, cam.cx, cam.cy))
-        fitted = identity_fitter(target) if (identity_fitter is not None and "fitted" in modes) else None
-        for mode, rig in _rigs(model, c, modes, fitted).items():
-            for spec in specs:
-                try:
-                    r, dt = _fit(spec, rig, target)
-                except FacegeomError:
-                    continue
-                proj = projector(r, cam)
-                rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, noise_px=c.noise_px, yaw=c.yaw,
-                                 ne_eval=fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io)))
+        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes, identity_fitter):
+            proj = projector(r, cam)
+            rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, noise_px=c.noise_px, yaw=c.yaw,
+                             ne_eval=fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io)))
     return rows
 
 
@@ -201,14 +207,8 @@ def run_meshes(model, cases, specs, modes=("generic", "oracle"), identity_fitter
         V = truth.evaluate(c.weights)
         seen = coverage(model, c)
         target = MeshTarget(V + rng.normal(size=V.shape) * MESH_NOISE_CM, weights=seen.astype(np.float64))
-        fitted = identity_fitter(target) if (identity_fitter is not None and "fitted" in modes) else None
-        for mode, rig in _rigs(model, c, modes, fitted).items():
-            for spec in specs:
-                try:
-                    r, dt = _fit(spec, rig, target)
-                except FacegeomError:
-                    continue
-                rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean())))
+        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes, identity_fitter):
+            rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean())))
     return rows
 
 
@@ -230,14 +230,8 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
         vis = tris[seen[tris].all(axis=1)]
         P = sample_surface(V, vis, points, rng) + rng.normal(size=(points, 3)) * MESH_NOISE_CM
         target = PointCloudTarget(P)
-        fitted = identity_fitter(target) if (identity_fitter is not None and "fitted" in modes) else None
-        for mode, rig in _rigs(model, c, modes, fitted).items():
-            for spec in specs:
-                try:
-                    r, dt = _fit(spec, rig, target, region)
-                except FacegeomError:
-                    continue
-                rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean())))
+        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes, identity_fitter, region):
+            rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean())))
     return rows
 
 

@@ -211,7 +211,7 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
               takes_path, start, frames, realistic_cases, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
-    from facegeom.errors import InputError
+    from facegeom.errors import DataNotFoundError, InputError
     from facegeom.registry import LINEUPS, parse_methods
 
     ex = tuple(x.strip() for x in experiments.split(",") if x.strip())
@@ -223,7 +223,11 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
     take = None
     takes = []
     if realistic_cases and {"landmarks", "meshes", "clouds"} & set(ex):
-        takes = _all_takes(model, takes_path)
+        try:
+            takes = _load_takes(model, takes_path)
+        except DataNotFoundError:
+            if takes_path:
+                raise
         if not takes:
             click.echo("no takes found: skipping the realistic protocol (give --takes or set FACEGEOM_TAKES)", err=True)
     if "temporal" in ex:
@@ -242,20 +246,6 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
     bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
             progress=not quiet, plot_it=not no_plot, takes=takes, realistic_count=realistic_cases)
 
-
-def _all_takes(model, takes_path) -> list:
-    """Every take found (``--takes``, ``$FACEGEOM_TAKES``, the default folder) as ``(name, ICT weights)``."""
-    from facegeom.errors import DataNotFoundError
-    from facegeom.io import find_takes, ict_weights, read_take
-    from facegeom.model import locate_takes
-
-    try:
-        folder = locate_takes(takes_path)
-    except DataNotFoundError:
-        if takes_path:
-            raise
-        return []
-    return [(p.stem, ict_weights(read_take(p), model.expression_names)) for p in find_takes(folder)]
 
 
 @bench.command("identity")

@@ -265,10 +265,11 @@ def _orthogonal_chunk(c, G, tt, m, upper):
         best_e[a[better]] = ea[better]
         best_k[a[better]] = k_sel[better]
     # the selection in order, cut where GCV was best
+    picked = order >= 0  # steps that selected (a skipped candidate leaves -1)
+    rank = np.cumsum(picked, axis=1) - 1
+    kk, step = np.nonzero(picked & (rank < best_k[:, None]))
     out_order = np.full((K, B), -1, dtype=np.int64)
-    for k in range(K):
-        o = order[k][order[k] >= 0][:best_k[k]]
-        out_order[k, :o.size] = o
+    out_order[kk, rank[kk, step]] = order[kk, step]
     hi = np.inf if upper is None else upper
     bad = np.flatnonzero(((best_e < -1e-12) | (best_e > hi + 1e-12)).any(axis=1))
     for k in bad:  # bounded least squares on the chosen selection

@@ -19,7 +19,6 @@ is the registry's, or ``$FACEGEOM_DATA_URL`` (a mirror; the hashes still decide)
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import logging
 import os
@@ -430,11 +429,9 @@ def _build(model_folder: Path, expressions, identities, dest, source: str, licen
 
 
 def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    import pooch
+
+    return pooch.file_hash(str(path), alg="sha256")
 
 
 def build_bundle(folder: str | os.PathLike, identities: int | None = None, dest: str | os.PathLike | None = None,
