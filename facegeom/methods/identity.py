@@ -114,12 +114,15 @@ from facegeom.model import (
     estimate_pose,
 )
 
-__all__ = ["IdentityFit", "IdentityFitter", "fit_identity"]
+__all__ = ["IdentityFit", "IdentityFitter", "expression_statistics", "fit_identity"]
 
 TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
 CLOUD_STRIDE = 3  # point clouds: the data term uses every CLOUD_STRIDE-th vertex of the face area
 NEUTRAL_PRECISION = 1e12  # expressions=False: the weights' prior precision (holds them at 0)
 CLOUD_SIGMA0_MM = 16.0  # point clouds: sigma of the first round (halved each round down to noise_mm)
+GCV_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # identity_scale="gcv": factors of the identity prior's precision tried
+DOF_SCALE_MAX = 16.0  # identity_scale="dof": the largest factor (the GCV grid's largest)
+STATS_FLOOR = 1e-3  # expression_statistics: variance added to every weight (a std of ~0.03)
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
 
 
@@ -289,12 +292,17 @@ class IdentityFitter(Params):
         Correspondence rounds at most for point clouds (each with a pose and a shape step).
     tol : float > 0
         Stop when the energy changes by less than ``tol`` (relative) in a round.
+    expression_stats : None or (mean (B,), covariance (B, B))
+        A Gaussian prior on every target's weights, ``(w - mean)' C^-1 (w - mean)``,
+        learned from recorded expressions (:func:`expression_statistics`),
+        in place of ``expression_prior`` and ``expression_l1``; see "Expression
+        statistics" in the module docstring.
     """
 
     def __init__(self, noise_px: float = 1.0, noise_mm: float = 0.5, expression_prior: float = 1.0,
                  expression_l1: float = 5.0, expressions: bool = True, temper: bool = True, n_identities=None,
                  rigid: bool = True, region=None, rounds: int = 10,
-                 icp_iterations: int = 100, tol: float = 1e-6):
+                 icp_iterations: int = 100, tol: float = 1e-6, expression_stats=None, identity_scale="dof"):
         for name, v in (("noise_px", noise_px), ("noise_mm", noise_mm), ("expression_prior", expression_prior),
                         ("tol", tol)):
             if not is_finite_number(v) or v <= 0:
@@ -325,6 +333,11 @@ class IdentityFitter(Params):
         self.rounds = int(rounds)
         self.icp_iterations = int(icp_iterations)
         self.tol = float(tol)
+        self.expression_stats = _check_stats(expression_stats)
+        if not (identity_scale in ("gcv", "dof") if isinstance(identity_scale, str)
+                else is_finite_number(identity_scale) and identity_scale > 0):
+            raise InputError(f"identity_scale must be a positive number, 'dof' or 'gcv', got {identity_scale!r}")
+        self.identity_scale = identity_scale if isinstance(identity_scale, str) else float(identity_scale)
 
     def __repr__(self) -> str:
         return (f"IdentityFitter(noise_px={self.noise_px:g}, noise_mm={self.noise_mm:g}, "
@@ -426,21 +439,17 @@ class IdentityFitter(Params):
                 if not tg.camera.posed and tg.n_landmarks < 4:
                     raise InputError(f"target {i}: at least 4 landmarks are needed to estimate the pose, "
                                      f"got {tg.n_landmarks}")
+        stats = self.expression_stats
+        if stats is not None and stats[0].size != model.n_expressions:
+            raise InputError(f"expression_stats has {stats[0].size} weights, the model {model.n_expressions}")
         n_id = self._n_id(model)
         with threadpool_limits(limits=1, user_api="blas"):  # small dense solves: threads only cost here
             return self._fit(model, targets, n_id, t0)
 
-    def _fit(self, model, targets, n_id, t0) -> IdentityFit:
-        B = model.n_expressions
-        K = len(targets)
-        state = _State(self, model, targets, n_id, B)
-        x = np.zeros(n_id + K * B)
-        state.init_poses(x)
-        E_prev = state.energy(x)
+    def _rounds(self, state, x, rounds, E_prev):
+        """Pose / shape rounds from ``x`` -> ``(x, rounds run, converged)``."""
+        n_id = state.n_id
         converged = False
-        rounds = self.icp_iterations if any(isinstance(t, PointCloudTarget) for t in targets) else self.rounds
-        if not state.free_poses and not any(isinstance(t, (LandmarkTarget, PointCloudTarget)) for t in targets):
-            rounds = 1  # meshes in the model frame: one linear solve is exact
         r = 0
         for r in range(1, rounds + 1):
             state.anneal(r)
@@ -454,12 +463,34 @@ class IdentityFitter(Params):
                 converged = True
                 break
             E_prev = E
+        return x, r, converged
+
+    def _fit(self, model, targets, n_id, t0) -> IdentityFit:
+        B = model.n_expressions
+        K = len(targets)
+        state = _State(self, model, targets, n_id, B)
+        x = np.zeros(n_id + K * B)
+        state.init_poses(x)
+        E_prev = state.energy(x)
+        converged = False
+        rounds = self.icp_iterations if any(isinstance(t, PointCloudTarget) for t in targets) else self.rounds
+        if not state.free_poses and not any(isinstance(t, (LandmarkTarget, PointCloudTarget)) for t in targets):
+            rounds = 1  # meshes in the model frame: one linear solve is exact
+        x, r, converged = self._rounds(state, x, rounds, E_prev)
+        scale = 1.0
+        if self.identity_scale == "gcv" and n_id and all(k == "landmarks" for k in state.kinds):
+            scale = state.gcv_scale(x, GCV_GRID)
+            if scale != 1.0:
+                state.id_precision *= scale
+                x, r2, converged = self._rounds(state, x, rounds, state.energy(x))
+                r += r2
         a = x[:n_id]
         W = x[n_id:].reshape(K, B).copy()
         identity = np.zeros(model.n_identities)
         identity[:n_id] = a
         info = {"time_s": time.perf_counter() - t0, "rounds": r, "energy": state.energy(x),
-                "rms": state.rms(x), "noise": state.sigmas_user(), "converged": converged or rounds == 1}
+                "rms": state.rms(x), "noise": state.sigmas_user(), "converged": converged or rounds == 1,
+                "identity_scale": scale}
         return IdentityFit(identity, np.clip(W, 0.0, 1.0), state.kinds, state.cameras(),
                            state.R.copy(), state.t.copy(), info, model)
 
@@ -503,6 +534,10 @@ class _State:
         self.annealing = False
         n_expr = sum(1 for t in targets if isinstance(t, LandmarkTarget)) if fitter.expressions else 0
         self.id_precision = float(max(1, n_expr)) if fitter.temper else 1.0
+        if not isinstance(fitter.identity_scale, str):
+            self.id_precision *= fitter.identity_scale
+        elif fitter.identity_scale == "dof":
+            self.id_precision *= _dof_scale(targets, model.n_expressions if fitter.expressions else 0)
         self.free_poses = [k for k, tg in enumerate(targets)
                            if (isinstance(tg, LandmarkTarget) and not tg.camera.posed)
                            or (not isinstance(tg, LandmarkTarget) and fitter.rigid)]
@@ -640,8 +675,57 @@ class _State:
         return list(self.cams)
 
     # ------------------------------------------------------------------ the linear system
-    def normal_equations(self, x):
-        """``H, g`` of the MAP energy linearised at ``x`` and the current poses.
+    def _priors(self, H, g, w0, N, K, B):
+        """Add the priors' terms to ``H, g``: identity N(0, 1) (tempered, scaled), expressions."""
+        n_id = self.n_id
+        H[np.arange(n_id), np.arange(n_id)] = self.id_precision  # identity prior N(0, 1), tempered (see IdentityFitter)
+        ex = np.arange(w0, N)
+        stats = self.f.expression_stats
+        if stats is not None and self.f.expressions:  # Gaussian prior (w - mu)' P (w - mu) per target
+            mu, Pw = stats
+            for k in range(K):
+                blk = slice(w0 + k * B, w0 + (k + 1) * B)
+                H[blk, blk] = Pw
+                g[blk] = Pw @ mu
+        else:
+            H[ex, ex] = 1.0 / self.f.expression_prior ** 2 if self.f.expressions else NEUTRAL_PRECISION
+            g[ex] -= self.f.expression_l1  # the exponential (sparsity) prior: E += 2 l1 sum(w), w >= 0
+
+    def gcv_scale(self, x, grid):
+        """The factor of the identity prior's precision, among ``grid``, that minimises GCV at ``x``.
+
+        Generalised cross-validation of the Gauss-Newton system linearised at the
+        fit: ``n RSS(s) / (n - df(s))^2`` with ``RSS`` the (sigma-scaled) residual
+        of the unconstrained step and ``df = tr(H_data H(s)^-1)`` its degrees of
+        freedom, ``n`` the number of landmark coordinates (see "Prior scale").
+        """
+        n_id = self.n_id
+        H, g = self.normal_equations(x)
+        Hd, gd = self.normal_equations(x, data_only=True)
+        P6 = 6 * len(self.free_poses)
+        z0 = np.r_[x[:n_id], np.zeros(P6), x[n_id:]]
+        rr = sum(self._residual_sq(x, k)[0] / self.sig[k] ** 2 for k in range(len(self.targets)))
+        Atr = gd - Hd @ z0  # A' r0 (sigma-scaled)
+        n = sum(2 * tg.n_landmarks for tg in self.targets)
+        ii = np.arange(n_id)
+        best, best_v = 1.0, np.inf
+        for s in grid:
+            Hs = H.copy()
+            Hs[ii, ii] += (s - 1.0) * self.id_precision
+            try:
+                c = cho_factor(Hs, lower=True, check_finite=False)
+            except np.linalg.LinAlgError:
+                continue
+            dz = cho_solve(c, g, check_finite=False) - z0
+            rss = rr - 2.0 * dz @ Atr + dz @ Hd @ dz
+            df = float(np.trace(cho_solve(c, Hd, check_finite=False)))
+            v = n * max(rss, 0.0) / max(n - df, 1e-9) ** 2
+            if v < best_v:
+                best, best_v = float(s), v
+        return best
+
+    def normal_equations(self, x, data_only=False):
+        """``H, g`` of the MAP energy linearised at ``x`` and the current poses (``data_only``: no prior terms).
 
         Unknowns ``[a (I), pose steps (6 per free pose), w_1 .. w_K (B each)]``.
         """
@@ -651,10 +735,8 @@ class _State:
         N = w0 + K * B
         H = np.zeros((N, N))
         g = np.zeros(N)
-        H[np.arange(n_id), np.arange(n_id)] = self.id_precision  # identity prior N(0, 1), tempered (see IdentityFitter)
-        ex = np.arange(w0, N)
-        H[ex, ex] = 1.0 / self.f.expression_prior ** 2 if self.f.expressions else NEUTRAL_PRECISION
-        g[ex] -= self.f.expression_l1  # the exponential (sparsity) prior: E += 2 l1 sum(w), w >= 0
+        if not data_only:
+            self._priors(H, g, w0, N, K, B)
         slot = {k: i for i, k in enumerate(self.free_poses)}
         for k, tg in enumerate(self.targets):
             s2 = self.sig[k] ** 2
@@ -714,7 +796,13 @@ class _State:
     def energy(self, x):
         """The MAP energy at ``x`` with the current poses and correspondences."""
         a, w = x[:self.n_id], x[self.n_id:]
-        E = self.id_precision * float(a @ a) + float(w @ w) / self.f.expression_prior ** 2 + 2.0 * self.f.expression_l1 * float(w.sum())
+        E = self.id_precision * float(a @ a)
+        stats = self.f.expression_stats
+        if stats is not None and self.f.expressions:
+            D = w.reshape(-1, self.B) - stats[0]
+            E += float(np.einsum("kb,bc,kc->", D, stats[1], D))
+        else:
+            E += float(w @ w) / self.f.expression_prior ** 2 + 2.0 * self.f.expression_l1 * float(w.sum())
         for k in range(len(self.targets)):
             E += self._residual_sq(x, k)[0] / self.sig[k] ** 2
         return E
@@ -743,6 +831,59 @@ def _orthonormal(R):
     """The nearest rotation (repairs rounding of many composed updates)."""
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
+
+
+def _dof_scale(targets, n_weights):
+    """``identity_scale="dof"``: ``n / (n - p)`` for one landmark image with an unposed camera, else 1.
+
+    ``n`` landmark coordinates, ``p = 6 + n_weights`` pose and expression
+    unknowns of that image; at most ``DOF_SCALE_MAX`` (also when ``p >= n``).
+    """
+    if len(targets) != 1 or not isinstance(targets[0], LandmarkTarget) or targets[0].camera.posed or not n_weights:
+        return 1.0
+    n = 2 * targets[0].n_landmarks
+    p = 6 + n_weights
+    return float(min(DOF_SCALE_MAX, n / (n - p))) if n > p else DOF_SCALE_MAX
+
+
+def _check_stats(stats):
+    """``(mean (B,), precision (B, B))`` float64 of ``expression_stats`` ``(mean, covariance)``, or None."""
+    if stats is None:
+        return None
+    try:
+        mean, cov = stats
+        mean = np.asarray(mean, dtype=np.float64)
+        cov = np.asarray(cov, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("expression_stats must be a pair (mean (B,), covariance (B, B))") from None
+    B = mean.size
+    if mean.ndim != 1 or B == 0 or cov.shape != (B, B):
+        raise InputError(f"expression_stats: the mean must be (B,) and the covariance (B, B), got {mean.shape} "
+                         f"and {cov.shape}")
+    if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
+        raise InputError("expression_stats: the mean and covariance must be finite")
+    try:
+        c = cho_factor(0.5 * (cov + cov.T), lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        raise InputError("expression_stats: the covariance must be positive definite") from None
+    return mean, cho_solve(c, np.eye(B), check_finite=False)
+
+
+def expression_statistics(weights, floor: float = STATS_FLOOR):
+    """The Gaussian expression prior ``(mean (B,), covariance (B, B))`` of recorded weights ``(T, B)``.
+
+    The sample mean and covariance of the frames, plus ``floor`` on the diagonal
+    (a weight that never moves in the recordings may still move a little, and the
+    covariance must be invertible). Pass the result as ``expression_stats``.
+    Learn it from recordings other than the images fitted.
+    """
+    W = np.asarray(weights, dtype=np.float64)
+    if W.ndim != 2 or W.shape[0] < 2 or W.shape[1] == 0 or not np.isfinite(W).all():
+        raise InputError(f"expression statistics need finite weights (T >= 2, B), got shape {W.shape}")
+    if not is_finite_number(floor) or floor <= 0:
+        raise InputError(f"floor must be a positive number, got {floor!r}")
+    C = np.cov(W, rowvar=False).reshape(W.shape[1], W.shape[1])
+    return W.mean(axis=0), C + float(floor) * np.eye(W.shape[1])
 
 
 def fit_identity(model, targets, **params) -> IdentityFit:
