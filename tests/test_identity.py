@@ -173,10 +173,63 @@ def test_bad_targets(face_model, make, message):
 
 
 @pytest.mark.parametrize("kw", [{"noise_px": 0}, {"noise_mm": -1}, {"rounds": 0}, {"n_identities": -2},
-                                {"rigid": "yes"}, {"expression_l1": -1}, {"region": []}, {"expressions": 1}])
+                                {"rigid": "yes"}, {"expression_l1": -1}, {"region": []}, {"expressions": 1},
+                                {"identity_scale": 0}, {"identity_scale": "evidence"}, {"identity_scale": float("nan")},
+                                {"expression_stats": (np.zeros(3), np.eye(2))}, {"expression_stats": 5},
+                                {"expression_stats": (np.zeros(2), -np.eye(2))},
+                                {"expression_stats": (np.zeros(2), np.full((2, 2), np.inf))}])
 def test_bad_parameters(kw):
     with pytest.raises(InputError):
         IdentityFitter(**kw)
+
+
+def test_dof_scale_rule(face_model):
+    """One unposed landmark image: n / (n - p), p = 6 pose + B weights; capped; 1 when it does not apply."""
+    from facegeom.methods.identity import DOF_SCALE_MAX, _dof_scale
+    B = face_model.n_expressions
+    ids = face_model.landmarks[:40]
+    free = LandmarkTarget(np.zeros((40, 2)), ids, PinholeCamera(1000, 320, 240))
+    assert _dof_scale([free], B) == pytest.approx(80 / (80 - 6 - B))
+    assert _dof_scale([free], 0) == 1.0  # expressions held: nothing to temper
+    assert _dof_scale([free, free], B) == 1.0  # several images: the `temper` rule
+    posed = LandmarkTarget(np.zeros((40, 2)), ids, PinholeCamera(1000, 320, 240, np.eye(3), [0, 0, 50]))
+    assert _dof_scale([posed], B) == 1.0
+    few = LandmarkTarget(np.zeros((23, 2)), ids[:23], PinholeCamera(1000, 320, 240))
+    assert _dof_scale([few], B) == DOF_SCALE_MAX
+
+
+def test_identity_scale_shrinks_monotonically(face_model, person):
+    """A stronger identity prior gives a smaller identity (ridge shrinkage); gcv picks a factor of its grid."""
+    from facegeom.methods.identity import GCV_GRID
+    a, w = person
+    V = face_model.face(a, w)
+    tg = unposed(V, face_model.landmarks[:40], 15.0, np.random.default_rng(3), 1.0)
+    norms = [np.linalg.norm(IdentityFitter(identity_scale=s).fit(face_model, tg).identity) for s in (1.0, 4.0, 16.0)]
+    assert norms[0] > norms[1] > norms[2] > 0
+    fit = IdentityFitter(identity_scale="gcv").fit(face_model, tg)
+    assert fit.info["identity_scale"] in GCV_GRID and np.isfinite(fit.identity).all()
+
+
+def test_expression_statistics_and_prior(face_model, person):
+    from facegeom.methods.identity import STATS_FLOOR, expression_statistics
+    rng = np.random.default_rng(5)
+    B = face_model.n_expressions
+    W = rng.uniform(0, 0.5, size=(200, B))
+    mean, cov = expression_statistics(W)
+    assert np.allclose(mean, W.mean(0)) and np.allclose(cov, np.cov(W.T) + STATS_FLOOR * np.eye(B))
+    for bad in (np.zeros((1, B)), np.zeros(B), np.full((3, B), np.nan)):
+        with pytest.raises(InputError):
+            expression_statistics(bad)
+    # a very tight prior holds every weight at its mean, whatever the image shows
+    a, w = person
+    tg = unposed(face_model.face(a, w), face_model.landmarks[:40], 10.0)
+    mu = rng.uniform(0.1, 0.3, B)
+    fit = IdentityFitter(expression_stats=(mu, 1e-10 * np.eye(B))).fit(face_model, tg)
+    assert np.abs(fit.weights[0] - mu).max() < 1e-4
+    f = IdentityFitter(expression_stats=(mu, np.eye(B)))
+    assert np.array_equal(f.get_params()["expression_stats"][1], np.eye(B))
+    with pytest.raises(InputError, match="weights"):
+        IdentityFitter(expression_stats=(mu[:5], np.eye(5))).fit(face_model, tg)
 
 
 def test_not_a_model():
