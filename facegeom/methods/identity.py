@@ -189,7 +189,8 @@ class IdentityFit:
     info : dict
         ``time_s``, ``rounds``, ``energy`` (final MAP energy), ``rms`` per target
         (landmarks: pixels; 3-D: mm), ``noise`` (sigma per target, in the
-        target's unit), ``converged``.
+        target's unit), ``converged``, ``identity_scale`` (the factor applied
+        to the identity prior's precision, besides ``temper``).
     model : FaceModel
         The model fitted.
     rig : BlendshapeRig (property)
@@ -533,13 +534,13 @@ class IdentityFitter(Params):
         if not state.free_poses and not any(isinstance(t, (LandmarkTarget, PointCloudTarget)) for t in targets):
             rounds = 1  # meshes in the model frame: one linear solve is exact
         x, r, converged = self._rounds(state, x, rounds, E_prev)
-        scale = 1.0
         if self.identity_scale == "gcv" and n_id and all(k == "landmarks" for k in state.kinds):
             scale = state.gcv_scale(x, GCV_GRID)
             if scale != 1.0:
                 state.id_precision *= scale
                 x, r2, converged = self._rounds(state, x, rounds, state.energy(x))
                 r += r2
+        scale = state.id_precision / state.id_temper
         a = x[:n_id]
         W = x[n_id:].reshape(K, B).copy()
         identity = np.zeros(model.n_identities)
@@ -591,6 +592,7 @@ class _State:
         self.annealing = False
         n_expr = sum(1 for t in targets if isinstance(t, LandmarkTarget)) if fitter.expressions else 0
         self.id_precision = float(max(1, n_expr)) if fitter.temper else 1.0
+        self.id_temper = self.id_precision
         if not isinstance(fitter.identity_scale, str):
             self.id_precision *= fitter.identity_scale
         elif fitter.identity_scale == "dof":
