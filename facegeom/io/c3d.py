@@ -155,6 +155,7 @@ def _parse_in_child(path: Path, size: int) -> dict:
             import resource
 
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crash leaves no core file behind
         except (ImportError, ValueError, OSError):
             pass
 
