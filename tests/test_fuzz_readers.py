@@ -341,3 +341,78 @@ def test_c3d_regression_corpus(tmp_path, quick_c3d_timeout):
         path = tmp_path / f"c{k}.c3d"
         path.write_bytes(data)
         _check_c3d(path)
+
+
+# ----------------------------------------------------------------------------- glTF binary (.glb)
+
+
+def _glb_seed() -> bytes:
+    pytest.importorskip("pygltflib")
+    import tempfile
+
+    from facegeom.io.gltf import write_rig_glb
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    D = np.stack([np.full((4, 3), 0.1), np.eye(4, 3)])
+    W = np.array([[0.0, 1.0], [0.5, 0.5], [1.0, 0.0]])
+    with tempfile.TemporaryDirectory() as d:
+        return write_rig_glb(os.path.join(d, "seed.glb"), V, F, D, ["a", "b"], W, 30.0).read_bytes()
+
+
+@st.composite
+def mutated_glb(draw, seed: bytes) -> bytes:
+    """A valid .glb cut short, with bytes flipped, a JSON number made huge, or a chunk length changed."""
+    data = bytearray(seed)
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["cut", "flip", "number", "length"]))
+        if op == "cut":
+            data = data[:draw(st.integers(0, len(data)))]
+        elif op == "flip" and data:
+            at = draw(st.integers(0, len(data) - 1))
+            data[at] ^= draw(st.integers(1, 255))
+        elif op == "number":
+            numbers = list(NUMBER.finditer(bytes(data[:200 + len(data) // 2])))
+            if numbers:
+                m = numbers[draw(st.integers(0, len(numbers) - 1))]
+                data[m.start():m.end()] = draw(st.sampled_from(HUGE))
+        elif op == "length" and len(data) >= 16:
+            at = draw(st.sampled_from([8, 12]))
+            data[at:at + 4] = struct.pack("<I", draw(st.sampled_from([0, 1, 7, 2 ** 31, 2 ** 32 - 1])))
+    return bytes(data)
+
+
+def _check_glb(path) -> None:
+    from facegeom.io.gltf import read_glb_animation
+
+    try:
+        g = read_glb_animation(path)
+    except InputError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+        return
+    n, K = g.neutral.shape[0], g.deltas.shape[0]
+    assert g.neutral.shape == (n, 3) and g.deltas.shape == (K, n, 3) and len(g.names) == K
+    assert g.faces.ndim == 2 and g.faces.shape[1] == 3 and (g.faces.size == 0 or g.faces.max() < n)
+    assert g.weights.shape == (g.times.size, K) and np.isfinite(g.weights).all()
+
+
+def test_glb_seed_is_valid(tmp_path):
+    from facegeom.io.gltf import read_glb_animation
+
+    path = tmp_path / "seed.glb"
+    path.write_bytes(_glb_seed())
+    g = read_glb_animation(path)
+    assert g.names == ("a", "b") and g.weights.shape == (3, 2)
+
+
+def test_mutated_glb_reads_or_raises_input_error(tmp_path):
+    seed = _glb_seed()
+
+    @FUZZ
+    @given(data=mutated_glb(seed))
+    def run(data):
+        path = tmp_path / "f.glb"
+        path.write_bytes(data)
+        _check_glb(path)
+
+    run()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -454,8 +455,10 @@ def read_glb_animation(path: str | os.PathLike) -> GlbAnimation:
     try:
         import pygltflib
 
-        doc = pygltflib.GLTF2.load_from_bytes(data[:length])
-        blob = doc.binary_blob() if doc is not None else None
+        with warnings.catch_warnings():  # pygltflib warns about unknown chunks: the errors below say enough
+            warnings.simplefilter("ignore")
+            doc = pygltflib.GLTF2.load_from_bytes(data[:length])
+            blob = doc.binary_blob() if doc is not None else None
     except Exception as exc:  # noqa: BLE001 - pygltflib raises anything on a corrupt file
         raise InputError(f"corrupt .glb: {exc.__class__.__name__}", path) from None
     if doc is None:
