@@ -183,3 +183,23 @@ def test_cli_retarget_reads_a_c3d_source(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "bad.c3d" in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_batch_retarget_takes_c3d_sources(tmp_path):
+    from facegeom.pipelines import batch as fb
+
+    names = [f"m{j}" for j in range(5)]
+    lab = np.array([0, 8, 16, 23])
+    (tmp_path / "src").mkdir()
+    (tmp_path / "labels").mkdir()
+    for k in range(2):
+        X = motion(24, 5, seed=10 + k)
+        write_c3d(tmp_path / "src" / f"s{k}.c3d", X, names, 60.0, "mm")
+        write_marker_sequence(tmp_path / "labels" / f"s{k}.csv", 1.1 * X[lab], frames=lab, names=names)
+    job = {"operation": "retarget", "method": "rbf", "inputs": "src/*.c3d",
+           "shared": {"labels": "labels/{stem}.csv"}, "output": "out"}
+    res = fb.run_job(fb.job_from_dict(job, base=tmp_path), inline=True, progress=False)
+    assert res is not None
+    for k in range(2):
+        s = read_marker_sequence(tmp_path / "out" / f"s{k}.npz")
+        assert s.positions.shape == (24, 5, 3) and s.names == tuple(names)
