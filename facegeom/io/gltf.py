@@ -311,42 +311,58 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     V, F = _mesh_arrays(path, base, faces)
     fps = _check_fps(path, fps)
     D = (X - base).reshape(T, 3 * n)
-    U, S, Vt = _thin_svd(D)
+    # Axes below tol / (4 sqrt(T)) are never needed: together they move no frame by more than tol / 4.
+    U, S = _principal_axes(D, tol / (4.0 * np.sqrt(T)))
+    C = U * S  # (T, r) coefficients of each frame on the axes
     V32 = base.astype(np.float32).astype(np.float64)
-
     Xf = X.reshape(T, 3 * n)
+    computed = [np.zeros((0, 3 * n))]
 
-    def encode(k: int) -> tuple[np.ndarray, np.ndarray, float]:
+    def axes(k: int) -> np.ndarray:  # the first k right singular vectors (computed once, grown if needed)
+        if computed[0].shape[0] < k:
+            computed[0] = (U[:, :k].T @ D) / S[:k, None]
+        return computed[0][:k]
+
+    # A vertex's error is at most its frame's residual norm sqrt(|d_t|^2 - sum_{i<k} C[t, i]^2), cheap for
+    # every frame and k: resid[t, k - 1] after k axes. Only frames whose residual exceeds tol / 2 are
+    # played back while searching; the chosen K is then checked on every frame (float32 rounding included).
+    resid = np.sqrt(np.maximum((D ** 2).sum(axis=1)[:, None] - np.cumsum(C ** 2, axis=1), 0.0))
+
+    def encode(k: int, every: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
         k = max(1, min(k, S.size))
         scale = np.abs(U[:, :k]).max(axis=0)  # weights in [-1, 1], the targets carry the size
         scale[scale == 0] = 1.0
         W = (U[:, :k] / scale).astype(np.float32)
-        Dk = ((S[:k] * scale)[:, None] * Vt[:k]).astype(np.float32)
+        Dk = ((S[:k] * scale)[:, None] * axes(k)).astype(np.float32)
         W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
+        if every:
+            rows, step = np.arange(T), 256
+        else:  # worst frames first, stopping at the first chunk over the bound
+            rows = np.flatnonzero(resid[:, k - 1] > tol / 2)
+            rows, step = rows[np.argsort(-resid[rows, k - 1])], 128
         err = 0.0
-        for a in range(0, T, 256):  # the played-back frames, in chunks to bound memory
-            played = V32.reshape(1, -1) + W64[a:a + 256] @ D64
-            err = max(err, float(np.sqrt(((played - Xf[a:a + 256]).reshape(-1, n, 3) ** 2).sum(axis=2)).max()))
+        for a in range(0, rows.size, step):  # the played-back frames, in chunks to bound memory
+            r = rows[a:a + step]
+            played = V32.reshape(1, -1) + W64[r] @ D64
+            err = max(err, float(np.sqrt(((played - Xf[r]).reshape(-1, n, 3) ** 2).sum(axis=2)).max()))
+            if err > tol and not every:
+                break
         return W, Dk, err
 
-    # Upper end: the residual of any frame is at most the root of the discarded energy sum(S[k:]**2);
-    # the first k where that is below tol / 2 (half left for float32 rounding) meets the bound.
-    tail = np.sqrt(np.maximum(np.cumsum((S ** 2)[::-1])[::-1], 0.0))  # tail[k] = ||S[k:]||
-    below = np.flatnonzero(tail <= tol / 2)
-    hi = max(1, int(below[0]) if below.size else S.size)
-    best = encode(hi)
-    while best[2] > tol and hi < S.size:
-        hi = min(S.size, 2 * hi)
-        best = encode(hi)
+    # Upper end: the first k where every frame's residual is below tol / 2 (half left for rounding).
+    below = np.flatnonzero(resid.max(axis=0) <= tol / 2)
+    hi = int(below[0]) + 1 if below.size else S.size
     lo = 1
-    if best[2] <= tol:  # bisection for the smallest k with err <= tol
-        while lo < hi:
-            mid = (lo + hi) // 2
-            trial = encode(mid)
-            if trial[2] <= tol:
-                hi, best = mid, trial
-            else:
-                lo = mid + 1
+    while lo < hi:  # bisection for the smallest k with err <= tol
+        mid = (lo + hi) // 2
+        if encode(mid)[2] <= tol:
+            hi = mid
+        else:
+            lo = mid + 1
+    best = encode(hi, every=True)
+    while best[2] > tol and hi < S.size:  # rounding beyond the bound (tiny tolerances): one axis more
+        hi += 1
+        best = encode(hi, every=True)
     K = best[0].shape[1]
     W, Dk, err = best
     if err > tol:  # full rank and still above: float32 rounding of the positions themselves
@@ -357,23 +373,26 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     return path, {"targets": K, "max_error": err, "tolerance": tol, "frames": T}
 
 
-def _thin_svd(D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``D = U diag(S) Vt`` through the eigenvectors of the smaller Gram matrix (T x T for T << 3n)."""
-    T, m = D.shape
-    if T > m:
-        U, S, Vt = np.linalg.svd(D, full_matrices=False)
-        return U, S, Vt
+def _principal_axes(D: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """``U, S`` of the thin SVD ``D = U diag(S) Vt`` for the singular values above ``floor``, largest first.
+
+    Through the eigenvectors of the Gram matrix ``D D^T`` (T x T, small next to
+    3n for a face sequence); only eigenpairs above ``floor**2`` (and above
+    1e-24 of the largest) are computed. The right vectors are ``U.T D / S``.
+    A zero ``D`` gives one axis with zero coefficients.
+    """
+    from scipy.linalg import eigh
+
     G = D @ D.T
-    evals, evecs = np.linalg.eigh(G)
+    top = float(np.trace(G))
+    if top <= 0:
+        return np.eye(D.shape[0], 1), np.ones(1)
+    lower = max(floor ** 2, top * 1e-24)
+    evals, evecs = eigh(G, subset_by_value=(lower, np.inf), driver="evr")
+    if evals.size == 0:  # every axis below the floor: keep the largest, for one target
+        evals, evecs = eigh(G, subset_by_index=(D.shape[0] - 1, D.shape[0] - 1))
     order = np.argsort(evals)[::-1]
-    evals, U = np.clip(evals[order], 0.0, None), evecs[:, order]
-    S = np.sqrt(evals)
-    keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.size, bool)
-    if not keep.any():  # a constant sequence: one zero target
-        return U[:, :1], np.zeros(1), np.zeros((1, m))
-    U, S = U[:, keep], S[keep]
-    Vt = (U.T @ D) / S[:, None]
-    return U, S, Vt
+    return evecs[:, order], np.sqrt(np.clip(evals[order], 1e-300, None))
 
 
 # ----------------------------------------------------------------------------- reading
