@@ -120,6 +120,8 @@ def test_write_is_atomic_and_checks_its_input(tmp_path):
             write_c3d(out, *args)
     with pytest.raises(InputError, match="unit"):
         write_c3d(out, motion(3, 2), ["a", "b"], 30.0, unit="inch")
+    with pytest.raises(InputError, match="at most 65535 frames"):  # ezc3d would write a file that reads back cut
+        write_c3d(out, np.ones((65536, 1, 3)), ["a"], 30.0)
     assert out.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["w.c3d"]  # no temporary file left behind
     with pytest.raises(InputError, match="write_c3d"):

@@ -49,13 +49,14 @@ __all__ = ["read_c3d", "write_c3d", "C3D_UNITS"]
 C3D_UNITS: tuple[str, ...] = tuple(UNIT_SCALE)
 
 _KEY = 0x50
+_MAX_FRAMES = 65535  # ezc3d writes the frame count in 16 bits: a longer sequence would read back cut short
 _PROCESSORS = {84: "<", 85: "<", 86: ">"}  # Intel, DEC (VAX floats, little-endian words), MIPS (big-endian)
 # Limits of the parsing process. ezc3d read a 32 MB file (20,000 frames x 100 markers) in 2.5-3.6 s on
 # the shared 2-core machine, about 10 MB/s: 10 s plus 1 s per MB leaves a 10x margin, while a
 # malformed file that sends ezc3d into a loop fails within seconds instead of minutes.
 _TIMEOUT_S = 10.0
 _TIMEOUT_PER_BYTE = 1e-6
-_MEMORY = 2 << 30  # address space, plus 100 bytes per file byte (the 32 MB file reads under 1 GiB + that)
+_MEMORY = 2 << 30  # address space, plus 100 bytes per file byte (the 32 MB file above reads within it)
 
 # The child process: only numpy and ezc3d, no facegeom import (fast start, nothing else to crash).
 _CHILD = r"""
@@ -293,7 +294,7 @@ def write_c3d(path: str | os.PathLike, positions, names, fps: float, unit: str =
     Raises
     ------
     InputError
-        Wrong shapes, an infinite coordinate, repeated or wrong-count names,
+        Wrong shapes, more than 65,535 frames, an infinite coordinate, repeated or wrong-count names,
         a frame rate that is not positive, an unknown unit, or an output
         folder that does not exist.
     """
@@ -304,6 +305,9 @@ def write_c3d(path: str | os.PathLike, positions, names, fps: float, unit: str =
     if np.isinf(P).any():
         raise InputError("positions contain inf", path)
     T, p = P.shape[:2]
+    if T > _MAX_FRAMES:
+        raise InputError(f"{T} frames: a C3D file as ezc3d writes it holds at most {_MAX_FRAMES} frames "
+                         f"(its frame count is 16-bit); split the sequence", path)
     names = [str(n) for n in names]
     if len(names) != p or len(set(names)) != p:
         raise InputError(f"{len(names)} names ({len(set(names))} distinct) for {p} markers", path)
