@@ -205,3 +205,14 @@ def test_batch_retarget_takes_c3d_sources(tmp_path):
     for k in range(2):
         s = read_marker_sequence(tmp_path / "out" / f"s{k}.npz")
         assert s.positions.shape == (24, 5, 3) and s.names == tuple(names)
+
+
+def test_retarget_inputs_convert_labels_to_the_sources_unit(tmp_path):
+    from facegeom.io.markerseq import read_retarget_inputs
+
+    X = motion(10, 3, seed=6)  # mm
+    names = ["a", "b", "c"]
+    write_c3d(tmp_path / "src.c3d", X, names, 30.0, "mm")
+    write_c3d(tmp_path / "lab.c3d", X[[0, 9]] / 1000.0, names, 30.0, "m")  # frames 0 and 1 of a labels file
+    src, P, lab, n = read_retarget_inputs(tmp_path / "src.c3d", tmp_path / "lab.c3d")
+    assert lab.unit == "mm" and np.allclose(lab.positions, X[[0, 9]], rtol=1e-6) and n == 0

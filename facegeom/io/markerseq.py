@@ -212,7 +212,8 @@ def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, f
     filled ``(T, p, 3)`` array, ``n_filled`` the number of filled samples,
     announced through ``echo`` if given). The labels are reordered to the
     source's marker names, index source frames, are complete, and number at
-    least two.
+    least two. Labels whose file states another length unit than the
+    source's (C3D ``POINT:UNITS``) are converted to the source's unit.
     """
     src = read_marker_sequence(source)
     T = src.n_frames
