@@ -124,7 +124,7 @@ def test_write_is_atomic_and_checks_its_input(tmp_path):
         write_c3d(out, np.ones((65536, 1, 3)), ["a"], 30.0)
     assert out.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["w.c3d"]  # no temporary file left behind
-    with pytest.raises(InputError, match="write_c3d"):
+    with pytest.raises(InputError, match="output format '.c3d'"):
         write_marker_sequence(tmp_path / "x.c3d", motion(3, 2))
 
 

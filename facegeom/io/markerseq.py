@@ -263,8 +263,8 @@ def write_marker_sequence(path: str | os.PathLike, positions, frames=None, names
     """
     path = Path(path)
     if path.suffix.lower() not in _WRITE_FORMATS:
-        hint = " (C3D: facegeom.io.c3d.write_c3d)" if path.suffix.lower() == ".c3d" else ""
-        raise InputError(f"unsupported marker-sequence format {path.suffix!r}; use .csv or .npz{hint}", path)
+        what = "output format" if path.suffix.lower() == ".c3d" else "format"  # C3D is read here, written by write_c3d
+        raise InputError(f"unsupported marker-sequence {what} {path.suffix!r}; use .csv or .npz", path)
     P = np.asarray(positions, dtype=np.float64)
     if P.ndim != 3 or P.shape[2] != 3:
         raise InputError(f"positions must have shape (T, p, 3), got {P.shape}", path)
