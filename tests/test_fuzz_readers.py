@@ -244,3 +244,175 @@ CORPUS = [
 @pytest.mark.parametrize("kind,data", CORPUS)
 def test_regression_corpus(tmp_path, kind, data):
     run_readers(kind, data, tmp_path / f"c{SUFFIX[kind]}")
+
+
+# ----------------------------------------------------------------------------- C3D
+# ezc3d (C++) crashes, loops or allocates without bound on some malformed files; read_c3d parses in a
+# child process, so a crash there is an InputError here and cannot take pytest down with it. Each
+# example starts one process (~0.3 s), hence fewer examples than the text readers.
+C3D_EXAMPLES = max(10, EXAMPLES // 4)
+C3D_HEADER_COUNTS = (0, 2, 4, 6, 8, 16, 18)  # byte offsets of the header's u16 counts and block numbers
+
+
+def _c3d_seed() -> bytes:
+    pytest.importorskip("ezc3d")
+    import tempfile
+
+    from facegeom.io.c3d import write_c3d
+
+    P = np.arange(120, dtype=float).reshape(10, 4, 3) + 1.0
+    P[2, 1] = np.nan  # one gap
+    with tempfile.TemporaryDirectory() as d:
+        return write_c3d(os.path.join(d, "seed.c3d"), P, list("abcd"), 90.0, "cm").read_bytes()
+
+
+@st.composite
+def mutated_c3d(draw, seed: bytes) -> bytes:
+    """A valid C3D cut short, with bytes flipped, a header count made huge, or a parameter byte replaced."""
+    data = bytearray(seed)
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["cut", "flip", "count", "param"]))
+        if op == "cut":
+            data = data[:draw(st.integers(0, len(data)))]
+        elif op == "flip" and data:
+            at = draw(st.integers(0, len(data) - 1))
+            data[at] ^= draw(st.integers(1, 255))
+        elif op == "count" and len(data) >= 20:
+            at = draw(st.sampled_from(C3D_HEADER_COUNTS))
+            data[at:at + 2] = struct.pack("<H", draw(st.sampled_from([0, 1, 255, 32767, 65535])))
+        elif op == "param" and len(data) > 600:
+            at = draw(st.integers(512, min(len(data), 1024) - 1))
+            data[at] = draw(st.sampled_from([0, 1, 0x7F, 0x80, 0xFF]))
+    return bytes(data)
+
+
+def _check_c3d(path) -> None:
+    from facegeom.io.c3d import read_c3d
+
+    try:
+        seq = read_c3d(path)
+    except InputError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+        return
+    P = seq.positions
+    assert P.dtype == np.float64 and P.ndim == 3 and P.shape[2] == 3 and P.shape[0] >= 1 and P.shape[1] >= 1
+    assert not np.isinf(P).any() and len(seq.names) == P.shape[1] and len(set(seq.names)) == P.shape[1]
+    assert np.array_equal(seq.frames, np.arange(P.shape[0])) and seq.fps > 0
+    assert seq.unit in (None, "mm", "cm", "m")
+
+
+@pytest.fixture
+def quick_c3d_timeout(monkeypatch):
+    from facegeom.io import c3d
+
+    monkeypatch.setattr(c3d, "_TIMEOUT_S", 3.0)  # the seed reads in ~0.3 s; a hang ends in 3 s, not 10
+
+
+def test_c3d_seed_is_valid(tmp_path):
+    path = tmp_path / "seed.c3d"
+    path.write_bytes(_c3d_seed())
+    from facegeom.io.c3d import read_c3d
+
+    seq = read_c3d(path)
+    assert seq.names == tuple("abcd") and seq.unit == "cm" and seq.missing().sum() == 1
+
+
+def test_mutated_c3d_reads_or_raises_input_error(tmp_path, quick_c3d_timeout):
+    seed = _c3d_seed()
+
+    @settings(FUZZ, max_examples=C3D_EXAMPLES)
+    @given(data=mutated_c3d(seed))
+    def run(data):
+        path = tmp_path / "f.c3d"
+        path.write_bytes(data)
+        _check_c3d(path)
+
+    run()
+
+
+def test_c3d_regression_corpus(tmp_path, quick_c3d_timeout):
+    """Files that crashed or hung ezc3d in earlier fuzzing, rebuilt from the seed by the edits found."""
+    seed = _c3d_seed()
+    hang = bytearray(seed)
+    hang[670] = 0x7A  # a parameter's next-entry offset: ezc3d loops for about a minute
+    huge = bytearray(seed)
+    huge[2:4] = b"\xff\x7f"  # 32767 points in the header
+    for k, data in enumerate([bytes(hang), bytes(huge), seed[:512], seed[:600]]):
+        path = tmp_path / f"c{k}.c3d"
+        path.write_bytes(data)
+        _check_c3d(path)
+
+
+# ----------------------------------------------------------------------------- glTF binary (.glb)
+
+
+def _glb_seed() -> bytes:
+    pytest.importorskip("pygltflib")
+    import tempfile
+
+    from facegeom.io.gltf import write_rig_glb
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    D = np.stack([np.full((4, 3), 0.1), np.eye(4, 3)])
+    W = np.array([[0.0, 1.0], [0.5, 0.5], [1.0, 0.0]])
+    with tempfile.TemporaryDirectory() as d:
+        return write_rig_glb(os.path.join(d, "seed.glb"), V, F, D, ["a", "b"], W, 30.0).read_bytes()
+
+
+@st.composite
+def mutated_glb(draw, seed: bytes) -> bytes:
+    """A valid .glb cut short, with bytes flipped, a JSON number made huge, or a chunk length changed."""
+    data = bytearray(seed)
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["cut", "flip", "number", "length"]))
+        if op == "cut":
+            data = data[:draw(st.integers(0, len(data)))]
+        elif op == "flip" and data:
+            at = draw(st.integers(0, len(data) - 1))
+            data[at] ^= draw(st.integers(1, 255))
+        elif op == "number":
+            numbers = list(NUMBER.finditer(bytes(data[:200 + len(data) // 2])))
+            if numbers:
+                m = numbers[draw(st.integers(0, len(numbers) - 1))]
+                data[m.start():m.end()] = draw(st.sampled_from(HUGE))
+        elif op == "length" and len(data) >= 16:
+            at = draw(st.sampled_from([8, 12]))
+            data[at:at + 4] = struct.pack("<I", draw(st.sampled_from([0, 1, 7, 2 ** 31, 2 ** 32 - 1])))
+    return bytes(data)
+
+
+def _check_glb(path) -> None:
+    from facegeom.io.gltf import read_glb_animation
+
+    try:
+        g = read_glb_animation(path)
+    except InputError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+        return
+    n, K = g.neutral.shape[0], g.deltas.shape[0]
+    assert g.neutral.shape == (n, 3) and g.deltas.shape == (K, n, 3) and len(g.names) == K
+    assert g.faces.ndim == 2 and g.faces.shape[1] == 3 and (g.faces.size == 0 or g.faces.max() < n)
+    assert g.weights.shape == (g.times.size, K) and np.isfinite(g.weights).all()
+
+
+def test_glb_seed_is_valid(tmp_path):
+    from facegeom.io.gltf import read_glb_animation
+
+    path = tmp_path / "seed.glb"
+    path.write_bytes(_glb_seed())
+    g = read_glb_animation(path)
+    assert g.names == ("a", "b") and g.weights.shape == (3, 2)
+
+
+def test_mutated_glb_reads_or_raises_input_error(tmp_path):
+    seed = _glb_seed()
+
+    @FUZZ
+    @given(data=mutated_glb(seed))
+    def run(data):
+        path = tmp_path / "f.glb"
+        path.write_bytes(data)
+        _check_glb(path)
+
+    run()

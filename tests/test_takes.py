@@ -263,3 +263,101 @@ def test_real_takes():
     W = ict_weights(t, ICT_NAMES)
     assert W.shape == (1926, 53) and W.min() >= 0 and W.max() <= 1
     assert len(find_takes(folder)) >= 4
+
+
+# ----------------------------------------------------------------------------- writing (Live Link Face CSV out)
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from facegeom.io.takes import ict_to_arkit, write_livelink_csv  # noqa: E402
+
+
+def test_written_take_has_the_apps_header_and_round_trips_a_real_take(tmp_path):
+    folder = _real_takes_folder()
+    if not (folder / "S07-001.csv").is_file():
+        pytest.skip(f"real takes not found at {folder}")
+    src = folder / "S07-001.csv"
+    t = read_take(src)
+    out = write_livelink_csv(tmp_path / "o.csv", t.weights, t.names, 30.0, start=12 * 3600 + 27 * 60 + 47.8)
+    real_header = src.read_text().splitlines()[0]
+    lines = out.read_text().splitlines()
+    assert lines[0] == real_header and lines[1].split(",")[1] == "61"
+    assert len(lines[1].split(",")) == len(real_header.split(","))
+    u = read_take(out)
+    assert u.names == t.names and u.lost_rows == 0 and u.timecode_fps == 60  # the app's frame base
+    assert np.array_equal(u.weights, t.weights)  # the app's 10 decimals are kept exactly
+    assert np.allclose(u.times, np.arange(t.n_frames) / 30.0, atol=1e-6)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(T=st.integers(1, 90), fps=st.sampled_from([24.0, 25.0, 29.97, 30.0, 50.0, 60.0, 120.0]),
+       start=st.floats(0, 86400.0, allow_nan=False), seed=st.integers(0, 2 ** 16))
+def test_write_then_read_gives_the_weights_and_times_back(tmp_path_factory, T, fps, start, seed):
+    rng = np.random.default_rng(seed)
+    W = rng.uniform(-0.05, 1.08, size=(T, 52))
+    out = write_livelink_csv(tmp_path_factory.mktemp("w") / "t.csv", W, ARKIT_NAMES, fps, start=start)
+    u = read_take(out)
+    assert u.n_frames == T and np.allclose(u.weights, W, atol=5e-11)
+    # times within a thousandth of a timecode frame (1/60 s or 1/30 s) of i / fps, whatever the length
+    assert np.allclose(u.times, np.arange(T) / fps, atol=2e-5)
+
+
+def test_subset_and_camel_case_names_and_rotations(tmp_path):
+    W = np.array([[0.5, 0.25], [1.0, 0.0]])
+    R = np.arange(18, dtype=float).reshape(2, 9) / 100
+    out = write_livelink_csv(tmp_path / "s.csv", W, ["jawOpen", "EyeBlinkLeft"], 60.0, rotations=R)
+    u = read_take(out)
+    j, e = ARKIT_NAMES.index("JawOpen"), ARKIT_NAMES.index("EyeBlinkLeft")
+    assert np.array_equal(u.weights[:, j], W[:, 0]) and np.array_equal(u.weights[:, e], W[:, 1])
+    others = np.delete(u.weights, [j, e], axis=1)
+    assert (others == 0).all()
+    rows = [line.split(",") for line in out.read_text().splitlines()[1:]]
+    assert np.allclose(np.array([r[-9:] for r in rows], dtype=float), R)
+
+
+def test_writer_errors(tmp_path):
+    out = tmp_path / "e.csv"
+    W = np.zeros((3, 2))
+    for args, kw, msg in [((W, ["jawOpen_L", "JawOpen"], 30.0), {}, "ict_to_arkit"),
+                          ((W, ["JawOpen", "jawOpen"], 30.0), {}, "repeats"),
+                          ((W[:, :1], ["JawOpen", "JawLeft"], 30.0), {}, "shape"),
+                          ((np.full((3, 2), np.nan), ["JawOpen", "JawLeft"], 30.0), {}, "NaN"),
+                          ((W, ["JawOpen", "JawLeft"], 0.0), {}, "frame rate"),
+                          ((W, ["JawOpen", "JawLeft"], 30.0), {"start": -1}, "start"),
+                          ((W, ["JawOpen", "JawLeft"], 30.0), {"rotations": np.zeros((3, 3))}, "rotations")]:
+        with pytest.raises(InputError, match=msg):
+            write_livelink_csv(out, *args, **kw)
+    assert not out.exists()
+
+
+def test_ict_to_arkit_inverts_ict_weights():
+    rng = np.random.default_rng(5)
+    take_w = rng.uniform(0, 1, size=(7, 52))
+    from facegeom.io.takes import Take
+
+    take = Take("", ARKIT_NAMES, take_w, np.arange(7) / 30.0, 0, "interpolate")
+    ict = ict_weights(take, ICT_NAMES, clip=False)
+    back, names = ict_to_arkit(ict, ICT_NAMES)
+    assert names == ARKIT_NAMES and back.shape == (7, 52)
+    tongue = ARKIT_NAMES.index("TongueOut")
+    assert np.array_equal(np.delete(back, tongue, 1), np.delete(take_w, tongue, 1)) and (back[:, tongue] == 0).all()
+    # ICT -> ARKit -> ICT is the identity when the brow and puff sides agree, in any column order
+    order = rng.permutation(len(ICT_NAMES))
+    names_shuffled = [ICT_NAMES[i] for i in order]
+    again = ict_weights(Take("", ARKIT_NAMES, back, take.times, 0, "interpolate"), names_shuffled, clip=False)
+    assert np.array_equal(again, ict[:, order])
+
+
+def test_ict_to_arkit_loses_only_what_it_documents():
+    W = np.zeros((1, len(ICT_NAMES)))
+    W[0, ICT_NAMES.index("browInnerUp_L")] = 0.8
+    W[0, ICT_NAMES.index("browInnerUp_R")] = 0.2
+    W[0, ICT_NAMES.index("jawOpen")] = 0.5
+    A, names = ict_to_arkit(W, ICT_NAMES)
+    assert A[0, names.index("BrowInnerUp")] == pytest.approx(0.5)  # sides averaged
+    assert A[0, names.index("JawOpen")] == 0.5 and np.count_nonzero(A) == 2
+    A, _ = ict_to_arkit(np.ones((2, 2)), ["jawOpen", "notAShape"])  # unknown ICT names dropped, absent ones 0
+    assert A[:, ARKIT_NAMES.index("JawOpen")].tolist() == [1.0, 1.0] and np.count_nonzero(A) == 2
+    with pytest.raises(InputError, match="shape"):
+        ict_to_arkit(np.ones((2, 3)), ["jawOpen", "mouthLeft"])

@@ -99,8 +99,9 @@ def _drive_one(deformer, label, V, F, ids, pos, path, shown) -> None:
 def retarget(source, labels, output, method, params, fill_gaps):
     """Retarget the actor's markers SOURCE onto a character known at the frames of LABELS.
 
-    Both files are marker sequences (CSV with header frame,marker,x,y,z, or npz
-    with 'markers' (T,p,3) and 'frames'); the frames of LABELS index SOURCE.
+    Both files are marker sequences (CSV with header frame,marker,x,y,z, npz
+    with 'markers' (T,p,3) and 'frames', or C3D motion capture); the frames of
+    LABELS index SOURCE.
     """
     from facegeom import registry
     from facegeom.io import check_outputs

@@ -8,6 +8,9 @@ CSV
 npz
     ``markers`` ``(T, p, 3)``; optional ``frames`` ``(T,)`` int (default
     ``0..T-1``) and ``marker_names`` ``(p,)``.
+C3D
+    Motion-capture files, read by :func:`facegeom.io.c3d.read_c3d` (names, frame
+    rate, unit, gaps as NaN; frames ``0..T-1``).
 
 A *source* sequence must hold the frames ``0..T-1`` in order. A *labels* file
 holds the known target frames: its ``frame`` values are indices into the source.
@@ -16,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,74 +26,14 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path, read_csv_rows
 from facegeom.io.ints import check_int64
+from facegeom.io.sequence import UNIT_SCALE, MarkerSequence
 
-__all__ = ["MarkerSequence", "SEQUENCE_HEADER", "read_marker_sequence", "write_marker_sequence", "fill_gaps",
-           "read_retarget_inputs"]
+__all__ = ["MarkerSequence", "SEQUENCE_HEADER", "SEQUENCE_FORMATS", "UNIT_SCALE", "read_marker_sequence",
+           "write_marker_sequence", "fill_gaps", "read_retarget_inputs"]
 
 SEQUENCE_HEADER = ("frame", "marker", "x", "y", "z")
-SEQUENCE_FORMATS = (".csv", ".npz")
-
-
-@dataclass
-class MarkerSequence:
-    """Frames of marker positions read from a file.
-
-    Attributes
-    ----------
-    frames : (T,) int64
-        Frame index of each row of ``positions`` (increasing, as the readers sort them).
-    names : tuple of p str
-        Marker names, in the order of the columns of ``positions``.
-    positions : (T, p, 3) float64
-        Marker positions in the file's units (cm for the ICT face); NaN where a
-        marker is lost.
-    path : str
-        The file it was read from (``""`` when built in memory); errors name it.
-    """
-
-    frames: np.ndarray  # (T,) int64 frame indices
-    names: tuple[str, ...]  # (p,) marker names
-    positions: np.ndarray  # (T, p, 3) float64, NaN where a marker is missing
-    path: str = ""
-
-    @property
-    def n_frames(self) -> int:
-        """Number of frames ``T``."""
-        return self.positions.shape[0]
-
-    @property
-    def n_markers(self) -> int:
-        """Number of markers per frame ``p``."""
-        return self.positions.shape[1]
-
-    def missing(self) -> np.ndarray:
-        """``(T, p)`` bool: the marker has no finite position in the frame."""
-        return ~np.isfinite(self.positions).all(axis=2)
-
-    def reorder(self, names, what: str = "markers") -> "MarkerSequence":
-        """The same frames with the markers in the order of ``names`` (same set required).
-
-        ``what`` names the file's role in the error message. Returns ``self``
-        when the order is already right.
-
-        Raises
-        ------
-        InputError
-            ``names`` has another length than the sequence's markers, or names a
-            marker the sequence lacks.
-        """
-        names = tuple(names)
-        if names == self.names:
-            return self
-        if len(names) != len(self.names):
-            raise InputError(f"{self.n_markers} markers per frame, but {len(names)} expected", self.path)
-        index = {n: i for i, n in enumerate(self.names)}
-        unknown = [n for n in names if n not in index]
-        if unknown:
-            raise InputError(f"{what}: marker {unknown[0]!r} is missing (the file has {', '.join(self.names[:6])}"
-                             f"{'...' if self.n_markers > 6 else ''})", self.path)
-        order = np.array([index[n] for n in names])
-        return MarkerSequence(self.frames, names, self.positions[:, order], self.path)
+SEQUENCE_FORMATS = (".csv", ".npz", ".c3d")
+_WRITE_FORMATS = (".csv", ".npz")
 
 
 def _check_path(path: Path) -> None:
@@ -100,7 +42,7 @@ def _check_path(path: Path) -> None:
     if path.is_dir():
         raise InputError("is a folder, not a marker-sequence file", path)
     if path.suffix.lower() not in SEQUENCE_FORMATS:
-        raise InputError(f"unsupported marker-sequence format {path.suffix!r}; use .csv or .npz", path)
+        raise InputError(f"unsupported marker-sequence format {path.suffix!r}; use .csv, .npz or .c3d", path)
     if path.stat().st_size == 0:
         raise InputError("empty file", path)
 
@@ -201,7 +143,7 @@ def _read_npz(path: Path) -> MarkerSequence:
 
 
 def read_marker_sequence(path: str | os.PathLike) -> MarkerSequence:
-    """Read a marker sequence (``.csv`` long format or ``.npz``); frames sorted by index.
+    """Read a marker sequence (``.csv`` long format, ``.npz`` or ``.c3d``); frames sorted by index.
 
     Missing markers are NaN; see :meth:`MarkerSequence.missing` and :func:`fill_gaps`.
 
@@ -216,11 +158,17 @@ def read_marker_sequence(path: str | os.PathLike) -> MarkerSequence:
         Missing, empty or folder path, unsupported suffix, wrong header, a
         malformed row or array (non-integer or negative frame, infinite
         coordinate, repeated marker in a frame or repeated frame, a frame
-        missing one of the markers), naming the file and line.
+        missing one of the markers), naming the file and line; for C3D see
+        :func:`facegeom.io.c3d.read_c3d`.
     """
     path = Path(path)
     _check_path(path)
-    return _read_csv(path) if path.suffix.lower() == ".csv" else _read_npz(path)
+    suffix = path.suffix.lower()
+    if suffix == ".c3d":
+        from facegeom.io.c3d import read_c3d
+
+        return read_c3d(path)
+    return _read_csv(path) if suffix == ".csv" else _read_npz(path)
 
 
 def fill_gaps(positions: np.ndarray, max_gap: int | None = None) -> tuple[np.ndarray, int]:
@@ -264,7 +212,8 @@ def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, f
     filled ``(T, p, 3)`` array, ``n_filled`` the number of filled samples,
     announced through ``echo`` if given). The labels are reordered to the
     source's marker names, index source frames, are complete, and number at
-    least two.
+    least two. Labels whose file states another length unit than the
+    source's (C3D ``POINT:UNITS``) are converted to the source's unit.
     """
     src = read_marker_sequence(source)
     T = src.n_frames
@@ -288,6 +237,8 @@ def read_retarget_inputs(source: str | os.PathLike, labels: str | os.PathLike, f
     else:
         P = src.positions
     lab = read_marker_sequence(labels)
+    if src.unit is not None and lab.unit is not None and lab.unit != src.unit:
+        lab = lab.in_unit(src.unit)  # e.g. C3D labels in m for a source in mm
     if lab.n_markers != src.n_markers:
         raise InputError(f"{lab.n_markers} markers per frame, but the source {source} has {src.n_markers}", labels)
     lab = lab.reorder(src.names, "labels")
@@ -311,8 +262,9 @@ def write_marker_sequence(path: str | os.PathLike, positions, frames=None, names
     ``extra`` arrays are added to an npz (ignored for CSV).
     """
     path = Path(path)
-    if path.suffix.lower() not in SEQUENCE_FORMATS:
-        raise InputError(f"unsupported marker-sequence format {path.suffix!r}; use .csv or .npz", path)
+    if path.suffix.lower() not in _WRITE_FORMATS:
+        what = "output format" if path.suffix.lower() == ".c3d" else "format"  # C3D is read here, written by write_c3d
+        raise InputError(f"unsupported marker-sequence {what} {path.suffix!r}; use .csv or .npz", path)
     P = np.asarray(positions, dtype=np.float64)
     if P.ndim != 3 or P.shape[2] != 3:
         raise InputError(f"positions must have shape (T, p, 3), got {P.shape}", path)

@@ -53,10 +53,19 @@ ICT names are camelCase with ``_L``/``_R``: ``EyeBlinkLeft`` -> ``eyeBlink_L``,
 ``JawRight`` are shapes of their own (``mouthLeft``...), not sided variants.
 ARKit's single ``BrowInnerUp`` and ``CheekPuff`` drive both ICT sides;
 ``TongueOut`` has no ICT counterpart. "Left" is the performer's left in both.
+
+Writing takes
+-------------
+:func:`write_livelink_csv` writes weights in the app's layout (the header
+above, ``BlendShapeCount`` 61, values with 10 decimals, ``HH:MM:SS:FF.fff``
+timecodes), so that a solve or a fit drives anything that reads these takes.
+:func:`ict_to_arkit` maps ICT weights back to the 52 ARKit names (the inverse of
+:func:`ict_weights`; what it loses is listed there).
 """
 from __future__ import annotations
 
 import csv
+import math
 import operator
 import os
 from dataclasses import dataclass
@@ -66,6 +75,7 @@ from typing import Sequence
 import numpy as np
 
 from facegeom.errors import InputError
+from facegeom.io.files import atomic_path
 
 __all__ = [
     "ARKIT_NAMES",
@@ -76,6 +86,8 @@ __all__ = [
     "timecode_fps",
     "arkit_to_ict_name",
     "ict_weights",
+    "ict_to_arkit",
+    "write_livelink_csv",
     "find_takes",
 ]
 
@@ -468,6 +480,163 @@ def ict_weights(take: Take, expression_names: Sequence[str], clip: bool = True) 
     if clip:
         np.clip(out, 0.0, 1.0, out=out)
     return out
+
+
+def ict_to_arkit(weights, ict_names: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:
+    """ICT expression weights as the 52 ARKit weights: the inverse of :func:`ict_weights`.
+
+    Parameters
+    ----------
+    weights : array_like
+        ``(T, K)`` (or ``(K,)``) ICT weights, column ``k`` for ``ict_names[k]``.
+    ict_names : sequence of str
+        ICT expression names (``eyeBlink_L``, ``jawOpen``...).
+
+    Returns
+    -------
+    (numpy.ndarray, tuple of str)
+        ``W`` ``(T, 52)`` float64 and :data:`ARKIT_NAMES` (its column order).
+
+    Notes
+    -----
+    Lossy where the two rigs differ: ``BrowInnerUp`` and ``CheekPuff`` get the
+    mean of the ICT ``_L`` and ``_R`` weights (an asymmetric inner brow or puff
+    becomes symmetric); ``TongueOut`` is 0 (ICT has no tongue); ICT names that
+    no ARKit shape drives are dropped, and ARKit shapes whose ICT names are
+    absent from ``ict_names`` get 0. For the 53 ICT expressions everything
+    else is a one-to-one copy, so ``ict_weights`` of the result gives the input
+    back whenever the brow and puff sides are equal.
+
+    Raises
+    ------
+    InputError
+        ``weights`` is not ``(T, len(ict_names))`` or holds NaN or inf, or a
+        name repeats.
+    """
+    W = np.asarray(weights, dtype=np.float64)
+    if W.ndim == 1:
+        W = W[None]
+    names = [str(n) for n in ict_names]
+    if W.ndim != 2 or W.shape[1] != len(names):
+        raise InputError(f"ICT weights must have shape (T, {len(names)}) for {len(names)} names, got {W.shape}")
+    if not np.isfinite(W).all():
+        raise InputError("ICT weights contain NaN or inf")
+    if len(set(names)) != len(names):
+        raise InputError("an ICT expression name repeats")
+    column = {n: k for k, n in enumerate(names)}
+    out = np.zeros((W.shape[0], len(ARKIT_NAMES)))
+    for a, name in enumerate(ARKIT_NAMES):
+        cols = [column[t] for t in arkit_to_ict_name(name) if t in column]
+        if cols:
+            out[:, a] = W[:, cols].mean(axis=1)
+    return out, ARKIT_NAMES
+
+
+# ----------------------------------------------------------------------------- writing
+
+_TIMECODE_BASES = (60.0, 30.0)  # the app's (60), else one the reader cannot misread (30: no frame field >= 30)
+
+
+def _timecodes(times: np.ndarray) -> tuple[list[str], float]:
+    """``HH:MM:SS:FF.fff`` strings of ``times`` (seconds of the day) and the frame base used.
+
+    The app's frame base is 60; :func:`read_take` infers the base from the
+    largest frame field, so 60 is used when the take shows a frame field of
+    30 or more (a take of half a second or longer), else 30.
+    """
+    for base in _TIMECODE_BASES:
+        milli = np.rint(times * base * 1000.0).astype(np.int64)  # thousandths of a frame
+        per_second = int(base) * 1000
+        secs, rest = np.divmod(milli, per_second)
+        if timecode_fps(rest / 1000.0) == base:
+            break
+    out = []
+    for sec, r in zip(secs.tolist(), rest.tolist()):
+        h, m, s_ = (sec // 3600) % 24, (sec // 60) % 60, sec % 60
+        out.append(f"{h:02d}:{m:02d}:{s_:02d}:{r // 1000:02d}.{r % 1000:03d}")
+    return out, base
+
+
+def write_livelink_csv(path: str | os.PathLike, weights, names: Sequence[str], fps: float,
+                       start: float | None = None, rotations=None) -> Path:
+    """Write ARKit weights as a Live Link Face CSV take (the iPhone app's layout), atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.csv`` file.
+    weights : array_like
+        ``(T, K)`` weights, column ``k`` for ``names[k]``.
+    names : sequence of str
+        ARKit names (``JawOpen`` or ``jawOpen``), any order; the 52 columns
+        are written in the app's order (:data:`ARKIT_NAMES`) and a shape not
+        in ``names`` is written as 0. Map ICT weights with
+        :func:`ict_to_arkit` first.
+    fps : float
+        Rows per second (the app records at 30 or 60).
+    start : float, optional
+        Time of day of the first row in seconds (default 0, i.e.
+        ``00:00:00:00.000``); a take passing midnight wraps to 00 hours as the
+        app's clock does.
+    rotations : array_like, optional
+        ``(T, 9)`` head and eye rotations in :data:`ROTATION_NAMES` order; 0
+        when not given (facegeom does not estimate them).
+
+    Returns
+    -------
+    Path
+        ``path``; :func:`read_take` reads it back (times within a thousandth
+        of a frame).
+
+    Raises
+    ------
+    InputError
+        A name that is not ARKit or that repeats, weights not ``(T, K)`` or
+        holding NaN or inf, rotations not ``(T, 9)``, a frame rate or start
+        that is not a positive (non-negative) number, an output folder that
+        does not exist.
+    """
+    path = Path(path)
+    W = np.asarray(weights, dtype=np.float64)
+    names = [str(n) for n in names]
+    if W.ndim != 2 or W.shape[0] == 0 or W.shape[1] != len(names):
+        raise InputError(f"weights must have shape (T, {len(names)}) with T > 0 for {len(names)} names, "
+                         f"got {W.shape}", path)
+    if not np.isfinite(W).all():
+        raise InputError("weights contain NaN or inf", path)
+    pascal = [n[:1].upper() + n[1:] for n in names]
+    unknown = [n for n, p in zip(names, pascal) if p not in _ARKIT_SET]
+    if unknown:
+        raise InputError(f"{unknown[0]!r} is not an ARKit blendshape name (ICT weights: map them with "
+                         f"ict_to_arkit first)", path)
+    if len(set(pascal)) != len(pascal):
+        raise InputError("an ARKit name repeats", path)
+    T = W.shape[0]
+    R = np.zeros((T, len(ROTATION_NAMES))) if rotations is None else np.asarray(rotations, dtype=np.float64)
+    if R.shape != (T, len(ROTATION_NAMES)) or not np.isfinite(R).all():
+        raise InputError(f"rotations must be finite with shape ({T}, {len(ROTATION_NAMES)}), got {R.shape}", path)
+    try:
+        fps = float(fps)
+        t0 = 0.0 if start is None else float(start)
+    except (TypeError, ValueError):
+        raise InputError(f"frame rate {fps!r} and start {start!r} must be numbers", path) from None
+    if not (math.isfinite(fps) and fps > 0):
+        raise InputError(f"frame rate {fps} is not a positive number", path)
+    if not (math.isfinite(t0) and t0 >= 0):
+        raise InputError(f"start {t0} is not a time of day in seconds (>= 0)", path)
+    out = np.zeros((T, len(ARKIT_NAMES)))
+    index = {n: k for k, n in enumerate(ARKIT_NAMES)}
+    for k, p in enumerate(pascal):
+        out[:, index[p]] = W[:, k]
+    stamps, _ = _timecodes(t0 + np.arange(T) / fps)
+    header = ["Timecode", "BlendShapeCount", *ARKIT_NAMES, *ROTATION_NAMES]
+    count = str(len(ARKIT_NAMES) + len(ROTATION_NAMES))
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            fh.write(",".join(header) + "\n")
+            for stamp, w, r in zip(stamps, out, R):
+                fh.write(",".join([stamp, count, *(f"{x:.10f}" for x in w), *(f"{x:.10f}" for x in r)]) + "\n")
+    return path
 
 
 # ----------------------------------------------------------------------------- folders

@@ -44,7 +44,7 @@ class DriveOperation(Operation):
         forced = job.shared.get("input", "auto")
         if forced in ("frames", "sequences"):
             return forced[:-1]
-        if src.suffix.lower() == ".npz":
+        if src.suffix.lower() in (".npz", ".c3d"):
             return "sequence"
         return "sequence" if _peek_header(src).startswith("frame") else "frame"
 
