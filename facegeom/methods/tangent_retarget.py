@@ -218,6 +218,87 @@ def marker_affine_fit(S, lab, Yh, ridge: float | str = 1e-4, return_loo: bool = 
     return (out, loo) if return_loo else out
 
 
+KERNEL_WIDTHS = (0.5, 1.0, 2.0, 4.0)
+KERNEL_RIDGES = (1e-6, 1e-4, 1e-3, 1e-2, 0.1, 1.0)
+
+
+def marker_kernel_fit(S, lab, residual, loo_base, widths=KERNEL_WIDTHS, ridges=KERNEL_RIDGES):
+    """Per-marker Gaussian kernel ridge correction of a base map, chosen by leave-one-label-out error.
+
+    The per-marker affine map (:func:`marker_affine_fit`) misses the curvature of
+    the actor -> character map (a marker's 3-D path is a nonlinear function of
+    the expression weights on both faces). For every marker ``j`` this fits the
+    base map's residual at the labels ``residual[:, j]`` as a function of the
+    actor's marker position with kernel ridge regression, Gaussian kernel of
+    width ``w`` times the median distance between the marker's labelled
+    positions and ridge ``g`` times the kernel's largest eigenvalue. Widths are
+    relative to the data so the grid is scale free; the ridge grid reaches from
+    near interpolation (clean labels) to heavy smoothing (noisy labels).
+
+    The candidate (or "no correction", scored by ``loo_base``, the base's own
+    leave-one-out residuals) with the smallest closed-form leave-one-label-out
+    error ``alpha_i / [(K + lam I)^-1]_ii`` is kept, per marker: a marker whose
+    labels carry no learnable curvature keeps the base map.
+
+    Parameters
+    ----------
+    S : (T, p, 3) float array
+        The actor's (smoothed) markers.
+    lab : (L,) int
+        Labelled frames.
+    residual : (L, p, 3) float array
+        Labels minus the base map at the labelled frames.
+    loo_base : (L, p, 3) float array
+        Leave-one-label-out residuals of the base map.
+    widths, ridges : sequence of float
+        The candidates.
+
+    Returns
+    -------
+    correction : (T, p, 3) float64
+        To be added to the base map at every frame.
+    loo : (L, p, 3) float64
+        Leave-one-label-out residuals of the corrected map (per marker, of the chosen candidate).
+    """
+    T, p, _ = S.shape
+    L = lab.size
+    P = S[lab].transpose(1, 0, 2)  # (p, L, 3)
+    R = np.asarray(residual, dtype=np.float64).transpose(1, 0, 2)  # (p, L, 3)
+    D2 = ((P[:, :, None, :] - P[:, None, :, :]) ** 2).sum(axis=3)  # (p, L, L)
+    iu = np.triu_indices(L, 1)
+    med = np.median(np.sqrt(D2[:, iu[0], iu[1]]), axis=1) if L > 1 else np.ones(p)  # (p,)
+    moving = med > 0
+    med = np.where(moving, med, 1.0)
+    best = (np.asarray(loo_base, dtype=np.float64).transpose(1, 0, 2) ** 2).sum(axis=(1, 2))  # (p,)
+    best_loo = np.asarray(loo_base, dtype=np.float64).transpose(1, 0, 2).copy()
+    choice = np.full(p, -1)
+    choice_alpha = np.zeros((p, L, 3))
+    choice_width = np.ones(p)
+    for w in widths:
+        h2 = (w * med) ** 2
+        K = np.exp(-D2 / (2.0 * h2[:, None, None]))
+        s, U = np.linalg.eigh(K)
+        top = s[:, -1]
+        Ur = np.einsum("pli,plc->pic", U, R)  # U^T r
+        for k, g in enumerate(ridges):
+            inv = 1.0 / (np.maximum(s, 0.0) + g * top[:, None])  # (p, L)
+            alpha = np.einsum("pli,pi,pic->plc", U, inv, Ur)
+            Gdiag = np.einsum("pli,pi->pl", U ** 2, inv)
+            loo = alpha / Gdiag[..., None]
+            score = (loo ** 2).sum(axis=(1, 2))
+            better = (score < best) & moving
+            best = np.where(better, score, best)
+            best_loo[better] = loo[better]
+            choice_alpha[better] = alpha[better]
+            choice_width[better] = w * med[better]
+            choice[better] = k
+    out = np.zeros((T, p, 3))
+    for j in np.flatnonzero(choice >= 0):
+        d2 = ((S[:, j, None, :] - P[j][None]) ** 2).sum(axis=2)  # (T, L)
+        out[:, j] = np.exp(-d2 / (2.0 * choice_width[j] ** 2)) @ choice_alpha[j]
+    return out, best_loo.transpose(1, 0, 2)
+
+
 class TangentRetargeter(Params):
     """Expression retargeting with the tangent framework (a :class:`~facegeom.interfaces.Retargeter`).
 
@@ -266,7 +347,7 @@ class TangentRetargeter(Params):
 
     def __init__(self, strategy: str = "frame", window: int = 3, d: int = 3, beta: float | str | None = "auto",
                  field: str = "affine", smoothness: float = 0.1, rank_tol: float = 1e-6,
-                 ridge: float | str = "auto", source_smoothing: float | str = "auto"):
+                 ridge: float | str = "auto", source_smoothing: float | str = "auto", kernel: bool = True):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
         if not is_integer(window) or window < 1:
@@ -290,6 +371,9 @@ class TangentRetargeter(Params):
                                            or source_smoothing < 0):
             raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
         self.source_smoothing = source_smoothing
+        if not isinstance(kernel, (bool, np.bool_)):
+            raise InputError(f"kernel must be true or false, got {kernel!r}")
+        self.kernel = bool(kernel)
         self.result_ = None
 
     def __repr__(self) -> str:
@@ -334,7 +418,10 @@ class TangentRetargeter(Params):
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         self.source_smoothing_ = 0.0
-        if self.source_smoothing:
+        fitted = None
+        if self.source_smoothing == "auto" and self.field == "affine":
+            S, self.source_smoothing_, fitted = self._choose_smoothing(S, lab, Yh)
+        elif self.source_smoothing:
             S, self.source_smoothing_ = whittaker_smooth(S, self.source_smoothing)
         Wt = temporal_windows(T, self.window)
         if self.strategy == "marker":
@@ -354,7 +441,7 @@ class TangentRetargeter(Params):
         if self.field == "offset":
             base = S
         elif self.field == "affine":
-            base, loo = marker_affine_fit(S, lab, Yh, self.ridge, return_loo=True)
+            base, loo = fitted if fitted is not None else self._base_map(S, lab, Yh)
         if base is not None:
             base = base.transpose(1, 0, 2).reshape(p * T, 3) if self.strategy == "marker" else base.reshape(T, 3 * p)
         if self.smoothness > 0 and D2.shape[0]:
@@ -379,6 +466,35 @@ class TangentRetargeter(Params):
         self.labelled_frames_ = lab
         self.result_ = np.ascontiguousarray(Y)
         return self
+
+    def _base_map(self, S, lab, Yh):
+        """The per-marker base map (affine, plus the kernel correction when asked) and its leave-one-out residuals."""
+        base, loo = marker_affine_fit(S, lab, Yh, self.ridge, return_loo=True)
+        if self.kernel:
+            corr, loo = marker_kernel_fit(S, lab, Yh - base[lab], loo)
+            base = base + corr
+        return base, loo
+
+    def _choose_smoothing(self, S, lab, Yh):
+        """Source smoothing chosen by the labels: none, a tenth of the GCV weight, or the GCV weight.
+
+        GCV on the capture alone cannot tell tracking jitter from fast real
+        motion that the character shares (real takes are themselves jittery), so
+        it over-smooths clean captures. The labels can: for each candidate the
+        base map's leave-one-label-out error is computed (closed form, cheap),
+        and the candidate whose map best predicts held-out labelled frames wins.
+        Returns the smoothed source, the weight and the base map fitted on it.
+        """
+        Sg, lam = whittaker_smooth(S, "auto")
+        best = None
+        for g, Sc in ((0.0, S), (lam / 10.0, None), (lam, Sg)):
+            if Sc is None:
+                Sc, _ = whittaker_smooth(S, g)
+            fit = self._base_map(Sc, lab, Yh)
+            score = float((fit[1] ** 2).sum())
+            if best is None or score < best[0]:
+                best = (score, Sc, g, fit)
+        return best[1], best[2], best[3]
 
     def transform(self) -> np.ndarray:
         """Return the character sequence computed by :meth:`fit`.
