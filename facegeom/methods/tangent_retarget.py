@@ -73,7 +73,8 @@ def check_retarget_inputs(source, labelled_frames, target_labels):
 BETA_GRID = (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0, 1e4)
 
 
-def loo_label_weight(B, labelled, residual, grid=BETA_GRID, zero_score: float | None = None) -> tuple[float, np.ndarray]:
+def loo_label_weight(B, labelled, residual, grid=BETA_GRID,
+                     zero_score: float | None = None) -> tuple[float, np.ndarray]:
     """Choose the label weight ``beta`` of eq. 18 by leave-one-label-out prediction.
 
     For every candidate ``beta`` (``grid`` times the mean diagonal of ``B``) the
@@ -335,9 +336,20 @@ class TangentRetargeter(Params):
         ``"auto"`` (default) per marker by leave-one-label-out error.
     source_smoothing : float or "auto"
         Temporal Whittaker smoothing of the actor's markers before anything else
-        (:func:`whittaker_smooth`); ``0`` = none, ``"auto"`` (default) = by
-        generalised cross-validation, which removes tracking jitter and leaves
-        clean motion nearly untouched.
+        (:func:`whittaker_smooth`); ``0`` = none. ``"auto"`` (default): six
+        candidate sources, the capture as given or its low-rank denoising across
+        markers (:func:`lowrank_denoise`), each unsmoothed, smoothed with the
+        weight that generalised cross-validation picks on the capture, or a
+        tenth of it; the one whose base map best predicts held-out labelled
+        frames (leave-one-label-out, closed form) is used. GCV alone over-smooths
+        clean captures of real takes (their fast jitter is motion the character
+        shares); the labels tell. With ``field`` other than ``"affine"``,
+        ``"auto"`` is the GCV weight alone.
+    kernel : bool
+        Add to the per-marker affine base map a per-marker Gaussian kernel
+        ridge correction chosen by leave-one-label-out error
+        (:func:`marker_kernel_fit`; default ``True``): the curvature of the
+        actor -> character map that an affine map misses.
 
     The three ``"auto"`` defaults are what makes the method degrade gracefully
     with noisy labels and noisy source markers (``facegeom bench noise``); on
@@ -382,8 +394,9 @@ class TangentRetargeter(Params):
     def fit(self, source, labelled_frames, target_labels) -> "TangentRetargeter":
         """Solve the tangent-alignment system for the whole character sequence.
 
-        Smooths the source first when ``source_smoothing`` asks (the value used is
-        stored in ``source_smoothing_``); builds the alignment matrix ``B`` of the
+        Smooths (and with ``"auto"`` possibly low-rank denoises) the source first
+        when ``source_smoothing`` asks (the weight used is stored in
+        ``source_smoothing_``); builds the alignment matrix ``B`` of the
         temporal windows (the ``p`` marker trajectories as one block-diagonal system
         for ``strategy="marker"``, frames as points in ``3p`` dimensions for
         ``"frame"``), plus the second-difference energy when ``smoothness > 0``;
