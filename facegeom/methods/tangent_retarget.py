@@ -280,11 +280,13 @@ def marker_kernel_fit(S, lab, residual, loo_base, widths=KERNEL_WIDTHS, ridges=K
         K = np.exp(-D2 / (2.0 * h2[:, None, None]))
         s, U = np.linalg.eigh(K)
         top = s[:, -1]
-        Ur = np.einsum("pli,plc->pic", U, R)  # U^T r
+        Ut = U.transpose(0, 2, 1)
+        Ur = Ut @ R  # U^T r, (p, L, 3)
+        U2 = U ** 2
         for k, g in enumerate(ridges):
             inv = 1.0 / (np.maximum(s, 0.0) + g * top[:, None])  # (p, L)
-            alpha = np.einsum("pli,pi,pic->plc", U, inv, Ur)
-            Gdiag = np.einsum("pli,pi->pl", U ** 2, inv)
+            alpha = U @ (inv[:, :, None] * Ur)  # (K + lam I)^-1 r
+            Gdiag = (U2 @ inv[:, :, None])[:, :, 0]  # diagonal of (K + lam I)^-1
             loo = alpha / Gdiag[..., None]
             score = (loo ** 2).sum(axis=(1, 2))
             better = (score < best) & moving
