@@ -9,7 +9,13 @@ from hypothesis import strategies as st
 from facegeom import registry
 from facegeom.baselines.retargeters import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
 from facegeom.errors import InputError, SolveError
-from facegeom.methods.tangent_retarget import TangentRetargeter, marker_affine_fit, temporal_windows
+from facegeom.methods.tangent_retarget import (
+    TangentRetargeter,
+    lowrank_denoise,
+    marker_affine_fit,
+    marker_kernel_fit,
+    temporal_windows,
+)
 
 PAPER = dict(strategy="marker", window=2, d=1, field="position", smoothness=0.0, beta=None, source_smoothing=0)
 
@@ -224,6 +230,59 @@ def test_degenerate_configuration_is_a_clear_error():
 
 
 def test_bad_parameters():
-    for kw in ({"strategy": "x"}, {"window": 0}, {"d": 0}, {"beta": -1.0}, {"field": "x"}, {"smoothness": -1}):
+    for kw in ({"strategy": "x"}, {"window": 0}, {"d": 0}, {"beta": -1.0}, {"field": "x"}, {"smoothness": -1},
+               {"kernel": "yes"}):
         with pytest.raises(InputError):
             TangentRetargeter(**kw)
+
+
+def test_kernel_correction_learns_a_curved_marker_map():
+    # the character's motion is a curved function of the actor's: the affine map cannot follow it
+    S = smooth_sequence(T=80, p=3, seed=5)
+    Y_true = S + 0.4 * np.sin(1.5 * S)
+    lab = np.round(np.linspace(0, 79, 15)).astype(int)
+    base, loo = marker_affine_fit(S, lab, Y_true[lab], return_loo=True)
+    corr, loo_k = marker_kernel_fit(S, lab, Y_true[lab] - base[lab], loo)
+    held = np.setdiff1d(np.arange(80), lab)
+    e_aff = np.linalg.norm(base[held] - Y_true[held])
+    e_ker = np.linalg.norm(base[held] + corr[held] - Y_true[held])
+    assert e_ker < 0.5 * e_aff, (e_ker, e_aff)
+    kw = {"beta": None, "source_smoothing": 0}
+    errs = [np.linalg.norm(TangentRetargeter(kernel=k, **kw).fit(S, lab, Y_true[lab]).transform()[held] - Y_true[held])
+            for k in (False, True)]
+    assert errs[1] < 0.7 * errs[0], errs
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), L=st.integers(3, 12))
+def test_kernel_correction_never_worsens_the_leave_one_out_score(seed, L):
+    # per marker the kept candidate is the best one, "no correction" included
+    rng = np.random.default_rng(seed)
+    S = smooth_sequence(T=40, p=4, seed=seed)
+    lab = np.sort(rng.choice(40, L, replace=False))
+    Yh = S[lab] * 1.2 + rng.normal(size=(L, 4, 3)) * rng.uniform(0, 0.5)
+    base, loo = marker_affine_fit(S, lab, Yh, "auto", return_loo=True)
+    corr, loo_k = marker_kernel_fit(S, lab, Yh - base[lab], loo)
+    assert np.all(np.isfinite(corr))
+    assert np.all((loo_k ** 2).sum(axis=(0, 2)) <= (loo ** 2).sum(axis=(0, 2)) * (1 + 1e-12))
+
+
+def test_lowrank_denoise_removes_noise_and_keeps_clean_low_rank_motion():
+    S = smooth_sequence(T=100, p=40, seed=2)  # rank 4 across 120 coordinates
+    np.testing.assert_allclose(lowrank_denoise(S), S, atol=1e-8 * np.abs(S).max())
+    rng = np.random.default_rng(0)
+    N = S + rng.normal(size=S.shape) * 0.05
+    assert np.linalg.norm(lowrank_denoise(N) - S) < 0.4 * np.linalg.norm(N - S)
+    tall = smooth_sequence(T=300, p=5, seed=1)  # more frames than coordinates: the other Gram matrix
+    np.testing.assert_allclose(lowrank_denoise(tall), tall, atol=1e-6 * np.abs(tall).max())
+
+
+def test_source_smoothing_is_chosen_by_the_labels():
+    S = smooth_sequence(T=80, p=30, seed=4)
+    Y_true = S * 1.2 + 0.3 * np.sin(S)
+    lab = np.round(np.linspace(0, 79, 10)).astype(int)
+    rng = np.random.default_rng(1)
+    noisy = S + rng.normal(size=S.shape) * 0.05
+    e_auto = np.linalg.norm(TangentRetargeter().fit(noisy, lab, Y_true[lab]).transform() - Y_true)
+    e_none = np.linalg.norm(TangentRetargeter(source_smoothing=0).fit(noisy, lab, Y_true[lab]).transform() - Y_true)
+    assert e_auto < 0.7 * e_none, (e_auto, e_none)

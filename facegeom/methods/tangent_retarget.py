@@ -73,7 +73,8 @@ def check_retarget_inputs(source, labelled_frames, target_labels):
 BETA_GRID = (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0, 1e4)
 
 
-def loo_label_weight(B, labelled, residual, grid=BETA_GRID, zero_score: float | None = None) -> tuple[float, np.ndarray]:
+def loo_label_weight(B, labelled, residual, grid=BETA_GRID,
+                     zero_score: float | None = None) -> tuple[float, np.ndarray]:
     """Choose the label weight ``beta`` of eq. 18 by leave-one-label-out prediction.
 
     For every candidate ``beta`` (``grid`` times the mean diagonal of ``B``) the
@@ -218,6 +219,89 @@ def marker_affine_fit(S, lab, Yh, ridge: float | str = 1e-4, return_loo: bool = 
     return (out, loo) if return_loo else out
 
 
+KERNEL_WIDTHS = (0.5, 1.0, 2.0, 4.0)
+KERNEL_RIDGES = (1e-6, 1e-4, 1e-3, 1e-2, 0.1, 1.0)
+
+
+def marker_kernel_fit(S, lab, residual, loo_base, widths=KERNEL_WIDTHS, ridges=KERNEL_RIDGES):
+    """Per-marker Gaussian kernel ridge correction of a base map, chosen by leave-one-label-out error.
+
+    The per-marker affine map (:func:`marker_affine_fit`) misses the curvature of
+    the actor -> character map (a marker's 3-D path is a nonlinear function of
+    the expression weights on both faces). For every marker ``j`` this fits the
+    base map's residual at the labels ``residual[:, j]`` as a function of the
+    actor's marker position with kernel ridge regression, Gaussian kernel of
+    width ``w`` times the median distance between the marker's labelled
+    positions and ridge ``g`` times the kernel's largest eigenvalue. Widths are
+    relative to the data so the grid is scale free; the ridge grid reaches from
+    near interpolation (clean labels) to heavy smoothing (noisy labels).
+
+    The candidate (or "no correction", scored by ``loo_base``, the base's own
+    leave-one-out residuals) with the smallest closed-form leave-one-label-out
+    error ``alpha_i / [(K + lam I)^-1]_ii`` is kept, per marker: a marker whose
+    labels carry no learnable curvature keeps the base map.
+
+    Parameters
+    ----------
+    S : (T, p, 3) float array
+        The actor's (smoothed) markers.
+    lab : (L,) int
+        Labelled frames.
+    residual : (L, p, 3) float array
+        Labels minus the base map at the labelled frames.
+    loo_base : (L, p, 3) float array
+        Leave-one-label-out residuals of the base map.
+    widths, ridges : sequence of float
+        The candidates.
+
+    Returns
+    -------
+    correction : (T, p, 3) float64
+        To be added to the base map at every frame.
+    loo : (L, p, 3) float64
+        Leave-one-label-out residuals of the corrected map (per marker, of the chosen candidate).
+    """
+    T, p, _ = S.shape
+    L = lab.size
+    P = S[lab].transpose(1, 0, 2)  # (p, L, 3)
+    R = np.asarray(residual, dtype=np.float64).transpose(1, 0, 2)  # (p, L, 3)
+    D2 = ((P[:, :, None, :] - P[:, None, :, :]) ** 2).sum(axis=3)  # (p, L, L)
+    iu = np.triu_indices(L, 1)
+    med = np.median(np.sqrt(D2[:, iu[0], iu[1]]), axis=1) if L > 1 else np.ones(p)  # (p,)
+    moving = med > 0
+    med = np.where(moving, med, 1.0)
+    best = (np.asarray(loo_base, dtype=np.float64).transpose(1, 0, 2) ** 2).sum(axis=(1, 2))  # (p,)
+    best_loo = np.asarray(loo_base, dtype=np.float64).transpose(1, 0, 2).copy()
+    choice = np.full(p, -1)
+    choice_alpha = np.zeros((p, L, 3))
+    choice_width = np.ones(p)
+    for w in widths:
+        h2 = (w * med) ** 2
+        K = np.exp(-D2 / (2.0 * h2[:, None, None]))
+        s, U = np.linalg.eigh(K)
+        top = s[:, -1]
+        Ut = U.transpose(0, 2, 1)
+        Ur = Ut @ R  # U^T r, (p, L, 3)
+        U2 = U ** 2
+        for k, g in enumerate(ridges):
+            inv = 1.0 / (np.maximum(s, 0.0) + g * top[:, None])  # (p, L)
+            alpha = U @ (inv[:, :, None] * Ur)  # (K + lam I)^-1 r
+            Gdiag = (U2 @ inv[:, :, None])[:, :, 0]  # diagonal of (K + lam I)^-1
+            loo = alpha / Gdiag[..., None]
+            score = (loo ** 2).sum(axis=(1, 2))
+            better = (score < best) & moving
+            best = np.where(better, score, best)
+            best_loo[better] = loo[better]
+            choice_alpha[better] = alpha[better]
+            choice_width[better] = w * med[better]
+            choice[better] = k
+    out = np.zeros((T, p, 3))
+    for j in np.flatnonzero(choice >= 0):
+        d2 = ((S[:, j, None, :] - P[j][None]) ** 2).sum(axis=2)  # (T, L)
+        out[:, j] = np.exp(-d2 / (2.0 * choice_width[j] ** 2)) @ choice_alpha[j]
+    return out, best_loo.transpose(1, 0, 2)
+
+
 class TangentRetargeter(Params):
     """Expression retargeting with the tangent framework (a :class:`~facegeom.interfaces.Retargeter`).
 
@@ -254,9 +338,20 @@ class TangentRetargeter(Params):
         ``"auto"`` (default) per marker by leave-one-label-out error.
     source_smoothing : float or "auto"
         Temporal Whittaker smoothing of the actor's markers before anything else
-        (:func:`whittaker_smooth`); ``0`` = none, ``"auto"`` (default) = by
-        generalised cross-validation, which removes tracking jitter and leaves
-        clean motion nearly untouched.
+        (:func:`whittaker_smooth`); ``0`` = none. ``"auto"`` (default): six
+        candidate sources, the capture as given or its low-rank denoising across
+        markers (:func:`lowrank_denoise`), each unsmoothed, smoothed with the
+        weight that generalised cross-validation picks on the capture, or a
+        tenth of it; the one whose base map best predicts held-out labelled
+        frames (leave-one-label-out, closed form) is used. GCV alone over-smooths
+        clean captures of real takes (their fast jitter is motion the character
+        shares); the labels tell. With ``field`` other than ``"affine"``,
+        ``"auto"`` is the GCV weight alone.
+    kernel : bool
+        Add to the per-marker affine base map a per-marker Gaussian kernel
+        ridge correction chosen by leave-one-label-out error
+        (:func:`marker_kernel_fit`; default ``True``): the curvature of the
+        actor -> character map that an affine map misses.
 
     The three ``"auto"`` defaults are what makes the method degrade gracefully
     with noisy labels and noisy source markers (``facegeom bench noise``); on
@@ -266,7 +361,7 @@ class TangentRetargeter(Params):
 
     def __init__(self, strategy: str = "frame", window: int = 3, d: int = 3, beta: float | str | None = "auto",
                  field: str = "affine", smoothness: float = 0.1, rank_tol: float = 1e-6,
-                 ridge: float | str = "auto", source_smoothing: float | str = "auto"):
+                 ridge: float | str = "auto", source_smoothing: float | str = "auto", kernel: bool = True):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
         if not is_integer(window) or window < 1:
@@ -290,6 +385,9 @@ class TangentRetargeter(Params):
                                            or source_smoothing < 0):
             raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
         self.source_smoothing = source_smoothing
+        if not isinstance(kernel, (bool, np.bool_)):
+            raise InputError(f"kernel must be true or false, got {kernel!r}")
+        self.kernel = bool(kernel)
         self.result_ = None
 
     def __repr__(self) -> str:
@@ -298,8 +396,9 @@ class TangentRetargeter(Params):
     def fit(self, source, labelled_frames, target_labels) -> "TangentRetargeter":
         """Solve the tangent-alignment system for the whole character sequence.
 
-        Smooths the source first when ``source_smoothing`` asks (the value used is
-        stored in ``source_smoothing_``); builds the alignment matrix ``B`` of the
+        Smooths (and with ``"auto"`` possibly low-rank denoises) the source first
+        when ``source_smoothing`` asks (the weight used is stored in
+        ``source_smoothing_``); builds the alignment matrix ``B`` of the
         temporal windows (the ``p`` marker trajectories as one block-diagonal system
         for ``strategy="marker"``, frames as points in ``3p`` dimensions for
         ``"frame"``), plus the second-difference energy when ``smoothness > 0``;
@@ -334,7 +433,10 @@ class TangentRetargeter(Params):
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
         self.source_smoothing_ = 0.0
-        if self.source_smoothing:
+        fitted = None
+        if self.source_smoothing == "auto" and self.field == "affine":
+            S, self.source_smoothing_, fitted = self._choose_smoothing(S, lab, Yh)
+        elif self.source_smoothing:
             S, self.source_smoothing_ = whittaker_smooth(S, self.source_smoothing)
         Wt = temporal_windows(T, self.window)
         if self.strategy == "marker":
@@ -354,7 +456,7 @@ class TangentRetargeter(Params):
         if self.field == "offset":
             base = S
         elif self.field == "affine":
-            base, loo = marker_affine_fit(S, lab, Yh, self.ridge, return_loo=True)
+            base, loo = fitted if fitted is not None else self._base_map(S, lab, Yh)
         if base is not None:
             base = base.transpose(1, 0, 2).reshape(p * T, 3) if self.strategy == "marker" else base.reshape(T, 3 * p)
         if self.smoothness > 0 and D2.shape[0]:
@@ -379,6 +481,36 @@ class TangentRetargeter(Params):
         self.labelled_frames_ = lab
         self.result_ = np.ascontiguousarray(Y)
         return self
+
+    def _base_map(self, S, lab, Yh):
+        """The per-marker base map (affine, plus the kernel correction when asked) and its leave-one-out residuals."""
+        base, loo = marker_affine_fit(S, lab, Yh, self.ridge, return_loo=True)
+        if self.kernel:
+            corr, loo = marker_kernel_fit(S, lab, Yh - base[lab], loo)
+            base = base + corr
+        return base, loo
+
+    def _choose_smoothing(self, S, lab, Yh):
+        """Source smoothing chosen by the labels: none, a tenth of the GCV weight, or the GCV weight.
+
+        GCV on the capture alone cannot tell tracking jitter from fast real
+        motion that the character shares (real takes are themselves jittery), so
+        it over-smooths clean captures. The labels can: for each candidate the
+        base map's leave-one-label-out error is computed (closed form, cheap),
+        and the candidate whose map best predicts held-out labelled frames wins.
+        Returns the smoothed source, the weight and the base map fitted on it.
+        """
+        best = None
+        for S0 in (S, lowrank_denoise(S)):
+            Sg, lam = whittaker_smooth(S0, "auto")
+            for g, Sc in ((0.0, S0), (lam / 10.0, None), (lam, Sg)):
+                if Sc is None:
+                    Sc, _ = whittaker_smooth(S0, g)
+                fit = self._base_map(Sc, lab, Yh)
+                score = float((fit[1] ** 2).sum())
+                if best is None or score < best[0]:
+                    best = (score, Sc, g, fit)
+        return best[1], best[2], best[3]
 
     def transform(self) -> np.ndarray:
         """Return the character sequence computed by :meth:`fit`.
@@ -457,3 +589,41 @@ def whittaker_smooth(S: np.ndarray, lam: float | str = "auto", grid=LAMBDA_GRID)
     else:
         X = cho_solve_banded((factor(float(lam)), False), flat, check_finite=False)
     return X.reshape(S.shape), float(lam)
+
+
+def lowrank_denoise(S: np.ndarray) -> np.ndarray:
+    """Remove white capture noise from a marker sequence by hard-thresholding its singular values across markers.
+
+    A face's markers move together (a few dozen expressions drive every
+    marker), so the centred ``(T, 3p)`` matrix of a capture is nearly low rank
+    while tracking noise spreads over every singular value. The threshold is
+    Gavish and Donoho's optimal hard threshold for unknown noise level,
+    ``omega(beta) * median(singular values)`` with ``beta`` the aspect ratio
+    (their cubic approximation of ``omega``): no parameter to tune, and a clean
+    capture keeps essentially all of its energy.
+
+    Parameters
+    ----------
+    S : (T, ...) float array
+        The sequence, time first.
+
+    Returns
+    -------
+    float64 array, the shape of ``S``
+        The denoised sequence (``S`` itself, copied, when it has fewer than 3 frames).
+    """
+    S = np.asarray(S, dtype=np.float64)
+    T = S.shape[0]
+    X = S.reshape(T, -1)
+    if T < 3 or X.shape[1] < 3:
+        return S.copy()
+    mean = X.mean(axis=0)
+    Xc = X - mean
+    wide = Xc.shape[0] <= Xc.shape[1]  # eigenvectors of the smaller Gram matrix (much cheaper than an SVD)
+    ev, V = np.linalg.eigh(Xc @ Xc.T if wide else Xc.T @ Xc)
+    sv = np.sqrt(np.maximum(ev, 0.0))
+    beta = min(X.shape) / max(X.shape)
+    omega = 0.56 * beta ** 3 - 0.95 * beta ** 2 + 1.82 * beta + 1.43
+    Vk = V[:, sv > omega * np.median(sv)]
+    out = Vk @ (Vk.T @ Xc) if wide else (Xc @ Vk) @ Vk.T
+    return (mean + out).reshape(S.shape)
