@@ -142,6 +142,7 @@ class Widgets:
 
     def __init__(self):
         self.pending: dict[str, object] = {}
+        self.rects: dict[str, list[float]] = {}  # label -> window pixels x0, y0, x1, y1 of its last draw
 
     def set(self, label: str, value) -> None:
         """Queue ``value`` for the widget ``label``: its next draw reports a change to ``value``.
@@ -151,6 +152,10 @@ class Widgets:
         self.pending[label] = value
 
     def _take(self, label, changed, value):
+        import polyscope.imgui as psim
+
+        (x0, y0), (x1, y1) = psim.GetItemRectMin(), psim.GetItemRectMax()
+        self.rects[label] = [float(x0), float(y0), float(x1), float(y1)]
         if label in self.pending:
             return True, self.pending.pop(label)
         return changed, value
@@ -193,6 +198,8 @@ class Widgets:
         import polyscope.imgui as psim
 
         pressed = psim.Button(label)
+        (x0, y0), (x1, y1) = psim.GetItemRectMin(), psim.GetItemRectMax()
+        self.rects[label] = [float(x0), float(y0), float(x1), float(y1)]
         if label in self.pending:
             return bool(self.pending.pop(label))
         return pressed
@@ -318,7 +325,7 @@ class BaseView:
         self.frame_times.append(now - self.clock0)
         psim.PushItemWidth(self.panel_width * 0.45)
         try:
-            if psim.Button("reset view"):
+            if self.ui.button("reset view"):
                 self.frame_camera()
             psim.SameLine()
             ch, on = self.ui.checkbox("polyscope panels", self.polyscope_panels)
@@ -493,14 +500,16 @@ class BaseView:
         Keys: ``ticks`` (frames drawn), ``frame_times`` (seconds since the view was
         made, one per frame, the last 5000), ``window`` (width, height), ``view_matrix``
         (the camera's 4x4), ``panel`` (x, y, w, h of the view's panel), ``polyscope_panels``,
-        ``vmax`` (the colour scale's maximum, mm), ``copies`` (name -> screen box x0, y0, x1, y1
+        ``vmax`` (the colour scale's maximum, mm), ``widgets`` (label -> window box of every
+        panel widget drawn, so a script can click it), ``copies`` (name -> screen box x0, y0, x1, y1
         of that face as drawn) and ``time``. Views add their own keys.
         """
         import polyscope as ps
 
         out = {"time": time.monotonic() - self.clock0, "ticks": self.ticks,
                "frame_times": [round(t, 4) for t in self.frame_times], "vmax": float(self.vmax),
-               "panel": self.panel_rect, "polyscope_panels": self.polyscope_panels}
+               "panel": self.panel_rect, "polyscope_panels": self.polyscope_panels,
+               "widgets": {k: v for k, v in self.ui.rects.items()}}
         if ps.is_initialized():
             out["window"] = list(ps.get_window_size())
             out["view_matrix"] = np.asarray(ps.get_camera_view_matrix(), float).tolist()

@@ -601,16 +601,24 @@ class DriveView(BaseView):
         return {n: float(np.linalg.norm(self.face(n)[ids] - self._near[n][ids], axis=1).max() * CM_TO_MM)
                 for n in self.copies() if n in self._near}
 
+    def at_marker_mm(self) -> dict:
+        """Copy name -> distance (mm) from its face's vertex under the selected marker to where that marker is
+        driven (label + offset): ~0 for a method that interpolates its markers, the offset for the target."""
+        v, P = int(self.case.handles[self.marker]), self.positions()[self.marker]
+        return {n: float(np.linalg.norm(self.face(n)[v] - P) * CM_TO_MM) for n in self.copies()
+                if n in ("source", "target") or n in self.results}
+
     def state(self) -> dict:
         """:meth:`BaseView.state` plus the drive view's: ``copies_order``, ``selected``, ``marker``, ``hover``,
         ``dragging``, ``drags``, ``offsets_mm`` (k, 3), ``status`` / ``fit_s`` / ``deform_ms`` per method,
-        ``fit_log``, ``pending`` and ``near_marker_mm`` (see :meth:`near_marker_mm`)."""
+        ``fit_log``, ``pending``, ``near_marker_mm`` and ``at_marker_mm`` (see those methods)."""
         out = super().state()
         out.update(copies_order=self.copies(), selected=list(self.selected), marker=int(self.marker),
                    hover=self.hover, dragging=self._drag is not None, drags=self.drags,
                    offsets_mm=(self.offsets * CM_TO_MM).tolist(), status=dict(self.status),
                    fit_s=dict(self.fit_s), deform_ms=dict(self.deform_ms), fit_log=list(self.fit_log),
-                   pending=self.pending(), near_marker_mm=self.near_marker_mm(), failed=dict(self.failed))
+                   pending=self.pending(), near_marker_mm=self.near_marker_mm(), failed=dict(self.failed),
+                   at_marker_mm=self.at_marker_mm())
         return out
 
     def rebuild(self) -> None:
