@@ -34,6 +34,7 @@ FOV_DEG = 15.0
 MARKER_COLOR = (0.95, 0.35, 0.1)
 SELECTED_COLOR = (1.0, 0.0, 0.6)
 TRUTH_COLOR = (0.78, 0.78, 0.8)
+BUSY_FPS = 12  # frame rate cap while methods fit in worker processes (the renderer is software GL here)
 COLORBAR_H = 74  # pixels kept free at the bottom of the window for the colour scale
 # matplotlib's viridis (the faces' colour map) sampled at 0, 1/8, ..., 1: enough for a drawn colour bar
 _VIRIDIS = np.array([[68, 1, 84], [72, 40, 120], [62, 74, 137], [49, 104, 142], [38, 130, 142],
@@ -339,6 +340,10 @@ class BaseView:
             psim.PopItemWidth()
         for m in self.messages[-3:]:
             psim.TextWrapped(m)
+        busy = self.busy()
+        if busy != getattr(self, "_busy", None):  # fewer frames while workers fit: they share the cores
+            self._busy = busy
+            ps.set_max_fps(BUSY_FPS if busy else 60)
         pos, size = psim.GetWindowPos(), psim.GetWindowSize()
         self.panel_rect = (float(pos[0]), float(pos[1]), float(size[0]), float(size[1]))
         self.draw_colorbar()
@@ -487,6 +492,14 @@ class BaseView:
     def shown_faces(self) -> dict:
         """Name -> ``(n, 3)`` world positions of every face as drawn (row shift included); views fill it."""
         return {}
+
+    def pending(self) -> list[str]:
+        """Methods still working in the background (none by default)."""
+        return []
+
+    def busy(self) -> bool:
+        """Whether a method is fitting in the background (the frame rate is capped meanwhile)."""
+        return bool(self.pending())
 
     def wait(self, timeout: float | None = None) -> None:
         """Block until background work (fits in worker processes) is done; views without any return at once."""

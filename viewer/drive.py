@@ -314,6 +314,10 @@ class DriveView(BaseView):
                 or (self.status.get(x) == "ready" and self._shown_version.get(x, -1) != self.version)
                 ] if self.background else []
 
+    def busy(self) -> bool:
+        """Whether a selected method is fitting (deforms in flight do not count)."""
+        return any(self.status.get(x) == "fitting" for x in self.selected)
+
     def wait(self, timeout: float | None = 120.0) -> None:
         """Background mode: poll until every selected method has fitted and shows the newest markers."""
         t = time.monotonic()

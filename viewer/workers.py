@@ -41,8 +41,17 @@ def worker_context():
 
 
 def _serve(conn) -> None:
-    """The worker's loop: one job at a time, one answer per job, until the pipe closes."""
+    """The worker's loop: one job at a time, one answer per job, until the pipe closes.
+
+    BLAS runs single-threaded here: several workers fit at once beside the window's
+    renderer, and OpenBLAS threads spinning on oversubscribed cores made a 1.5 s
+    fit take 30 s (measured with four fitters on two cores).
+    """
+    from threadpoolctl import threadpool_limits
+
     from facegeom.errors import FacegeomError
+
+    threadpool_limits(1)
 
     deformer = None
     while True:
