@@ -269,3 +269,43 @@ def test_fit_view(scene, face_model, tmp_path):
     assert changed(before, v.image(), columns(v, "pcadel", v.case.truth)) > 200
     with pytest.raises(InputError, match="correspondence"):
         FitView(face_model, "sem", mesh=face_model.neutral[:100])
+
+
+# --------------------------------------------------------------------------- background workers (no window)
+
+
+def test_background_fits_match_in_process(face_model):
+    """The window's worker processes give the very faces the in-process path gives, and a method that fails
+    in its worker is reported, not raised; views stop their workers on close."""
+    from facegeom.viewer.drive import DriveView
+    from facegeom.viewer.fit import FitView
+
+    bg = DriveView(face_model, "rbf;tangent;bad=laplacian:mode=nonsense", seed=1, background=True)
+    try:
+        assert bg.busy() and set(bg.pending()) == {"rbf", "tangent", "bad"}  # nothing fitted in this process
+        bg.wait()
+        assert not bg.pending() and bg.status == {"rbf": "ready", "tangent": "ready", "bad": "failed"}
+        assert "nonsense" in bg.failed["bad"]
+        ref = DriveView(face_model, "rbf;tangent", seed=1)
+        for m in ("rbf", "tangent"):
+            np.testing.assert_allclose(bg.results[m], ref.results[m], atol=1e-9)
+        bg.nudge(10, [0.0, -5.0, 0.0])
+        ref.nudge(10, [0.0, -5.0, 0.0])
+        assert set(bg.pending()) == {"rbf", "tangent"}  # the new positions are on their way
+        bg.wait()
+        for m in ("rbf", "tangent"):
+            np.testing.assert_allclose(bg.results[m], ref.results[m], atol=1e-9)
+        assert bg.state()["at_marker_mm"]["tangent"] < 1e-6
+    finally:
+        bg.close()
+    assert not bg.workers
+
+    fb = FitView(face_model, "sem;l1reg", case=1, kind="mesh", background=True)
+    try:
+        fb.wait()
+        fr = FitView(face_model, "sem;l1reg", case=1, kind="mesh")
+        for m in ("sem", "l1reg"):
+            np.testing.assert_allclose(fb.results[m].weights, fr.results[m].weights, atol=1e-9)
+        assert fb.vmax == fr.vmax
+    finally:
+        fb.close()
