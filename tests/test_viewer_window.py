@@ -307,3 +307,34 @@ def test_sigterm_closes_the_window_cleanly(window):
     window.proc.send_signal(signal.SIGTERM)
     assert window.proc.wait(timeout=30) == 0
     assert window.state()["ticks"] > 10
+
+
+def test_fit_view_opens_at_once_and_keeps_drawing_while_fitters_run(xserver, tmp_path, face_model):
+    """`view fit` in a window: the fitters run in worker processes, so frames come while they fit (a fitter
+    still running shows "fitting..."); each face appears when its fit is done."""
+    display, fbfile = xserver
+    state = tmp_path / "fit-state.json"
+    env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path}
+    with open(tmp_path / "fit.log", "w") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "facegeom", "view", "fit", "--methods", "sem;l1reg;pcadel",
+                                 "--state", str(state), "--exit-after", "60"], env=env, stdout=log,
+                                stderr=subprocess.STDOUT)
+        w = Window(display, fbfile, state, proc)
+        try:
+            s = w.wait_for("the first frames", lambda s: s["ticks"] >= 3, timeout=90)
+            t_first = s["frame_times"][0]
+            # watch for a few seconds (or until every fitter is done): frames keep coming meanwhile
+            s = w.wait_for("the fitters, or 6 s of frames",
+                           lambda s: not s["pending"] or s["time"] > t_first + 6.0, timeout=60)
+            ft = np.array(s["frame_times"])[2:]  # after the first frames (the window's start-up: shaders)
+            assert ft.size >= 5 and np.diff(ft).max() < 1.5, np.diff(ft).max()
+            s = w.wait_for("every fitter", lambda s: not s["pending"], timeout=60)
+            assert s["copies_order"] == ["truth", "sem", "l1reg", "pcadel"] and not s["failed"]
+            assert set(s["time_ms"]) == {"sem", "l1reg", "pcadel"}
+            (tmp_path / "fit-state-copy.json").write_text(json.dumps(s))
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
