@@ -316,7 +316,7 @@ def test_fit_view_opens_at_once_and_keeps_drawing_while_fitters_run(xserver, tmp
     state = tmp_path / "fit-state.json"
     env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path}
     with open(tmp_path / "fit.log", "w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "facegeom", "view", "fit", "--methods", "sem;l1reg;pcadel",
+        proc = subprocess.Popen([sys.executable, "-m", "facegeom", "view", "fit", "--methods", "sem;l1reg",
                                  "--state", str(state), "--exit-after", "60"], env=env, stdout=log,
                                 stderr=subprocess.STDOUT)
         w = Window(display, fbfile, state, proc)
@@ -330,8 +330,8 @@ def test_fit_view_opens_at_once_and_keeps_drawing_while_fitters_run(xserver, tmp
             ft = np.array(s["frame_times"])[2:]  # after the first frames (the window's start-up: shaders)
             assert ft.size >= 5 and np.diff(ft).max() < 1.5, np.diff(ft).max()
             s = w.wait_for("every fitter", lambda s: not s["pending"], timeout=60)
-            assert s["copies_order"] == ["truth", "sem", "l1reg", "pcadel"] and not s["failed"]
-            assert set(s["time_ms"]) == {"sem", "l1reg", "pcadel"}
+            assert s["copies_order"] == ["truth", "sem", "l1reg"] and not s["failed"]
+            assert set(s["time_ms"]) == {"sem", "l1reg"}
             (tmp_path / "fit-state-copy.json").write_text(json.dumps(s))
         finally:
             proc.send_signal(signal.SIGTERM)
