@@ -12,10 +12,13 @@ A view is a plain object:
 """
 from __future__ import annotations
 
+import json
 import math
 import os
+import signal
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -24,13 +27,18 @@ from facegeom.constants import CM_TO_MM
 from facegeom.errors import FacegeomError, InputError
 
 __all__ = ["NO_DISPLAY", "display_available", "check_display", "init_polyscope", "parse_size", "Widgets",
-           "BaseView", "error_mm", "row_offsets"]
+           "BaseView", "error_mm", "row_offsets", "colormap_rgb", "color_u32"]
 
 CMAP = "viridis"
 FOV_DEG = 15.0
 MARKER_COLOR = (0.95, 0.35, 0.1)
 SELECTED_COLOR = (1.0, 0.0, 0.6)
 TRUTH_COLOR = (0.78, 0.78, 0.8)
+BUSY_FPS = 12  # frame rate cap while methods fit in worker processes (the renderer is software GL here)
+COLORBAR_H = 74  # pixels kept free at the bottom of the window for the colour scale
+# matplotlib's viridis (the faces' colour map) sampled at 0, 1/8, ..., 1: enough for a drawn colour bar
+_VIRIDIS = np.array([[68, 1, 84], [72, 40, 120], [62, 74, 137], [49, 104, 142], [38, 130, 142],
+                     [31, 158, 137], [53, 183, 121], [109, 205, 89], [253, 231, 37]], dtype=np.float64) / 255.0
 
 NO_DISPLAY = ("no display found ($DISPLAY and $WAYLAND_DISPLAY are unset): add --screenshot PATH to render "
               "a PNG headless (EGL, no GPU needed), or run the viewer under a virtual display: xvfb-run -a facegeom "
@@ -99,6 +107,22 @@ def row_offsets(V: np.ndarray, count: int, gap: float = 0.12) -> np.ndarray:
     return np.c_[np.arange(count) * width * (1.0 + gap), np.zeros((count, 2))]
 
 
+def colormap_rgb(t) -> np.ndarray:
+    """Viridis at ``t`` in [0, 1] (clipped): ``(..., 3)`` RGB in [0, 1], piecewise linear between 9 samples."""
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0) * (len(_VIRIDIS) - 1)
+    i = np.minimum(np.floor(t).astype(int), len(_VIRIDIS) - 2)
+    f = (t - i)[..., None]
+    return _VIRIDIS[i] * (1.0 - f) + _VIRIDIS[i + 1] * f
+
+
+def color_u32(rgb, alpha: float = 1.0) -> int:
+    """ImGui's packed 32-bit colour of ``rgb`` in [0, 1] with opacity ``alpha``."""
+    import polyscope.imgui as psim
+
+    r, g, b = (int(round(255 * float(np.clip(c, 0, 1)))) for c in rgb)
+    return psim.IM_COL32(r, g, b, int(round(255 * alpha)))
+
+
 def nice_ceiling(x: float) -> float:
     """Round up to 1, 2 or 5 times a power of ten (a colour scale maximum)."""
     if not np.isfinite(x) or x <= 0:
@@ -119,6 +143,7 @@ class Widgets:
 
     def __init__(self):
         self.pending: dict[str, object] = {}
+        self.rects: dict[str, list[float]] = {}  # label -> window pixels x0, y0, x1, y1 of its last draw
 
     def set(self, label: str, value) -> None:
         """Queue ``value`` for the widget ``label``: its next draw reports a change to ``value``.
@@ -128,6 +153,10 @@ class Widgets:
         self.pending[label] = value
 
     def _take(self, label, changed, value):
+        import polyscope.imgui as psim
+
+        (x0, y0), (x1, y1) = psim.GetItemRectMin(), psim.GetItemRectMax()
+        self.rects[label] = [float(x0), float(y0), float(x1), float(y1)]
         if label in self.pending:
             return True, self.pending.pop(label)
         return changed, value
@@ -170,6 +199,8 @@ class Widgets:
         import polyscope.imgui as psim
 
         pressed = psim.Button(label)
+        (x0, y0), (x1, y1) = psim.GetItemRectMin(), psim.GetItemRectMax()
+        self.rects[label] = [float(x0), float(y0), float(x1), float(y1)]
         if label in self.pending:
             return bool(self.pending.pop(label))
         return pressed
@@ -181,6 +212,8 @@ class BaseView:
     title = "facegeom"
     panel_width = 420
 
+    colorbar_title = "distance to the truth (mm)"
+
     def __init__(self):
         self.ui = Widgets()
         self.ticks = 0
@@ -188,6 +221,15 @@ class BaseView:
         self.messages: list[str] = []
         self._bounds = None
         self._built = False  # set by build(): the structures are registered
+        self.vmax = 5.0  # the colour scale's maximum (mm); views set it from their results
+        self.polyscope_panels = False  # polyscope's own panels (structures, render options): one click away
+        self.clock0 = time.monotonic()  # times in the state file are seconds since this
+        self.frame_times: deque = deque(maxlen=5000)
+        self.panel_rect = None  # (x, y, w, h) of the view's panel in the last frame
+        self.state_path: Path | None = None
+        self._state_written = 0.0
+        self._exit_at: float | None = None
+        self._stop = False
 
     # ------------------------------------------------------------------ structures
     def _grow_bounds(self, P: np.ndarray) -> None:
@@ -276,11 +318,21 @@ class BaseView:
 
     def callback(self) -> None:
         """The per-frame user callback: the panel, then input handling. Polyscope calls it inside a frame."""
+        import polyscope as ps
         import polyscope.imgui as psim
 
         self.ticks += 1
+        now = time.monotonic()
+        self.frame_times.append(now - self.clock0)
         psim.PushItemWidth(self.panel_width * 0.45)
         try:
+            if self.ui.button("reset view"):
+                self.frame_camera()
+            psim.SameLine()
+            ch, on = self.ui.checkbox("polyscope panels", self.polyscope_panels)
+            if ch:
+                self.polyscope_panels = bool(on)
+                ps.set_build_default_gui_panels(self.polyscope_panels)
             self.panel()
         except FacegeomError as exc:  # a bad choice in the panel: say so, keep the window
             self.note(f"error: {exc}")
@@ -288,6 +340,42 @@ class BaseView:
             psim.PopItemWidth()
         for m in self.messages[-3:]:
             psim.TextWrapped(m)
+        busy = self.busy()
+        if busy != getattr(self, "_busy", None):  # fewer frames while workers fit: they share the cores
+            self._busy = busy
+            ps.set_max_fps(BUSY_FPS if busy else 60)
+        pos, size = psim.GetWindowPos(), psim.GetWindowSize()
+        self.panel_rect = (float(pos[0]), float(pos[1]), float(size[0]), float(size[1]))
+        self.draw_colorbar()
+        if self._stop or (self._exit_at is not None and now >= self._exit_at):
+            self.write_state()
+            ps.unshow()
+        elif self.state_path is not None and now - self._state_written > 0.2:
+            self.write_state()
+
+    def draw_colorbar(self) -> None:
+        """The error colour scale, drawn by the view itself (ImGui draw list) at the bottom left of the window,
+        so it is in the window and in every screenshot: viridis from 0 to ``vmax`` mm with five ticks."""
+        import polyscope as ps
+        import polyscope.imgui as psim
+
+        W, H = ps.get_window_size()
+        dl = psim.GetBackgroundDrawList()
+        x0, y0, w, h = 24.0, float(H - COLORBAR_H + 24), 300.0, 14.0
+        dl.AddRectFilled((x0 - 10, y0 - 22), (x0 + w + 14, y0 + h + 22), color_u32((1, 1, 1), 0.85), 4.0)
+        n = len(_VIRIDIS) - 1
+        for i in range(n):  # one gradient quad per segment between samples
+            a, b = x0 + w * i / n, x0 + w * (i + 1) / n
+            ca, cb = color_u32(_VIRIDIS[i]), color_u32(_VIRIDIS[i + 1])
+            dl.AddRectFilledMultiColor((a, y0), (b + 0.5, y0 + h), ca, cb, cb, ca)
+        black = color_u32((0.1, 0.1, 0.1))
+        dl.AddText((x0, y0 - 19), black, self.colorbar_title)
+        for j in range(5):
+            x = x0 + w * j / 4
+            dl.AddLine((x, y0 + h), (x, y0 + h + 4), black)
+            label = f"{self.vmax * j / 4:.3g}"
+            tw = psim.CalcTextSize(label)[0]
+            dl.AddText((min(max(x - tw / 2, x0 - 8), x0 + w + 8 - tw), y0 + h + 4), black, label)
 
     def note(self, message: str) -> None:
         """Add ``message`` to the view's messages (the last three are shown under the panel)."""
@@ -306,26 +394,46 @@ class BaseView:
         W, H = ps.get_window_size()
         pane = self.panel_width if reserve_right is None else reserve_right
         avail = max(W - pane - 30, W * 0.3)
+        avail_h = max(H - 2 * COLORBAR_H, H * 0.5)  # the colour scale below, the same margin above
         ps.set_vertical_fov_degrees(FOV_DEG)  # a narrow field: the copies at the ends are not seen askew
         t = math.tan(math.radians(FOV_DEG) / 2.0)
-        half_h = 1.04 * max(ext[1] / 2.0, ext[0] / 2.0 * H / avail)
+        half_h = 1.04 * max(ext[1] / 2.0 * H / avail_h, ext[0] / 2.0 * H / avail)
         D = half_h / t  # distance to the front of the faces
         world_per_px = 2.0 * D * t / H
         target = np.array([c[0] + (W / 2.0 - avail / 2.0 - 10) * world_per_px, c[1], c[2]])
         ps.look_at(np.array([target[0], target[1], hi[2] + D]), target)
 
     def world_to_screen(self, p) -> np.ndarray:
-        """Pixel coordinates (x right, y down) of a world point in the current view."""
+        """Pixel coordinates (x right, y down; window pixels, as the mouse reports them) of world points.
+
+        ``p`` is ``(3,)`` or ``(m, 3)``; the result ``(2,)`` or ``(m, 2)``.
+        """
         import polyscope as ps
 
         cam = ps.get_view_camera_parameters()
         E = np.asarray(cam.get_view_mat())
-        q = E @ np.r_[np.asarray(p, float), 1.0]
+        P = np.atleast_2d(np.asarray(p, float))
+        q = P @ E[:3, :3].T + E[:3, 3]
         t = math.tan(math.radians(cam.get_fov_vertical_deg()) / 2.0)
         W, H = ps.get_window_size()
-        x = q[0] / (-q[2] * t * cam.get_aspect())
-        y = q[1] / (-q[2] * t)
-        return np.array([(x + 1.0) / 2.0 * W, (1.0 - y) / 2.0 * H])
+        x = q[:, 0] / (-q[:, 2] * t * (W / H))
+        y = q[:, 1] / (-q[:, 2] * t)
+        out = np.c_[(x + 1.0) / 2.0 * W, (1.0 - y) / 2.0 * H]
+        return out[0] if np.ndim(p) == 1 else out
+
+    def screen_ray(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """The camera ray through window pixel ``xy``: ``(origin, unit direction)`` in world space
+        (the exact inverse of :meth:`world_to_screen`)."""
+        import polyscope as ps
+
+        cam = ps.get_view_camera_parameters()
+        E = np.asarray(cam.get_view_mat())
+        R, tr = E[:3, :3], E[:3, 3]
+        t = math.tan(math.radians(cam.get_fov_vertical_deg()) / 2.0)
+        W, H = ps.get_window_size()
+        dc = np.array([(2.0 * xy[0] / W - 1.0) * t * (W / H), (1.0 - 2.0 * xy[1] / H) * t, -1.0])
+        d = R.T @ dc
+        return -R.T @ tr, d / np.linalg.norm(d)
 
     def setup_scene(self, width: int = 1600, height: int = 900, headless: bool = False) -> None:
         """Global look: window size, front view, no ground, panel width; then build and frame."""
@@ -337,7 +445,7 @@ class BaseView:
         ps.set_front_dir("z_front")
         ps.set_ground_plane_mode("none")
         ps.set_background_color((1.0, 1.0, 1.0))
-        ps.set_build_default_gui_panels(not headless)
+        ps.set_build_default_gui_panels(self.polyscope_panels)  # off: the faces are not hidden behind them
         ps.set_right_gui_pane_width(self.panel_width)
         ps.set_do_default_mouse_interaction(True)
         self._bounds = None
@@ -381,24 +489,102 @@ class BaseView:
         finally:
             self.frozen = False
 
-    def run(self, screenshot=None, width: int = 1600, height: int = 900, echo=print, show: bool = False) -> Path | None:
+    def shown_faces(self) -> dict:
+        """Name -> ``(n, 3)`` world positions of every face as drawn (row shift included); views fill it."""
+        return {}
+
+    def pending(self) -> list[str]:
+        """Methods still working in the background (none by default)."""
+        return []
+
+    def busy(self) -> bool:
+        """Whether a method is fitting in the background (the frame rate is capped meanwhile)."""
+        return bool(self.pending())
+
+    def wait(self, timeout: float | None = None) -> None:
+        """Block until background work (fits in worker processes) is done; views without any return at once."""
+
+    def close(self) -> None:
+        """Release background resources (worker processes); views without any have nothing to do."""
+
+    def state(self) -> dict:
+        """What a script or a test may check about the window, as plain JSON values.
+
+        Keys: ``ticks`` (frames drawn), ``frame_times`` (seconds since the view was
+        made, one per frame, the last 5000), ``window`` (width, height), ``view_matrix``
+        (the camera's 4x4), ``panel`` (x, y, w, h of the view's panel), ``polyscope_panels``,
+        ``vmax`` (the colour scale's maximum, mm), ``widgets`` (label -> window box of every
+        panel widget drawn, so a script can click it), ``copies`` (name -> screen box x0, y0, x1, y1
+        of that face as drawn) and ``time``. Views add their own keys.
+        """
+        import polyscope as ps
+
+        out = {"time": time.monotonic() - self.clock0, "ticks": self.ticks,
+               "frame_times": [round(t, 4) for t in self.frame_times], "vmax": float(self.vmax),
+               "panel": self.panel_rect, "polyscope_panels": self.polyscope_panels,
+               "widgets": {k: v for k, v in self.ui.rects.items()}}
+        if ps.is_initialized():
+            out["window"] = list(ps.get_window_size())
+            out["view_matrix"] = np.asarray(ps.get_camera_view_matrix(), float).tolist()
+            boxes = {}
+            for name, P in self.shown_faces().items():
+                xy = self.world_to_screen(P)
+                boxes[name] = [float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
+                                  float(xy[:, 1].max())]
+            out["copies"] = boxes
+        return out
+
+    def write_state(self) -> None:
+        """Write :meth:`state` to ``state_path`` (JSON, atomically), if one is set."""
+        if self.state_path is None:
+            return
+        from facegeom.io import atomic_path
+
+        self._state_written = time.monotonic()
+        with atomic_path(self.state_path) as tmp:
+            Path(tmp).write_text(json.dumps(self.state()))
+
+    def run(self, screenshot=None, width: int = 1600, height: int = 900, echo=print, show: bool = False,
+            exit_after: float | None = None, state_path=None) -> Path | None:
         """Show the viewer (blocks until closed), or with ``screenshot`` render one PNG headless and return.
 
         ``show=True`` with ``screenshot``: when a display is present, render the PNG
         in the window and then keep the window open (the demo's last step).
+        ``exit_after`` closes the window after that many seconds; ``state_path``
+        receives :meth:`state` as JSON five times a second and when the window
+        closes (also on SIGTERM / SIGINT, which close the window cleanly): scripts
+        and tests watch the real window through it.
         """
         check_display(screenshot)
+        if exit_after is not None and not (exit_after > 0):
+            raise InputError(f"the time before the window closes must be positive, got {exit_after}")
+        self.state_path = None if state_path is None else Path(state_path)
         window = screenshot is None or (show and display_available())
         t = time.perf_counter()
-        init_polyscope(headless=not window)
-        self.setup_scene(width, height, headless=not window)
-        out = None
-        if screenshot is not None:
-            out = self.screenshot(screenshot)
-            echo(f"wrote {out} ({time.perf_counter() - t:.1f} s)")
-            if not window:
-                return out
-        import polyscope as ps
+        try:
+            init_polyscope(headless=not window)
+            self.setup_scene(width, height, headless=not window)
+            out = None
+            if screenshot is not None:
+                self.wait()
+                out = self.screenshot(screenshot)
+                echo(f"wrote {out} ({time.perf_counter() - t:.1f} s)")
+                if not window:
+                    return out
+            import polyscope as ps
 
-        ps.show()
-        return out
+            def stop(signum, frame):  # handled on the next frame, inside polyscope's loop
+                self._stop = True
+
+            old = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT)}
+            try:
+                if exit_after is not None:
+                    self._exit_at = time.monotonic() + float(exit_after)
+                ps.show()
+            finally:
+                for s, h in old.items():
+                    signal.signal(s, h)
+            self.write_state()
+            return out
+        finally:
+            self.close()

@@ -28,13 +28,26 @@ from facegeom.metrics import face_errors_mm
 from facegeom.model import KINDS, layout, named_expression, random_sparse_expression
 from facegeom.model.scenarios import driving_cases
 from facegeom.registry import LINEUPS, MethodSpec, parse_methods
-from facegeom.viewer.app import MARKER_COLOR, SELECTED_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
+from facegeom.viewer.app import (
+    MARKER_COLOR,
+    SELECTED_COLOR,
+    TRUTH_COLOR,
+    BaseView,
+    color_u32,
+    error_mm,
+    nice_ceiling,
+    row_offsets,
+)
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
 
 DEFAULT_METHODS = "rbf;biharmonic;tangent"
 LAYOUTS = ["ict80", "landmarks68", "random80", "random40"]
 NUDGE_RANGE_MM = 20.0
+PICK_PX = 10.0  # a press this close (window pixels) to a marker's centre grabs it: markers are drawn ~5 px wide
+KEY_STEP_MM = 0.5  # one arrow-key press (x4 with shift)
+NEAR_CM = 1.0  # "near the marker": rest-shape vertices within this distance of its vertex (state file)
+FAILED_COLOR = (0.9, 0.3, 0.3)
 _RBF_KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
                 "inverse_multiquadric", "inverse_quadratic")
 
@@ -85,7 +98,7 @@ def _rbf_kernels() -> tuple[str, ...]:
 
 
 class DriveView(BaseView):
-    """Source | methods... | target, live under marker nudges and drags.
+    """Source | methods... | target, live under marker drags, arrow keys and slider nudges.
 
     Parameters
     ----------
@@ -94,13 +107,19 @@ class DriveView(BaseView):
         ``;``-separated specs as for ``facegeom bench drive`` (``[label=]name[:k=v,...]``).
     seed, expression, intensity, layout_name, layout_seed, bench_case
         The case (see :func:`make_drive_case`).
+    background : bool
+        Fit and deform every method in its own worker process
+        (:mod:`facegeom.viewer.workers`): the window never waits for a fit and a
+        method still fitting shows "fitting..." while the others keep updating.
+        ``False`` (scripts, tests, screenshots) fits and deforms in this process, in order.
     """
 
     title = "facegeom view drive"
+    colorbar_title = "distance to the true target (mm)"
 
     def __init__(self, model, methods=DEFAULT_METHODS, seed: int = 0, expression: str = "happiness",
                  intensity: float = 0.9, layout_name: str = "ict80", layout_seed: int = 0,
-                 bench_case: int | None = None):
+                 bench_case: int | None = None, background: bool = False):
         super().__init__()
         self.model = model
         specs = (parse_methods(methods, "deformers", LINEUPS["drive"]) if isinstance(methods, str)
@@ -120,31 +139,58 @@ class DriveView(BaseView):
         self.rbf_kernel = str(next((s.params.get("kernel") for s in specs if s.name == "rbf"
                                     and "kernel" in s.params), "thin_plate_spline"))
         self.kernels = list(_rbf_kernels())
-        self.deformers: dict[str, object] = {}
+        self.background = bool(background)
+        self.deformers: dict[str, object] = {}  # in-process mode only
+        self.status: dict[str, str] = {}  # label -> "fitting" | "ready" | "failed"
+        self.fit_started: dict[str, float] = {}
+        self.fit_log: list[dict] = []  # every finished fit: label, start, end (s since the view was made), status
         self.fit_s: dict[str, float] = {}
         self.deform_ms: dict[str, float] = {}
         self.results: dict[str, np.ndarray] = {}
         self.failed: dict[str, str] = {}
+        self.workers: dict = {}  # label -> MethodWorker (background mode)
+        self._jobs: dict[str, dict[int, tuple]] = {}  # label -> job id -> ("fit", None) | ("deform", version)
+        self._shown_version: dict[str, int] = {}
+        self.version = 0  # bumped by every marker change
         self.marker = 0
+        self.hover: int | None = None
         self._drag = None
+        self.drags = 0  # drags completed (state file)
+        self._auto_vmax = True
+        self._near: dict = {}
         self._built = False
         self.load_case()
 
     # ------------------------------------------------------------------ model side (no polyscope)
     def load_case(self, **changes) -> None:
-        """(Re)build the case, fit every selected method, deform with the labels; offsets reset."""
+        """(Re)build the case, fit every selected method, deform with the labels; offsets reset.
+
+        In background mode the fits only start here; :meth:`poll` installs them.
+        """
         self.case_args.update(changes)
         self.case = make_drive_case(self.model, **self.case_args)
         self.offsets = np.zeros_like(self.case.labels)
+        self.version += 1
         self.marker = min(self.marker, self.case.handles.size - 1)
         self.deformers.clear()
         self.failed.clear()
+        self.results.clear()
+        self._near = {}
         for label in self.selected:
             self.fit_method(label)
         self.update_deform(refresh=False)
-        errs = [np.percentile(error_mm(Y, self.case.target)[:FACE_AREA], 99) for Y in self.results.values()]
-        self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
+        self._auto_vmax = True
+        self._set_auto_vmax()
         self.rebuild()
+
+    def _set_auto_vmax(self) -> None:
+        """The colour scale from a typical method's 99th percentile, once every method has a face."""
+        if not self._auto_vmax or any(self.status.get(x) == "fitting" for x in self.selected):
+            return
+        errs = [np.percentile(error_mm(Y, self.case.target)[:FACE_AREA], 99) for x, Y in self.results.items()
+                if x in self.selected]
+        self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)
+        self._auto_vmax = False
 
     def spec_for(self, label: str) -> MethodSpec:
         """The spec of method ``label`` with the panel's parameters applied.
@@ -165,26 +211,53 @@ class DriveView(BaseView):
         """Build method ``label`` and fit it on the case's source face and handles (timed, in ``fit_s``).
 
         A :class:`~facegeom.errors.FacegeomError` is not raised: the message goes
-        to ``failed[label]`` and the method's last face is dropped.
+        to ``failed[label]`` and the method's last face is dropped. In background
+        mode the fit is sent to the method's worker and ``status[label]`` is
+        ``"fitting"`` until :meth:`poll` sees the answer (the last face stays shown).
         """
         self.failed.pop(label, None)
         self.deformers.pop(label, None)
+        self.fit_started[label] = time.monotonic() - self.clock0
+        if self.background:
+            from facegeom.viewer.workers import MethodWorker
+
+            if label not in self.workers:
+                self.workers[label] = MethodWorker()
+            job = self.workers[label].submit("fit_deformer", (self.spec_for(label), self.case.source,
+                                                              self.model.triangles, self.case.handles))
+            self._jobs.setdefault(label, {})[job] = ("fit", None)
+            self.status[label] = "fitting"
+            return
         try:
             d = self.spec_for(label).build("deformers")
             t = time.perf_counter()
             d.fit(self.case.source, self.model.triangles, self.case.handles)
             self.fit_s[label] = time.perf_counter() - t
             self.deformers[label] = d
+            self.status[label] = "ready"
         except FacegeomError as exc:
             self.failed[label] = str(exc)
+            self.status[label] = "failed"
             self.results.pop(label, None)
+        self._log_fit(label)
+
+    def _log_fit(self, label: str) -> None:
+        self.fit_log.append({"label": label, "start": self.fit_started.get(label, 0.0),
+                             "end": time.monotonic() - self.clock0, "status": self.status.get(label)})
 
     def positions(self) -> np.ndarray:
         """The handle positions the methods are driven with: labels + user offsets, ``(k, 3)`` cm."""
         return self.case.labels + self.offsets
 
     def update_deform(self, refresh: bool = True) -> None:
-        """One factorized ``deform`` per fitted method (timed), then refresh the faces."""
+        """One factorized ``deform`` per fitted method (timed), then refresh the faces.
+
+        In background mode the new positions go to every ready worker and the faces
+        change when :meth:`poll` collects the answers.
+        """
+        if self.background:
+            self.poll()
+            return
         P = self.positions()
         for label, d in self.deformers.items():
             try:
@@ -194,16 +267,81 @@ class DriveView(BaseView):
                 self.results[label] = Y
             except FacegeomError as exc:
                 self.failed[label] = str(exc)
+                self.status[label] = "failed"
         if refresh:
             self.refresh()
 
+    def poll(self) -> bool:
+        """Background mode: collect finished fits and deforms, send the newest marker positions to every
+        ready worker that is idle. Never blocks. Returns whether a face changed."""
+        changed = False
+        for label, w in list(self.workers.items()):
+            jobs = self._jobs.setdefault(label, {})
+            for job, status, payload, secs in w.poll():
+                kind, version = jobs.pop(job, (None, None))
+                if kind == "fit" and not any(k == "fit" for k, _ in jobs.values()):  # the newest fit
+                    if status == "ok":
+                        self.status[label] = "ready"
+                        self.fit_s[label] = secs
+                        self._shown_version.pop(label, None)
+                    else:
+                        self.status[label] = "failed"
+                        self.failed[label] = payload
+                        self.results.pop(label, None)
+                        changed = True
+                    self._log_fit(label)
+                elif kind == "deform":
+                    if status == "ok":
+                        self.results[label] = payload
+                        self.deform_ms[label] = secs * 1e3
+                        self._shown_version[label] = version
+                        changed = True
+                    elif not any(k == "fit" for k, _ in jobs.values()):
+                        self.status[label] = "failed"
+                        self.failed[label] = payload
+            if (label in self.selected and self.status.get(label) == "ready" and not jobs
+                    and self._shown_version.get(label) != self.version):
+                job = w.submit("deform", self.positions())
+                jobs[job] = ("deform", self.version)
+        if changed:
+            self._set_auto_vmax()
+            self.refresh()
+        return changed
+
+    def pending(self) -> list[str]:
+        """Selected methods whose fit or newest deform has not come back yet (background mode)."""
+        return [x for x in self.selected if self.status.get(x) == "fitting"
+                or (self.status.get(x) == "ready" and self._shown_version.get(x, -1) != self.version)
+                ] if self.background else []
+
+    def busy(self) -> bool:
+        """Whether a selected method is fitting (deforms in flight do not count)."""
+        return any(self.status.get(x) == "fitting" for x in self.selected)
+
+    def wait(self, timeout: float | None = 120.0) -> None:
+        """Background mode: poll until every selected method has fitted and shows the newest markers."""
+        t = time.monotonic()
+        while self.pending() and (timeout is None or time.monotonic() - t < timeout):
+            self.poll()
+            time.sleep(0.01)
+        self.poll()
+
+    def close(self) -> None:
+        """Stop the worker processes."""
+        for w in self.workers.values():
+            w.close()
+        self.workers.clear()
+        self._jobs.clear()
+
     def set_offset(self, marker: int, offset_cm) -> None:
-        """Move marker ``marker`` to its label + ``offset_cm``; every method re-deforms. Sliders and drags land here."""
+        """Move marker ``marker`` to its label + ``offset_cm``; every method re-deforms. Sliders, keys and drags
+        land here."""
         k = self.case.handles.size
         if not 0 <= int(marker) < k:
             raise InputError(f"marker index {marker} is out of range [0, {k})")
         self.marker = int(marker)
         self.offsets[self.marker] = np.asarray(offset_cm, dtype=np.float64)
+        self.version += 1
         self.update_deform()
 
     def nudge(self, marker: int, delta_mm) -> None:
@@ -215,7 +353,7 @@ class DriveView(BaseView):
         unknown = [x for x in labels if x not in self.specs]
         if unknown:
             raise InputError(f"no deformer {unknown[0]!r}; available: {', '.join(self.specs)}")
-        new = [x for x in labels if x not in self.deformers]  # new ones, and failed ones again
+        new = [x for x in labels if self.status.get(x) not in ("ready", "fitting")]  # new ones, failed ones again
         self.selected = list(labels)
         for label in new:
             self.fit_method(label)
@@ -244,9 +382,28 @@ class DriveView(BaseView):
         """Names of the faces in the row, left to right: ``source``, the selected methods, ``target``."""
         return ["source", *[x for x in self.selected], "target"]
 
+    def draggable(self) -> list[str]:
+        """The copies whose markers the mouse can grab: every method's face and the target."""
+        return [*self.selected, "target"]
+
+    def face(self, name: str) -> np.ndarray:
+        """The ``(n, 3)`` face drawn as copy ``name`` (without its row shift): a method's last result, or the
+        source while it has none."""
+        c = self.case
+        if name == "source":
+            return c.source
+        if name == "target":
+            return c.target
+        return self.results.get(name, c.source)
+
+    def shown_faces(self) -> dict:
+        """Copy name -> its face as drawn, row shift included."""
+        return {n: self.face(n) + self.shifts[n] for n in self.copies()} if self._built else {}
+
     def build(self) -> None:
         """Register the row: source and target with their markers, one face per selected method with the
-        handle positions it is driven with (a failed method's face is red), then :meth:`refresh`."""
+        handle positions it is driven with (a failed method's face is red, a fitting one grey), then
+        :meth:`refresh`. On the target, the markers show where the methods are driven to."""
         self._built = True
         c, F = self.case, self.model.triangles
         names = self.copies()
@@ -255,12 +412,11 @@ class DriveView(BaseView):
         self.mesh("source", c.source, F, self.shifts["source"])
         self.points("source markers", c.source[c.handles], self.shifts["source"], radius=self.radius)
         self.mesh("target", c.target, F, self.shifts["target"])
-        self.points("target markers", c.labels, self.shifts["target"], radius=self.radius)
+        self.points("target markers", self.positions(), self.shifts["target"], radius=self.radius)
         for label in self.selected:
-            V = self.results.get(label, c.source)
-            m = self.mesh(label, V, F, self.shifts[label])
+            m = self.mesh(label, self.face(label), F, self.shifts[label])
             if label in self.failed:
-                m.set_color((0.9, 0.3, 0.3))
+                m.set_color(FAILED_COLOR)
             self.points(f"{label} markers", self.positions(), self.shifts[label], radius=self.radius)
         self.refresh()
 
@@ -274,6 +430,7 @@ class DriveView(BaseView):
         """Push the current faces, markers and error colours to polyscope."""
         import polyscope as ps
 
+        self._capture_rest_faces()
         if not ps.is_initialized() or not self._built:
             return
         c = self.case
@@ -282,83 +439,208 @@ class DriveView(BaseView):
         colors = np.tile(MARKER_COLOR, (c.handles.size, 1))
         colors[self.marker] = SELECTED_COLOR
         P = self.positions()
+        for name in self.draggable():
+            if not ps.has_point_cloud(f"{name} markers"):
+                continue
+            pc = ps.get_point_cloud(f"{name} markers")
+            pc.update_point_positions(P + self.shifts[name])
+            pc.add_color_quantity("selected", colors, enabled=True)
         for label in self.selected:
             if not ps.has_surface_mesh(label):
                 continue
-            pc = ps.get_point_cloud(f"{label} markers")
-            pc.update_point_positions(P + self.shifts[label])
-            pc.add_color_quantity("selected", colors, enabled=True)
-            if label in self.results and label not in self.failed:
-                m = ps.get_surface_mesh(label)
+            m = ps.get_surface_mesh(label)
+            if label in self.failed:
+                m.remove_all_quantities()
+                m.set_color(FAILED_COLOR)
+            elif label in self.results:
                 m.update_vertex_positions(self.results[label] + self.shifts[label])
                 self.error_colors(m, error_mm(self.results[label], c.target), self.vmax)
+            else:  # still fitting: the source shape, grey
+                m.remove_all_quantities()
+                m.set_color(TRUTH_COLOR)
 
-    # ------------------------------------------------------------------ dragging
-    def _copy_of_cloud(self, name: str) -> str | None:
-        for label in self.selected:
-            if name == f"{label} markers":
-                return label
-        return None
+    # ------------------------------------------------------------------ mouse and keys
+    def marker_screen(self) -> dict:
+        """Copy name -> ``(k, 2)`` window pixels of its markers, for every draggable copy."""
+        P = self.positions()
+        names = self.draggable()
+        xy = self.world_to_screen(np.concatenate([P + self.shifts[n] for n in names]))
+        return {n: xy[i * len(P):(i + 1) * len(P)] for i, n in enumerate(names)}
+
+    def marker_at(self, screen_xy, radius_px: float = PICK_PX):
+        """``(copy, marker)`` of the marker nearest to window pixel ``screen_xy`` within ``radius_px``, or None."""
+        best, where = float(radius_px), None
+        q = np.asarray(screen_xy, float)
+        for name, xy in self.marker_screen().items():
+            d = np.linalg.norm(xy - q, axis=1)
+            i = int(np.argmin(d))
+            if d[i] <= best:
+                best, where = float(d[i]), (name, i)
+        return where
 
     def begin_drag(self, screen_xy) -> bool:
-        """Pick at ``screen_xy``; on a method's marker, select it and start dragging. Returns whether it did."""
+        """Grab the marker within :data:`PICK_PX` pixels of ``screen_xy`` (on a method's face or on the target):
+        select it and start dragging; the camera ignores the mouse until :meth:`end_drag`. Returns whether it did."""
         import polyscope as ps
 
-        r = ps.pick(screen_coords=tuple(float(x) for x in screen_xy))
-        label = self._copy_of_cloud(r.structure_name) if r.is_hit else None
-        if label is None:
+        hit = self.marker_at(screen_xy)
+        if hit is None:
             return False
-        m = int(r.structure_data.get("index", r.local_index))
-        cam = ps.get_view_camera_parameters()
-        anchor = self.positions()[m] + self.shifts[label]
-        self._drag = (m, label, anchor, np.asarray(cam.get_look_dir(), float))
+        name, m = hit
+        o, d = self.screen_ray(screen_xy)
+        n = np.asarray(ps.get_view_camera_parameters().get_look_dir(), float)
+        anchor = self.positions()[m] + self.shifts[name]  # the marker, in the copy's place
+        grab = o + d * float((anchor - o) @ n) / float(d @ n)  # where the press meets the marker's plane
+        self._drag = (m, anchor, grab, n, self.offsets[m].copy())
         self.marker = m
         ps.set_do_default_mouse_interaction(False)
         self.refresh()
         return True
 
     def drag_to(self, screen_xy) -> None:
-        """Move the dragged marker under ``screen_xy``, in the plane through it facing the camera."""
-        import polyscope as ps
-
+        """Move the dragged marker with the mouse: by the press-to-``screen_xy`` motion, in the plane through the
+        marker facing the camera (the marker does not jump to the cursor when the press was a few pixels off)."""
         if self._drag is None:
             return
-        m, label, anchor, n = self._drag
-        o = np.asarray(ps.get_view_camera_parameters().get_position(), float)
-        d = ps.screen_coords_to_world_ray(tuple(float(x) for x in screen_xy))
+        m, anchor, grab, n, start = self._drag
+        o, d = self.screen_ray(screen_xy)
         denom = float(d @ n)
         if abs(denom) < 1e-9:
             return
         hit = o + d * float((anchor - o) @ n) / denom
-        self.set_offset(m, hit - self.shifts[label] - self.case.labels[m])
+        new = start + (hit - grab)
+        if not np.array_equal(new, self.offsets[m]):
+            self.set_offset(m, new)
 
-    def end_drag(self) -> None:
-        """Stop dragging and give the mouse back to polyscope's camera controls."""
+    def end_drag(self, screen_xy=None) -> None:
+        """Finish the drag (at ``screen_xy`` if given) and give the mouse back to polyscope's camera."""
         import polyscope as ps
 
+        if self._drag is not None and screen_xy is not None:
+            self.drag_to(screen_xy)
+        if self._drag is not None:
+            self.drags += 1
         self._drag = None
         ps.set_do_default_mouse_interaction(True)
 
     def handle_mouse(self) -> None:
-        """Mouse dragging, once per frame: a left click the panel does not take starts a drag
-        (:meth:`begin_drag`), holding the button moves the marker (:meth:`drag_to`), releasing it ends the drag."""
+        """Mouse dragging, once per frame.
+
+        Polyscope reads the mouse for its camera before this callback runs, but only
+        starts orbiting once the button has moved a few pixels: a press seen here
+        switches its mouse handling off in time. The press position is ImGui's
+        (where the button went down, even if the mouse moved in the same frame), and
+        a release applies the last position first (a fast flick can move and release
+        within one frame). Off the markers, or over a panel, the camera works as usual.
+        """
         import polyscope.imgui as psim
 
         io = psim.GetIO()
+        self.hover = None
         if self._drag is None:
-            if psim.IsMouseClicked(0) and not io.WantCaptureMouse:
-                self.begin_drag(io.MousePos)
+            if not io.WantCaptureMouse:
+                hit = self.marker_at(io.MousePos)
+                self.hover = None if hit is None else hit[1]
+                if psim.IsMouseClicked(0):
+                    self.begin_drag(io.MouseClickedPos[0])
+            if self.hover is not None or self._drag is not None:
+                psim.SetMouseCursor(psim.ImGuiMouseCursor_Hand)
         elif psim.IsMouseDown(0):
             self.drag_to(io.MousePos)
+            psim.SetMouseCursor(psim.ImGuiMouseCursor_Hand)
         else:
-            self.end_drag()
+            self.end_drag(io.MousePos)
+
+    def handle_keys(self) -> None:
+        """Arrow keys nudge the selected marker in the screen plane (left/right, up/down), page up/down towards or
+        away from the camera; :data:`KEY_STEP_MM` per press, four times that with shift. Not while a widget
+        has the keyboard."""
+        import polyscope as ps
+        import polyscope.imgui as psim
+
+        io = psim.GetIO()
+        if io.WantCaptureKeyboard or self._drag is not None:
+            return
+        cam = ps.get_view_camera_parameters()
+        right, up = np.asarray(cam.get_right_dir(), float), np.asarray(cam.get_up_dir(), float)
+        look = np.asarray(cam.get_look_dir(), float)
+        step = KEY_STEP_MM * (4.0 if io.KeyShift else 1.0)
+        delta = np.zeros(3)
+        for key, v in ((psim.ImGuiKey_LeftArrow, -right), (psim.ImGuiKey_RightArrow, right),
+                       (psim.ImGuiKey_UpArrow, up), (psim.ImGuiKey_DownArrow, -up),
+                       (psim.ImGuiKey_PageUp, -look), (psim.ImGuiKey_PageDown, look)):
+            if psim.IsKeyPressed(key):
+                delta += v * step
+        if delta.any():
+            self.nudge(self.marker, delta)
+
+    def draw_marker_rings(self) -> None:
+        """Rings around the selected marker (magenta) and the one under the mouse (black, thicker) on every
+        draggable copy, so the user sees what a press would grab and what the keys move."""
+        import polyscope.imgui as psim
+
+        dl = psim.GetBackgroundDrawList()
+        xy = self.marker_screen()
+        for name in xy:
+            p = xy[name][self.marker]
+            dl.AddCircle((float(p[0]), float(p[1])), 7.0, color_u32(SELECTED_COLOR), 0, 2.0)
+            if self.hover is not None:
+                p = xy[name][self.hover]
+                dl.AddCircle((float(p[0]), float(p[1])), PICK_PX, color_u32((0.05, 0.05, 0.05)), 0, 2.5)
+
+    def _capture_rest_faces(self) -> None:
+        if not self.offsets.any():
+            for n in self.copies():
+                if n in ("source", "target") or (n in self.results and n not in self.pending()):
+                    self._near.setdefault(n, self.face(n).copy())
+
+    def near_marker_mm(self) -> dict:
+        """Copy name -> largest displacement (mm) of the drawn face, against the face it showed with every
+        offset at zero, over the rest-shape vertices within :data:`NEAR_CM` of the selected marker's vertex.
+        Copies without such a face yet (still fitting) are left out."""
+        c = self.case
+        self._capture_rest_faces()
+        v = int(c.handles[self.marker])
+        ids = np.flatnonzero(np.linalg.norm(c.source - c.source[v], axis=1) <= NEAR_CM)
+        return {n: float(np.linalg.norm(self.face(n)[ids] - self._near[n][ids], axis=1).max() * CM_TO_MM)
+                for n in self.copies() if n in self._near}
+
+    def at_marker_mm(self) -> dict:
+        """Copy name -> distance (mm) from its face's vertex under the selected marker to where that marker is
+        driven (label + offset): ~0 for a method that interpolates its markers, the offset for the target."""
+        v, P = int(self.case.handles[self.marker]), self.positions()[self.marker]
+        return {n: float(np.linalg.norm(self.face(n)[v] - P) * CM_TO_MM) for n in self.copies()
+                if n in ("source", "target") or n in self.results}
+
+    def state(self) -> dict:
+        """:meth:`BaseView.state` plus the drive view's: ``copies_order``, ``selected``, ``marker``, ``hover``,
+        ``dragging``, ``drags``, ``offsets_mm`` (k, 3), ``status`` / ``fit_s`` / ``deform_ms`` per method,
+        ``fit_log``, ``pending``, ``near_marker_mm`` and ``at_marker_mm`` (see those methods)."""
+        out = super().state()
+        out.update(copies_order=self.copies(), selected=list(self.selected), marker=int(self.marker),
+                   hover=self.hover, dragging=self._drag is not None, drags=self.drags,
+                   offsets_mm=(self.offsets * CM_TO_MM).tolist(), status=dict(self.status),
+                   fit_s=dict(self.fit_s), deform_ms=dict(self.deform_ms), fit_log=list(self.fit_log),
+                   pending=self.pending(), near_marker_mm=self.near_marker_mm(), failed=dict(self.failed),
+                   at_marker_mm=self.at_marker_mm())
+        return out
+
+    def rebuild(self) -> None:
+        """:meth:`BaseView.rebuild`, forgetting the faces :meth:`near_marker_mm` compares with."""
+        self._near = {}
+        super().rebuild()
 
     # ------------------------------------------------------------------ panel
     def callback(self) -> None:
-        """:meth:`BaseView.callback`, then mouse dragging (not while a screenshot is taken)."""
+        """Background results, :meth:`BaseView.callback`, then the mouse, the keys and the marker rings (input
+        only when no screenshot is being taken)."""
+        if self.background:
+            self.poll()
         super().callback()
         if not self.frozen:
             self.handle_mouse()
+            self.handle_keys()
+        self.draw_marker_rings()
 
     def panel(self) -> None:
         """Per-method timings and errors (mm), then the Case, Methods and Marker sections.
@@ -375,12 +657,18 @@ class DriveView(BaseView):
         ch, v = ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
         if ch:
             self.vmax = float(v)
+            self._auto_vmax = False
             self.refresh()
         psim.TextUnformatted("per method: last deform (ms), fit (s); error over the face area (mm)")
+        now = time.monotonic() - self.clock0
         for label in self.selected:
             if label in self.failed:
                 psim.TextColored((1.0, 0.3, 0.3, 1.0), f"{label}: failed: {self.failed[label]}")
                 continue
+            if self.status.get(label) == "fitting":
+                what = "refitting" if label in self.results else "fitting"
+                psim.TextColored((0.95, 0.6, 0.1, 1.0),
+                                 f"{label}: {what}... {now - self.fit_started.get(label, now):.1f} s")
             if label not in self.results:
                 continue
             e = self.errors(label)
@@ -442,7 +730,9 @@ class DriveView(BaseView):
                 self.set_params(rbf_kernel=v)
 
         if psim.CollapsingHeader("Marker", psim.ImGuiTreeNodeFlags_DefaultOpen):
-            psim.TextWrapped("Drag a marker on any method's face with the left mouse button, or nudge it:")
+            psim.TextWrapped("Drag a marker on any method's face or on the target with the left mouse button "
+                             "(a ring shows what a press grabs), nudge the selected one with the arrow keys "
+                             "(page up/down: depth; shift: x4) or with the sliders:")
             k = c.handles.size
             ch, v = ui.slider_int("marker", self.marker, 0, k - 1)
             if ch:

@@ -101,14 +101,23 @@ class FitView(BaseView):
         Fitter specs (``;``-separated, as for ``facegeom bench fit``).
     case, seed, kind, noise_px, mesh
         The target (see :func:`make_fit_case`).
+    background : bool
+        Fit in worker processes (:mod:`facegeom.viewer.workers`): the window opens at
+        once and never freezes; a fitter still running shows "fitting..." and its face
+        appears when it is done. ``False`` fits in this process, in order.
     """
 
     title = "facegeom view fit"
     panel_width = 460
+    colorbar_title = "distance to the true face (mm)"
 
     def __init__(self, model, methods=DEFAULT_METHODS, case: int = 0, seed: int = 0, kind: str = "landmarks",
-                 noise_px: float = 1.0, mesh=None):
+                 noise_px: float = 1.0, mesh=None, background: bool = False):
         super().__init__()
+        self.background = bool(background)
+        self.workers: dict = {}
+        self._jobs: dict[str, int] = {}  # label -> the newest fit job
+        self.fit_started: dict[str, float] = {}
         self.model = model
         specs = (parse_methods(methods, "fitters", LINEUPS["fit"]) if isinstance(methods, str)
                  else list(methods))
@@ -133,11 +142,61 @@ class FitView(BaseView):
         self.case = make_fit_case(self.model, **self.case_args)
         self.results.clear()
         self.failed.clear()
+        self._jobs.clear()
         for label in self.selected:
             self.fit_method(label)
+        self._auto_vmax = True
+        self._set_auto_vmax()
+        self.rebuild()
+
+    def _set_auto_vmax(self) -> None:
+        if not self._auto_vmax or self.pending():
+            return
         errs = [np.percentile(error_mm(r.vertices, self.case.truth)[:FACE_AREA], 99) for r in self.results.values()]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
-        self.rebuild()
+        self._auto_vmax = False
+
+    def pending(self) -> list[str]:
+        """Selected fitters still fitting in a worker (background mode)."""
+        return [x for x in self.selected if x in self._jobs]
+
+    def poll(self) -> bool:
+        """Background mode: install every finished fit (never blocks); returns whether one arrived."""
+        got = False
+        for label, w in list(self.workers.items()):
+            for job, status, payload, secs in w.poll():
+                if self._jobs.get(label) != job:
+                    continue  # an older fit of this label
+                del self._jobs[label]
+                got = True
+                if status == "ok":
+                    self.results[label] = payload
+                    self.time_ms[label] = secs * 1e3
+                else:
+                    self.failed[label] = payload
+        if got:
+            self._set_auto_vmax()
+            self.rebuild()
+        return got
+
+    def wait(self, timeout: float | None = 300.0) -> None:
+        """Background mode: poll until no fitter is running."""
+        t = time.monotonic()
+        while self.pending() and (timeout is None or time.monotonic() - t < timeout):
+            self.poll()
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        """Stop the worker processes."""
+        for w in self.workers.values():
+            w.close()
+        self.workers.clear()
+
+    def callback(self) -> None:
+        """Install finished background fits, then :meth:`BaseView.callback`."""
+        if self.background:
+            self.poll()
+        super().callback()
 
     def fit_method(self, label: str) -> None:
         """Build fitter ``label`` and fit it to the case (timed, in ``time_ms``).
@@ -146,6 +205,16 @@ class FitView(BaseView):
         to ``failed[label]`` and the fitter's last result is dropped.
         """
         self.failed.pop(label, None)
+        self.fit_started[label] = time.monotonic() - self.clock0
+        if self.background:
+            from facegeom.viewer.workers import MethodWorker
+
+            if label not in self.workers:
+                self.workers[label] = MethodWorker()
+            self.results.pop(label, None)
+            self._jobs[label] = self.workers[label].submit("fit_fitter", (self.specs[label], self.case.rig,
+                                                                          self.case.target))
+            return
         try:
             f = self.specs[label].build("fitters")
             t = time.perf_counter()
@@ -168,9 +237,23 @@ class FitView(BaseView):
             raise InputError(f"no fitter {unknown[0]!r}; available: {', '.join(self.specs)}")
         self.selected = list(labels)
         for label in labels:
-            if label not in self.results:  # new ones, and failed ones again
+            if label not in self.results and label not in self._jobs:  # new ones, and failed ones again
                 self.fit_method(label)
         self.rebuild()
+
+    def shown_faces(self) -> dict:
+        """Copy name -> its face as drawn (row shift included)."""
+        if not self._built:
+            return {}
+        return {n: (self.case.truth if n == "truth" else self.results[n].vertices) + self.shifts[n]
+                for n in self.copies() if n in self.shifts}
+
+    def state(self) -> dict:
+        """:meth:`BaseView.state` plus ``copies_order``, ``pending`` fitters, ``time_ms`` and ``failed``."""
+        out = super().state()
+        out.update(copies_order=self.copies(), pending=self.pending(), time_ms=dict(self.time_ms),
+                   failed=dict(self.failed))
+        return out
 
     def shown(self) -> list[str]:
         """The selected fitters that have a result (failed ones left out), in selection order."""
@@ -265,11 +348,19 @@ class FitView(BaseView):
         ch, v = ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
         if ch:
             self.vmax = float(v)
+            self._auto_vmax = False
             self.refresh_colors()
         psim.Separator()
+        now = time.monotonic() - self.clock0
         for label in self.selected:
             if label in self.failed:
                 psim.TextColored((1.0, 0.3, 0.3, 1.0), f"{label}: failed: {self.failed[label]}")
+                continue
+            if label in self._jobs:
+                psim.TextColored((0.95, 0.6, 0.1, 1.0),
+                                 f"{label}: fitting... {now - self.fit_started.get(label, now):.1f} s")
+                continue
+            if label not in self.results:
                 continue
             r = self.results[label]
             e = error_mm(r.vertices, c.truth)[:FACE_AREA].mean()

@@ -24,6 +24,11 @@ def _output_options(f):
                      help="Window (or image) size in pixels.")(f)
     f = click.option("--screenshot", type=click.Path(dir_okay=False), default=None,
                      help="Render a PNG headless (no window, no display needed) and exit.")(f)
+    f = click.option("--exit-after", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+                     help="Close the window after this many seconds (scripts, demos, tests).")(f)
+    f = click.option("--state", "state_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+                     help="Write the window's state (frames, camera, panel, markers, per-method status) to this "
+                          "JSON file five times a second and on exit; SIGTERM closes the window cleanly.")(f)
     return f
 
 
@@ -57,9 +62,9 @@ def _check_screenshot(screenshot, *inputs) -> None:
     check_writable_folder(screenshot)
 
 
-def _run(view, screenshot, size):
+def _run(view, screenshot, size, exit_after=None, state_path=None):
     w, h = _size(size)
-    view.run(screenshot=screenshot, width=w, height=h, echo=click.echo)
+    view.run(screenshot=screenshot, width=w, height=h, echo=click.echo, exit_after=exit_after, state_path=state_path)
 
 
 @click.group("view")
@@ -77,7 +82,8 @@ def view():
 @click.option("--seed", default=0, show_default=True, type=int,
               help="Identity seed (or bench seed with --bench-case).")
 @click.option("--expression", default="happiness", show_default=True,
-              help="A named expression (facegeom.model.expressions: happiness, jaw-open, pucker, ...) or random-sparse.")
+              help="A named expression (facegeom.model.expressions: happiness, jaw-open, pucker, ...) "
+                   "or random-sparse.")
 @click.option("--intensity", default=0.9, show_default=True, type=click.FloatRange(0, 2),
               help="Scale of the named expression.")
 @click.option("--bench-case", type=click.IntRange(0), default=None,
@@ -91,7 +97,7 @@ def view():
 @_output_options
 @click.pass_obj
 def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_name, layout_seed, marker, nudge,
-               screenshot, size):
+               screenshot, size, exit_after, state_path):
     """Source | every deformer | true target, error colours (mm); drag or nudge a marker, all update live."""
     from facegeom.errors import InputError
     from facegeom.viewer.app import check_display
@@ -110,13 +116,14 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
     from facegeom.viewer.drive import DriveView
 
     v = DriveView(obj.face_model(), methods, seed=seed, expression=expression, intensity=intensity,
-                  layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case)
+                  layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case,
+                  background=screenshot is None)  # a window: fits in worker processes, it never freezes
     if marker >= v.case.handles.size:
         raise InputError(f"--marker {marker} is out of range: the layout has {v.case.handles.size} markers")
     v.marker = marker
     if delta is not None:
         v.nudge(marker, delta)
-    _run(v, screenshot, size)
+    _run(v, screenshot, size, exit_after, state_path)
 
 
 @view.command("retarget")
@@ -126,7 +133,7 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
 @_output_options
 @click.pass_obj
 def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames, labels, seed, frame, screenshot,
-                  size):
+                  size, exit_after, state_path):
     """Play a take on the actor beside the character's retargeted markers, per-frame errors."""
     from facegeom.viewer.app import check_display
 
@@ -137,7 +144,8 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
 
     model = obj.face_model()
     seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
-    _run(RetargetView(model, seq, methods, labels, frame=min(frame, frames - 1)), screenshot, size)
+    _run(RetargetView(model, seq, methods, labels, frame=min(frame, frames - 1)), screenshot, size, exit_after,
+         state_path)
 
 
 @view.command("animate")
@@ -147,7 +155,7 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
 @_output_options
 @click.pass_obj
 def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, start, frames, labels, seed, frame,
-                 screenshot, size):
+                 screenshot, size, exit_after, state_path):
     """Play the actor beside the driven character mesh (per-vertex error) and the true character."""
     from facegeom.viewer.app import check_display
 
@@ -158,7 +166,8 @@ def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, s
 
     model = obj.face_model()
     seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
-    _run(AnimateView(model, seq, retargeters, deformer, labels, frame=min(frame, frames - 1)), screenshot, size)
+    _run(AnimateView(model, seq, retargeters, deformer, labels, frame=min(frame, frames - 1)), screenshot, size,
+         exit_after, state_path)
 
 
 @view.command("fit")
@@ -175,7 +184,7 @@ def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, s
               help="Fit this mesh instead (in correspondence with the ICT face; generic rig).")
 @_output_options
 @click.pass_obj
-def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size):
+def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size, exit_after, state_path):
     """A target beside every fitter's face (error colours) and its coefficients by blendshape name."""
     from facegeom.errors import InputError
     from facegeom.viewer.app import check_display
@@ -194,5 +203,5 @@ def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, 
         if mesh.shape[0] != model.n_vertices:
             raise InputError(f"the mesh has {mesh.shape[0]} vertices but the ICT face {model.n_vertices}: "
                              f"it must be in vertex correspondence", target_path)
-    _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh),
-         screenshot, size)
+    _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh,
+                 background=screenshot is None), screenshot, size, exit_after, state_path)
