@@ -56,8 +56,14 @@ HUBER = 2.5
 GN_ITERATIONS = 8
 """Gauss-Newton steps of the joint pose refinement (it stops earlier once the pose no longer moves)."""
 
-DAMPING = 1e-4
-"""Ridge on the weights during the pose refinement, relative to the mean squared norm of a shape."""
+DAMPING = 1e-6
+"""Step damping of the weights during the pose refinement, relative to the mean squared norm of a shape.
+
+Measured on 300 synthetic frames (ict80, random weights and head poses): with
+0.5 mm marker noise the weight error is 0.0183-0.0185 for any value in
+``1e-2 .. 1e-9``; noise-free, ``1e-6`` reaches the exact pose (3e-14 rad) in
+the :data:`GN_ITERATIONS` steps, ``1e-2`` is still 2.5e-4 rad away.
+"""
 
 ALTERNATIONS = 0
 """Default rounds of (robust Kabsch pose from the fitted face, expression refit) after the first fit.
@@ -145,11 +151,13 @@ def _rodrigues(v):
 def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS):
     """Refine ``(R, t)`` by Gauss-Newton on pose and (damped, unbounded) weights jointly.
 
-    Minimises ``sum_j W_j |R^T (X_j - t) - neutral_j - D_j w|^2 + mu |w|^2`` over
+    Minimises ``sum_j W_j |R^T (X_j - t) - neutral_j - D_j w|^2`` over
     ``R, t, w``; only the pose is kept (the fitter then solves the weights).
-    ``mu`` is ``DAMPING`` x the mean diagonal of the Gram matrix: a small
-    ridge, so that a combination of shapes that nearly moves the markers
-    rigidly cannot trade places with the head pose.
+    Each step is damped towards the previous step's weights,
+    ``+ mu |w - w_prev|^2`` (``mu`` = ``DAMPING`` x the mean squared norm of a
+    shape), so that a combination of shapes that nearly moves the markers
+    rigidly cannot jump into the pose in one step, while the fixed point is the
+    undamped least-squares solution (no bias).
     """
     K, p = W.shape
     B = sub.n_shapes
@@ -163,6 +171,7 @@ def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS
     J[:, :, :B] = D[None]
     uniform = bool(np.all(W == 1.0))
     Aww_inv = np.linalg.inv(D.T @ D + mu * np.eye(B))
+    w_prev = np.zeros((K, B))
     eye = np.tile(np.eye(3), (p, 1))
     J[:, :, B + 3:] = eye[None]
     for _ in range(iterations):
@@ -177,15 +186,18 @@ def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS
             Jp = J[:, :, B:]
             Awp = np.matmul(D.T[None], Jp)  # (K, B, 6)
             App = np.matmul(Jp.transpose(0, 2, 1), Jp)
-            bw, bp = r @ D, np.einsum("kri,kr->ki", Jp, r)
+            bw, bp = r @ D + mu * w_prev, np.einsum("kri,kr->ki", Jp, r)
             S = App - np.matmul(Awp.transpose(0, 2, 1), Aww_inv @ Awp)
             z = np.linalg.solve(S, (bp - np.einsum("kbi,kb->ki", Awp, bw @ Aww_inv))[..., None])[..., 0]
-            zp = np.concatenate([np.zeros((K, B)), z], axis=1)
+            w_prev = (bw - np.einsum("kbi,ki->kb", Awp, z)) @ Aww_inv
+            z = np.concatenate([w_prev, z], axis=1)
         else:
             JW = J * w3[..., None]
             A = np.matmul(JW.transpose(0, 2, 1), J) + np.diag(reg)[None]
-            zp = np.linalg.solve(A, np.einsum("kri,kr->ki", JW, r)[..., None])[..., 0]
-        z = zp
+            rhs = np.einsum("kri,kr->ki", JW, r)
+            rhs[:, :B] += mu * w_prev
+            z = np.linalg.solve(A, rhs[..., None])[..., 0]
+            w_prev = z[:, :B]
         dth, dt = z[:, B:B + 3], z[:, B + 3:]
         t = t + np.einsum("kij,kj->ki", R, dt)
         R = np.matmul(R, _rodrigues(dth))
@@ -433,7 +445,7 @@ def solve_markers(positions, vertex_ids, rig: BlendshapeRig, fitter=None, confid
     chunk : int
         Frames solved together.
     progress : callable or None
-        Called with the number of frames done after each chunk.
+        Called with ``(frames done, T)`` after each chunk.
 
     Returns
     -------
@@ -484,7 +496,7 @@ def solve_markers(positions, vertex_ids, rig: BlendshapeRig, fitter=None, confid
             E[k], R[k], tr[k] = r.weights, r.info["rotation"], r.info["translation"]
             rms[k], lost[k] = r.info["rms"], r.info["lost"]
         if progress is not None:
-            progress(min(start + chunk, T))
+            progress(min(start + chunk, T), T)
     if isinstance(smooth, str) and smooth == "off":
         W, lam = E.copy(), np.zeros(rig.n_shapes)
     else:
