@@ -18,7 +18,9 @@ def parse_smooth(text: str):
     except ValueError:
         v = float("nan")
     if not 0 <= v < float("inf"):
-        raise click.BadParameter(f"{text!r}: use auto, off or a number >= 0", param_hint="--smooth")
+        from facegeom.errors import InputError
+
+        raise InputError(f"--smooth {text!r}: use auto, off or a number >= 0")
     return v
 
 
