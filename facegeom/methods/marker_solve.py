@@ -51,6 +51,7 @@ from facegeom.interfaces import FitResult, as_handles, batched_targets, fit_many
 from facegeom.methods.fitting import stable_rows
 from facegeom.model.rig import BlendshapeRig
 from facegeom.model.targets import MarkerTarget, MeshTarget
+from facegeom.registry import create
 
 __all__ = ["MarkerSolve", "fit_markers", "split_markers", "kabsch", "marker_rig", "smooth_curves", "solve_markers"]
 
@@ -462,8 +463,6 @@ def solve_markers(positions, vertex_ids, rig: BlendshapeRig, fitter=None, confid
     InputError
         Wrong shapes, bad ids, a frame with fewer than 3 usable markers (naming the frame).
     """
-    from facegeom.methods.sem import SEMLSFitter
-
     t0 = time.perf_counter()
     P = np.asarray(positions, dtype=np.float64)
     if P.ndim != 3 or P.shape[2] != 3 or P.shape[0] == 0 or P.shape[1] == 0:
@@ -484,7 +483,7 @@ def solve_markers(positions, vertex_ids, rig: BlendshapeRig, fitter=None, confid
         raise InputError(f"chunk must be a positive integer, got {chunk!r}")
     if isinstance(smooth, str) and smooth not in ("off", "auto"):
         raise InputError(f"smoothing must be 'auto', 'off' or a number >= 0, got {smooth!r}")
-    fitter = SEMLSFitter() if fitter is None else fitter
+    fitter = create("fitters", "sem-ls") if fitter is None else fitter  # by entry point: sem.py imports this module
     E = np.empty((T, rig.n_shapes))
     R = np.empty((T, 3, 3))
     tr = np.empty((T, 3))
