@@ -100,3 +100,14 @@ def test_bad_output_suffix_and_too_few_markers(capture, tmp_path):
     r = run("solve", str(tmp_path / "gappy.npz"), "-o", str(tmp_path / "c.npz"))
     assert r.returncode == 2 and "frame 7" in r.stderr and "gappy.npz" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "c.npz").exists()
+
+
+def test_animate_with_a_rig_writes_curves(tmp_path):
+    out = tmp_path / "anim.npz"
+    r = run("animate", "--rig", "ict", "--frames", "40", "--labels", "5", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    z = np.load(out)
+    assert z["weights"].shape == (40, 53) and z["rotations"].shape == (40, 3, 3)
+    assert "weight error vs the take" in r.stdout
+    r = run("animate", "--rig", "ict", "--frames", "40", "--obj-dir", str(tmp_path / "objs"), "-o", str(out))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
