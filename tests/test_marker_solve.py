@@ -193,3 +193,33 @@ def test_smoothing_by_gcv_denoises_and_keeps_constants():
     Z0, _ = smooth_curves(noisy, 0.0)
     assert np.allclose(Z0, noisy)
     assert smooth_curves(noisy, 1e9)[0][:, 0].std() < 0.1 * noisy[:, 0].std()
+
+
+def test_bench_solve_protocol_rows(face_model, rig):
+    from facegeom.bench.solve import CONDITIONS, LAYOUTS, run
+    from facegeom.registry import parse_method
+
+    rng = np.random.default_rng(9)
+    W = np.clip(rng.random((40, rig.n_shapes)) * 0.5, 0, 1)
+    rows = run(face_model, [("syn", W)], [parse_method("sem-ls"), parse_method("pcadel")], cases=1, frames=12,
+               progress=False)
+    assert len(rows) == len(CONDITIONS) * len(LAYOUTS) * 3
+    assert rows[0]["condition"] == CONDITIONS[0][0]  # realistic rows first
+    clean = [r for r in rows if r["condition"] == "noise-free" and r["method"] == "sem-ls"]
+    assert all(r["weight_mae"] < 1e-6 and r["face_mm"] < 1e-5 for r in clean)
+    noisy = [r for r in rows if r["condition"] != "noise-free" and r["method"] == "sem-ls"]
+    assert all(r["weight_mae"] > 1e-4 for r in noisy)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(alphabet=st.sampled_from(list("marker,vertex\n0123456789v-. ,\"x\r")), max_size=80))
+def test_fuzz_marker_map_only_input_errors(rig, tmp_path_factory, text):
+    from facegeom.pipelines.solve import marker_vertices
+
+    path = tmp_path_factory.mktemp("map") / "map.csv"
+    path.write_text(text)
+    try:
+        ids = marker_vertices(["a", "b", "c"], rig, str(path))
+    except InputError:
+        return
+    assert ids.shape == (3,) and (ids >= 0).all() and (ids < rig.n_vertices).all()
