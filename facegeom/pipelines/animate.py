@@ -210,8 +210,9 @@ def solve_take(model, path, start: int, frames: int, labels: int, seed: int, ret
     ids : (80,) int64
         The marker vertices.
     info : dict
-        ``retarget_s``, ``markers`` (the retargeted ``(T, 80, 3)``); ``weight_mae`` against the take's weights when the rig's
-        shape names are the face model's expressions (else absent).
+        ``retarget_s``, ``markers`` (the retargeted ``(T, 80, 3)``); ``weight_mae``
+        against the take's weights when the rig's shape names are the face
+        model's expressions (else absent).
     """
     from facegeom.methods.marker_solve import solve_markers
 
