@@ -153,6 +153,13 @@ def _rodrigues(v):
     return np.eye(3)[None] + s * Kx + (1.0 - c) * np.matmul(Kx, Kx)
 
 
+def _cross_matrix(v):
+    """``[v]x (K, 3, 3)``: ``[v]x u = v x u`` for ``v (K, 3)``."""
+    C = np.zeros((v.shape[0], 3, 3))
+    C[:, 0, 1], C[:, 0, 2], C[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    return C - C.transpose(0, 2, 1)
+
+
 def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS):
     """Refine ``(R, t)`` by Gauss-Newton on pose and (damped, unbounded) weights jointly.
 
@@ -172,26 +179,39 @@ def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS
     mu = DAMPING * float(np.mean(np.einsum("rb,rb->b", D, D)))
     reg = np.zeros(B + 6)
     reg[:B] = mu
-    J = np.empty((K, 3 * p, B + 6))
-    J[:, :, :B] = D[None]
     uniform = bool(np.all(W == 1.0))
+    J = None if uniform else np.empty((K, 3 * p, B + 6))
+    if not uniform:
+        J[:, :, :B] = D[None]
+    eps = np.zeros((3, 3, 3))  # Levi-Civita: S_j[a, c] = eps[a, c, d] y_j[d]
+    eps[0, 1, 2] = eps[1, 2, 0] = eps[2, 0, 1] = 1.0
+    eps[0, 2, 1] = eps[2, 1, 0] = eps[1, 0, 2] = -1.0
+    M = np.einsum("jab,acd->jdbc", D.reshape(p, 3, B), eps).reshape(3 * p, B * 3)
+    Dc = D.reshape(p, 3, B).sum(axis=0).T  # (B, 3): D^T of the translation columns
     Aww_inv = np.linalg.inv(D.T @ D + mu * np.eye(B))
     w_prev = np.zeros((K, B))
-    eye = np.tile(np.eye(3), (p, 1))
-    J[:, :, B + 3:] = eye[None]
+    if not uniform:
+        J[:, :, B + 3:] = np.tile(np.eye(3), (p, 1))[None]
     for _ in range(iterations):
         Y = np.einsum("kji,kpj->kpi", R, X0 - t[:, None])
-        # -[y]x per marker, rows (marker, axis)
-        Sx = np.zeros((K, p, 3, 3))
-        Sx[..., 0, 1], Sx[..., 0, 2], Sx[..., 1, 2] = Y[..., 2], -Y[..., 1], Y[..., 0]
-        Sx = Sx - np.swapaxes(Sx, -1, -2)
-        J[:, :, B:B + 3] = Sx.reshape(K, 3 * p, 3)
         r = Y.reshape(K, -1) - N[None]
+        if not uniform:  # -[y]x per marker, rows (marker, axis)
+            J[:, :, B:B + 3] = np.einsum("acd,kpd->kpac", eps, Y).reshape(K, 3 * p, 3)
         if uniform:  # Schur complement on the 6 pose unknowns; the weights' block is one constant matrix
-            Jp = J[:, :, B:]
-            Awp = np.matmul(D.T[None], Jp)  # (K, B, 6)
-            App = np.matmul(Jp.transpose(0, 2, 1), Jp)
-            bw, bp = r @ D + mu * w_prev, np.einsum("kri,kr->ki", Jp, r)
+            # the pose columns are S_j = -[y_j]x and I per marker: every product is a sum over markers
+            Awp = np.empty((K, B, 6))
+            Awp[:, :, :3] = (Y.reshape(K, -1) @ M).reshape(K, B, 3)
+            Awp[:, :, 3:] = Dc[None]
+            ys = Y.sum(axis=1)
+            App = np.empty((K, 6, 6))
+            App[:, :3, :3] = (np.einsum("kpi,kpi->k", Y, Y)[:, None, None] * np.eye(3)[None]
+                              - np.einsum("kpi,kpj->kij", Y, Y))
+            App[:, :3, 3:] = _cross_matrix(ys)
+            App[:, 3:, :3] = -App[:, :3, 3:]
+            App[:, 3:, 3:] = p * np.eye(3)[None]
+            r3 = r.reshape(K, p, 3)
+            bp = np.concatenate([np.cross(Y, r3).sum(axis=1), r3.sum(axis=1)], axis=1)
+            bw = r @ D + mu * w_prev
             S = App - np.matmul(Awp.transpose(0, 2, 1), Aww_inv @ Awp)
             z = np.linalg.solve(S, (bp - np.einsum("kbi,kb->ki", Awp, bw @ Aww_inv))[..., None])[..., 0]
             w_prev = (bw - np.einsum("kbi,ki->kb", Awp, z)) @ Aww_inv
