@@ -97,7 +97,16 @@ from scipy.spatial import cKDTree
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, as_handles
 from facegeom.methods.fitting import check_fit_inputs, fit_with_pose
-from facegeom.model import INNER_EYE_CORNERS, BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget
+from facegeom.methods.marker_solve import split_markers
+from facegeom.model import (
+    INNER_EYE_CORNERS,
+    BlendshapeRig,
+    LandmarkTarget,
+    MarkerTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+)
 
 __all__ = ["L1RegFitter", "L2RegFitter", "PCAExpFitter", "PCADelFitter"]
 
@@ -460,6 +469,8 @@ class _BaseFitter(Params):
             (optimizer iterations, summed), ``converged``, ``time_s`` (seconds);
             ``camera`` for landmarks, ``icp_iterations`` for point clouds.
         """
+        if isinstance(target, MarkerTarget):  # capture markers: rigid pose + restricted mesh fit
+            return split_markers(self, rig, [target])[0]
         t0 = time.perf_counter()
         rig, target = check_fit_inputs(rig, target)
         model = self._model(rig)
@@ -569,8 +580,14 @@ class _BaseFitter(Params):
             rows = np.arange(arrays.shape[0])
         else:
             targets = list(targets)
+            solved = split_markers(self, rig, targets)  # MarkerTargets solved here, the others left None
+            if all(r is not None for r in solved):
+                return solved
             rows, meshes, others = [], [], []
             for i, t in enumerate(targets):
+                if solved[i] is not None:
+                    others.append(i)
+                    continue
                 check_fit_inputs(rig, t)
                 if isinstance(t, MeshTarget) and t.weights is None:
                     rows.append(i)
@@ -597,7 +614,7 @@ class _BaseFitter(Params):
         for j, i in enumerate(rows):
             out[i] = FitResult(W[j], partial(model.vertices, X[j]), dict(info))
         for i in others:
-            out[i] = self.fit(rig, targets[i])
+            out[i] = solved[i] if solved[i] is not None else self.fit(rig, targets[i])
         return out
 
     def _solve_mesh_batch(self, model: _Model, Bm: np.ndarray) -> np.ndarray:

@@ -12,7 +12,8 @@ The public API, importable from here::
 
 - the face model: :class:`FaceModel`, :func:`load_face_model`, :class:`BlendshapeRig`
 - fitting targets and the camera: :class:`MeshTarget`, :class:`LandmarkTarget`,
-  :class:`PointCloudTarget`, :class:`PinholeCamera`
+  :class:`PointCloudTarget`, :class:`MarkerTarget` (capture markers, solved to rig
+  weights by :func:`solve_markers`), :class:`PinholeCamera`
 - facegeom's own methods: :class:`TangentDeformer`, :class:`TangentRetargeter`,
   :class:`SEMFitter` (the published SEM) and :class:`SEMLSFitter` (``sem-ls``,
   the default fitter); any registered method (baselines, plugins) by name with
@@ -34,13 +35,14 @@ from facegeom.errors import DataNotFoundError, FacegeomError, InputError
 
 if TYPE_CHECKING:  # what static tools see; at run time the names load on first use
     from facegeom.io.mesh import read_mesh, write_mesh
+    from facegeom.methods.marker_solve import solve_markers
     from facegeom.methods.sem import SEMFitter, SEMLSFitter
     from facegeom.methods.tangent import TangentDeformer
     from facegeom.methods.tangent_retarget import TangentRetargeter
     from facegeom.model.camera import PinholeCamera
     from facegeom.model.face import FaceModel, load_face_model
     from facegeom.model.rig import BlendshapeRig
-    from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
+    from facegeom.model.targets import LandmarkTarget, MarkerTarget, MeshTarget, PointCloudTarget
     from facegeom.registry import create
     from facegeom.version import __version__
 
@@ -52,6 +54,8 @@ _LAZY = {
     "MeshTarget": "facegeom.model.targets",
     "LandmarkTarget": "facegeom.model.targets",
     "PointCloudTarget": "facegeom.model.targets",
+    "MarkerTarget": "facegeom.model.targets",
+    "solve_markers": "facegeom.methods.marker_solve",
     "PinholeCamera": "facegeom.model.camera",
     "TangentDeformer": "facegeom.methods.tangent",
     "TangentRetargeter": "facegeom.methods.tangent_retarget",
@@ -70,6 +74,7 @@ __all__ = [
     "FacegeomError",
     "InputError",
     "LandmarkTarget",
+    "MarkerTarget",
     "MeshTarget",
     "PinholeCamera",
     "PointCloudTarget",
@@ -81,6 +86,7 @@ __all__ = [
     "create",
     "load_face_model",
     "read_mesh",
+    "solve_markers",
     "write_mesh",
 ]
 

@@ -18,6 +18,8 @@ PUBLIC = {
     "MeshTarget": "facegeom.model.targets",
     "LandmarkTarget": "facegeom.model.targets",
     "PointCloudTarget": "facegeom.model.targets",
+    "MarkerTarget": "facegeom.model.targets",
+    "solve_markers": "facegeom.methods.marker_solve",
     "PinholeCamera": "facegeom.model.camera",
     "TangentDeformer": "facegeom.methods.tangent",
     "TangentRetargeter": "facegeom.methods.tangent_retarget",

@@ -392,3 +392,30 @@ def bench_cleanup_corpus(folder, out, no_decimate, max_faces, timeout):
 
     bcc.main(Path(folder), Path(out), decimate=not no_decimate, max_faces=max_faces, echo=click.echo,
              timeout=timeout)
+
+
+@bench.command("solve")
+@click.option("--cases", default=2, show_default=True, type=click.IntRange(1, 10000),
+              help="Sequences (take window + identity).")
+@click.option("--frames", default=200, show_default=True, type=click.IntRange(3, 100000), help="Frames per sequence.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="all", show_default=True,
+              help="'all' (sem-ls, sem, sem+, l1reg, l2reg, pcaexp, pcadel) or ';'-separated fitter specs.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
+@click.option("--no-speed", is_flag=True, help="Skip the 1,000-frame speed measurement.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/solve", show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_solve(obj: Context, cases, frames, seed, methods, takes_path, no_speed, out, quiet):
+    """Marker solve: real-take sequences on random identities, noise, lost markers, head motion; every fitter."""
+    from facegeom.bench import solve as bs
+    from facegeom.registry import parse_methods
+
+    specs = parse_methods(methods, "fitters", LINEUPS_SOLVE)
+    model = obj.face_model()
+    bs.main(model, _load_takes(model, takes_path), specs, cases, frames, seed, out, echo=click.echo,
+            progress=not quiet, time_it=not no_speed)
+
+
+LINEUPS_SOLVE = ["sem-ls", "sem", "sem+=sem:clamp=true,stop=ric", "l1reg", "l2reg", "pcaexp", "pcadel"]
+"""The fitters of ``bench solve --methods all`` (the landmark-only eos peer takes no marker targets)."""

@@ -194,9 +194,22 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh
 @click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output .npz.")
 @click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="Solve the retargeted markers on this rig (.npz, OBJ folder, or 'ict' for the generic ICT rig) "
+                   "and write weight curves (.npz) instead of driving the mesh.")
+@click.option("--fitter", default="sem-ls", show_default=True, help="With --rig: the fitter.")
+@click.option("--smooth", default="auto", show_default=True, help="With --rig: curve smoothing (auto, off, a number).")
 @click.pass_obj
-def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir):
-    """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame."""
+def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir,
+            rig_path, fitter, smooth):
+    """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame.
+
+    With --rig: the retargeted markers are solved on the rig -> blendshape weight curves.
+    """
+    if rig_path is not None:
+        _animate_rig(obj, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,
+                     rig_path, fitter, smooth)
+        return
     from facegeom.errors import InputError
     from facegeom.io import all_or_nothing, check_outputs, find_takes, write_mesh
     from facegeom.model import locate_takes
@@ -232,3 +245,37 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     if obj_dir:
         click.echo(f"wrote {frames} OBJ files to {Path(obj_dir)}")
 
+
+
+def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,
+                 rig_path, fitter, smooth):
+    """``animate --rig``: take -> retargeted character markers -> rig weight curves (see ``solve_take``)."""
+    import numpy as np
+
+    from facegeom.cli.solve import parse_smooth
+    from facegeom.errors import InputError
+    from facegeom.io import check_outputs, find_takes
+    from facegeom.io.markerseq import MarkerSequence
+    from facegeom.model import load_rig, locate_takes
+    from facegeom.pipelines.animate import solve_take
+    from facegeom.pipelines.solve import DEFAULT_FPS, SolvedCapture, write_curves
+    from facegeom.registry import parse_method
+
+    if obj_dir:
+        raise InputError("--obj-dir writes driven meshes; with --rig the output is weight curves")
+    amount = parse_smooth(smooth)
+    model = obj.face_model()
+    path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    rig_file = None if rig_path == "ict" else rig_path
+    check_outputs([path, rig_file], [output])
+    rig = load_rig(rig_file, lambda: model)
+    res, seq, ids, info = solve_take(model, path, start, frames, labels, seed,
+                                     lambda: parse_method(retargeter).build("retargeters"), rig,
+                                     lambda: parse_method(fitter).build("fitters"), amount)
+    ms = MarkerSequence(np.arange(start, start + frames, dtype=np.int64), tuple(f"v{i}" for i in ids),
+                        info["markers"], str(path))
+    write_curves(output, SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False))
+    err = f"; weight error vs the take {info['weight_mae']:.4f}" if "weight_mae" in info else ""
+    click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
+               f"{info['retarget_s'] * 1e3:.1f} ms, solve {res.time_s:.2f} s on {len(res.names)} shapes{err}")
+    click.echo(f"wrote {output}")

@@ -60,7 +60,16 @@ from scipy.spatial import cKDTree
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
-from facegeom.model import BlendshapeRig, LandmarkTarget, MeshTarget, PinholeCamera, PointCloudTarget, project_many
+from facegeom.methods.marker_solve import split_markers
+from facegeom.model import (
+    BlendshapeRig,
+    LandmarkTarget,
+    MarkerTarget,
+    MeshTarget,
+    PinholeCamera,
+    PointCloudTarget,
+    project_many,
+)
 
 __all__ = ["SEMFitter", "SEMLSFitter", "sem_gram", "sem_orthogonal_gram", "sem_vectors"]
 
@@ -408,6 +417,8 @@ class SEMFitter(Params):
             weights), ``time_s``; landmarks add ``camera`` and
             ``pose_estimated``, point clouds ``points_used`` and ``queries``.
         """
+        if isinstance(target, MarkerTarget):  # capture markers: rigid pose + restricted mesh fit
+            return split_markers(self, rig, [target])[0]
         rig, target = check_fit_inputs(rig, target)
         t0 = time.perf_counter()
         if isinstance(target, MeshTarget):
@@ -453,8 +464,9 @@ class SEMFitter(Params):
             raise InputError(f"rig must be a BlendshapeRig, got {type(rig).__name__}")
         if isinstance(targets, np.ndarray):
             return self._mesh_results(rig, targets)
-        targets = [check_fit_inputs(rig, tg)[1] for tg in targets]
-        out: list = [None] * len(targets)
+        targets = list(targets)
+        out: list = split_markers(self, rig, targets)  # MarkerTargets solved here, the others left None
+        targets = [tg if out[k] is not None else check_fit_inputs(rig, tg)[1] for k, tg in enumerate(targets)]
         meshes = [k for k, tg in enumerate(targets) if isinstance(tg, MeshTarget) and tg.weights is None]
         if meshes:
             for k, r in zip(meshes, self._mesh_results(rig, np.stack([targets[k].vertices for k in meshes]))):

@@ -46,7 +46,7 @@ from facegeom.model.scenarios import (
     fitting_cases,
     realistic_driving_cases,
 )
-from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
+from facegeom.model.targets import LandmarkTarget, MarkerTarget, MeshTarget, PointCloudTarget
 
 __all__ = [
     "ExpressionCase",
@@ -76,6 +76,7 @@ __all__ = [
     "BlendshapeRig",
     "LandmarkTarget",
     "MeshTarget",
+    "MarkerTarget",
     "PointCloudTarget",
     "PinholeCamera",
     "look_at_camera",

@@ -8,7 +8,10 @@ al., IEEE Access):
 - :class:`LandmarkTarget`: 2-D image landmarks of known rig vertices seen by a
   :class:`~facegeom.model.camera.PinholeCamera` (Sec. IV-C, the projection
   ``Pi`` of eq. 4),
-- :class:`PointCloudTarget`: unordered 3-D points, no correspondence (Sec. IV-D).
+- :class:`PointCloudTarget`: unordered 3-D points, no correspondence (Sec. IV-D),
+- :class:`MarkerTarget`: 3-D positions of known rig vertices (motion-capture
+  markers) in any rigid frame, with optional confidences and lost markers
+  (solved by :mod:`facegeom.methods.marker_solve`).
 """
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ from facegeom.model._checks import _as_ids, _first_nonfinite, _readonly
 from facegeom.model.camera import PinholeCamera
 from facegeom.model.rig import BlendshapeRig
 
-__all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget']
+__all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget', 'MarkerTarget']
 
 
 class MeshTarget:
@@ -198,3 +201,79 @@ class PointCloudTarget:
     def n_points(self) -> int:
         """Number of points ``N``."""
         return int(self.points.shape[0])
+
+
+class MarkerTarget:
+    """3-D marker positions of known rig vertices, in any rigid frame (a capture).
+
+    The capture's frame need not be the rig's: the solve estimates the rigid
+    head pose with the expression (:mod:`facegeom.methods.marker_solve`).
+
+    Parameters
+    ----------
+    positions : (p, 3)
+        Marker positions; a row with a NaN is a lost marker (ignored). inf is an error.
+    vertex_ids : (p,)
+        Distinct rig vertex ids (checked against a rig by :meth:`check`).
+    confidence : (p,) or None
+        Optional per-marker weights ``>= 0`` (0 ignores the marker).
+
+    Raises
+    ------
+    InputError
+        Wrong shapes, inf, repeated ids, negative or non-finite confidences,
+        or fewer than 3 usable markers (found and with a positive confidence).
+    """
+
+    __slots__ = ("positions", "vertex_ids", "confidence")
+
+    def __init__(self, positions, vertex_ids, confidence=None):
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise InputError(f"marker positions must have shape (p, 3), got {p.shape}")
+        if p.shape[0] == 0:
+            raise InputError("no marker: positions is empty")
+        if np.isinf(p).any():
+            raise InputError(f"marker {int(np.argwhere(np.isinf(p))[0, 0])} has an infinite coordinate")
+        ids = _as_ids(vertex_ids, "marker vertex_ids")
+        if ids.size != p.shape[0]:
+            raise InputError(f"{p.shape[0]} marker positions for {ids.size} vertex ids")
+        lost = np.isnan(p).any(axis=1)
+        p[lost] = np.nan
+        if confidence is not None:
+            c = np.asarray(confidence, dtype=np.float64)
+            if c.shape != (p.shape[0],):
+                raise InputError(f"marker confidence must have shape ({p.shape[0]},), got {c.shape}")
+            if not np.all(np.isfinite(c)):
+                raise InputError("marker confidence contains NaN or inf")
+            if (c < 0).any():
+                raise InputError(f"marker confidence must be >= 0 (marker {int(np.flatnonzero(c < 0)[0])} is negative)")
+            confidence = _readonly(c.copy())
+        usable = ~lost if confidence is None else (~lost & (confidence > 0))
+        if int(usable.sum()) < 3:
+            raise InputError(f"only {int(usable.sum())} usable markers (found, confidence > 0): "
+                             "at least 3 are needed for the head pose")
+        self.positions = _readonly(p.copy())
+        self.vertex_ids = _readonly(ids)
+        self.confidence = confidence
+
+    @property
+    def n_markers(self) -> int:
+        """Number of markers ``p`` (lost ones included)."""
+        return int(self.positions.shape[0])
+
+    @property
+    def lost(self) -> np.ndarray:
+        """``(p,)`` bool: the marker has no position (NaN)."""
+        return np.isnan(self.positions).any(axis=1)
+
+    def marker_weights(self) -> np.ndarray:
+        """``(p,)`` float64 weight of each marker: its confidence (1 without), 0 when lost."""
+        w = np.ones(self.n_markers) if self.confidence is None else np.array(self.confidence)
+        w[self.lost] = 0.0
+        return w
+
+    def check(self, rig: BlendshapeRig) -> "MarkerTarget":
+        """Raise :class:`InputError` unless every vertex id exists in ``rig``."""
+        as_handles(self.vertex_ids, rig.n_vertices, "marker vertex_ids")
+        return self

@@ -189,3 +189,49 @@ def write_animation_npz(out, anim: Animation, ids: np.ndarray) -> Path:
                                 markers=anim.markers, marker_ids=ids, labelled_frames=anim.labelled_frames,
                                 frame_error_mm=anim.frame_error_mm, marker_error_mm=anim.marker_error_mm)
     return out
+
+
+def solve_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter, rig, fitter,
+               smooth="auto"):
+    """``facegeom animate --rig``: a take window on the actor -> retargeted character markers -> rig weights.
+
+    The steps of :func:`animate_take` up to the retargeted ``ict80`` markers of
+    the character of ``seed``; then, instead of driving the character's mesh,
+    :func:`facegeom.methods.marker_solve.solve_markers` solves them on ``rig``
+    (which must have the face model's vertex ids, e.g. the ICT rig or one
+    built from it).
+
+    Returns
+    -------
+    solve : MarkerSolve
+        Weights ``(T, K)`` and the rigid motion per frame.
+    seq : Sequence
+        The actor/character sequence of the window.
+    ids : (80,) int64
+        The marker vertices.
+    info : dict
+        ``retarget_s``, ``markers`` (the retargeted ``(T, 80, 3)``); ``weight_mae``
+        against the take's weights when the rig's shape names are the face
+        model's expressions (else absent).
+    """
+    from facegeom.methods.marker_solve import solve_markers
+
+    path = Path(path)
+    take = read_take(path)
+    W = ict_weights(take, model.expression_names)
+    if start + frames > W.shape[0]:
+        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
+                         f"runs past its end", path)
+    if labels > frames:
+        raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
+    ids = layout(model, "ict80")
+    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
+                           f"{path.stem}@{start}")
+    lab = evenly_spread(frames, labels)
+    t0 = time.perf_counter()
+    markers = retargeter().fit(seq.source, lab, seq.target[lab]).transform()
+    info = {"retarget_s": time.perf_counter() - t0, "markers": markers}
+    res = solve_markers(markers, ids, rig, fitter(), smooth=smooth)
+    if tuple(rig.names) == tuple(model.expression_names):
+        info["weight_mae"] = float(np.abs(res.weights - W[start:start + frames]).mean())
+    return res, seq, ids, info

@@ -1,0 +1,167 @@
+"""``facegeom solve``: a marker capture -> blendshape weight curves of a rig (and the head motion).
+
+The steps, shared by the CLI and anything else that solves files:
+
+1. :func:`marker_vertices` maps the capture's markers to rig vertices: a map
+   CSV (header ``marker,vertex``), marker names that are vertex ids (``v123``
+   or ``123``), or a named layout (:func:`facegeom.model.layouts.layout`:
+   ``ict80``, ``landmarks68``, ``random<k>``), the file's markers in order;
+2. :func:`solve_file` reads the capture and runs
+   :func:`facegeom.methods.marker_solve.solve_markers`;
+3. :func:`write_curves` writes the result; the format is picked from the
+   suffix in :data:`CURVE_WRITERS` (``.npz`` here; a ``.glb`` or Live Link
+   ``.csv`` writer is one more entry).
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.interfaces import as_handles
+from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
+from facegeom.methods.marker_solve import MarkerSolve, solve_markers
+from facegeom.model.layouts import layout as named_layout
+
+__all__ = ["CURVE_WRITERS", "SolvedCapture", "marker_vertices", "solve_file", "write_curves", "write_curves_npz"]
+
+DEFAULT_FPS = 30.0
+"""Frame rate written when the capture does not carry one (Live Link Face's default)."""
+
+_VERTEX_NAME = re.compile(r"^[vV]?(\d+)$")
+
+
+@dataclass
+class SolvedCapture:
+    """A solved capture: the solve, the sequence it came from and the marker vertices."""
+
+    solve: MarkerSolve
+    sequence: MarkerSequence
+    vertex_ids: np.ndarray
+    fitter: str
+    fps: float
+    fps_known: bool
+
+
+def _read_map(path: Path, names) -> np.ndarray:
+    rows = read_csv_rows(path, "marker map")
+    body = [(i, r) for i, r in enumerate(rows) if r and any(c.strip() for c in r)]
+    if not body or [c.strip().lower() for c in body[0][1]] != ["marker", "vertex"]:
+        raise InputError("a marker map needs the header marker,vertex", path)
+    table: dict[str, int] = {}
+    for i, r in body[1:]:
+        if len(r) != 2 or not r[0].strip():
+            raise InputError(f"line {i + 1}: expected marker,vertex", path)
+        v = r[1].strip()
+        if not v.isdigit() or len(v) > 18:
+            raise InputError(f"line {i + 1}: vertex {v!r} is not a non-negative integer id", path)
+        if r[0].strip() in table:
+            raise InputError(f"line {i + 1}: marker {r[0].strip()!r} is mapped twice", path)
+        table[r[0].strip()] = int(v)
+    missing = [n for n in names if n not in table]
+    if missing:
+        raise InputError(f"marker {missing[0]!r} of the capture is not in the map", path)
+    return np.array([table[n] for n in names], dtype=np.int64)
+
+
+def marker_vertices(names, rig, markers=None) -> np.ndarray:
+    """The rig vertex of each marker name ``(p,)`` int64.
+
+    Parameters
+    ----------
+    names : sequence of p str
+        The capture's marker names, in its column order.
+    rig : BlendshapeRig
+    markers : str, path or None
+        A map CSV (``marker,vertex``), a layout name (``ict80``, ``landmarks68``,
+        ``random<k>``: the markers in file order, or by number when the names
+        are ``0..p-1``), or None: the names themselves are vertex ids
+        (``v123`` or ``123``).
+
+    Raises
+    ------
+    InputError
+        A name that is no vertex id, a marker missing from the map, a layout
+        with another marker count, ids out of the rig's range or repeated.
+    """
+    names = [str(n) for n in names]
+    if markers is None:
+        ids = []
+        for n in names:
+            m = _VERTEX_NAME.match(n.strip())
+            if m is None or len(m.group(1)) > 18:
+                raise InputError(f"marker {n!r} is not a vertex id (v<id> or a number): "
+                                 "give a marker map (marker,vertex) or a layout name")
+            ids.append(int(m.group(1)))
+        return as_handles(np.array(ids, dtype=np.int64), rig.n_vertices, "marker vertex ids")
+    text = str(markers)
+    path = Path(text)
+    if path.suffix.lower() == ".csv" or path.exists():
+        return as_handles(_read_map(path, names), rig.n_vertices, "marker map vertex ids", path)
+    if rig.landmark_ids is None and not text.startswith("random"):
+        raise InputError(f"layout {text!r} needs the rig's 68 landmark ids, and this rig has none")
+    face = SimpleNamespace(neutral=rig.neutral, triangles=rig.triangles, landmarks=rig.landmark_ids,
+                           n_vertices=rig.n_vertices)
+    ids = named_layout(face, text)
+    if ids.size != len(names):
+        raise InputError(f"layout {text!r} has {ids.size} markers, the capture {len(names)}")
+    if sorted(names, key=str) == sorted((str(i) for i in range(len(names))), key=str):
+        return ids[np.array([int(n) for n in names])]
+    return ids
+
+
+def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem-ls", markers=None,
+               smooth="off", progress=None) -> SolvedCapture:
+    """Read the marker sequence ``capture`` and solve it on ``rig`` with ``fitter``.
+
+    ``smooth`` is ``"off"``, ``"auto"`` or a number (see
+    :func:`facegeom.methods.marker_solve.smooth_curves`); ``progress(frames_done, frames)``
+    is called as chunks finish. Errors name the capture file.
+    """
+    seq = read_marker_sequence(capture)
+    ids = marker_vertices(seq.names, rig, markers)
+    try:
+        res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
+    except InputError as exc:
+        if exc.path:
+            raise
+        raise InputError(exc.reason, capture) from None
+    fps = getattr(seq, "fps", None)
+    known = fps is not None and np.isfinite(fps) and fps > 0
+    return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known))
+
+
+def write_curves_npz(path: Path, solved: SolvedCapture) -> None:
+    """The curves as ``.npz``: weights (T,K), names, fps, frames, per-frame rigid transforms and the solve's info."""
+    s = solved.solve
+    with open(path, "wb") as fh:
+        np.savez_compressed(
+            fh, weights=s.weights, names=np.array(s.names), fps=np.float64(solved.fps),
+            fps_known=np.bool_(solved.fps_known), frames=solved.sequence.frames,
+            rotations=s.rotations, translations=s.translations, poses=s.poses, raw_weights=s.raw_weights,
+            smoothing=s.smoothing, rms=s.rms, lost=s.lost, marker_names=np.array(solved.sequence.names),
+            vertex_ids=solved.vertex_ids, fitter=np.array(solved.fitter),
+            source=np.array(str(solved.sequence.path)), time_s=np.float64(s.time_s))
+
+
+CURVE_WRITERS = {
+    ".npz": write_curves_npz,
+}
+"""Output suffix -> writer ``(temporary path, SolvedCapture)``; written atomically by :func:`write_curves`."""
+
+
+def write_curves(path: str | os.PathLike, solved: SolvedCapture) -> Path:
+    """Write ``solved`` to ``path`` atomically, in the format of its suffix (:data:`CURVE_WRITERS`)."""
+    path = Path(path)
+    writer = CURVE_WRITERS.get(path.suffix.lower())
+    if writer is None:
+        raise InputError(f"unsupported curves format {path.suffix!r}; use {', '.join(CURVE_WRITERS)}", path)
+    with atomic_path(path) as tmp:
+        writer(Path(tmp), solved)
+    return path
