@@ -111,3 +111,26 @@ def test_animate_with_a_rig_writes_curves(tmp_path):
     assert "weight error vs the take" in r.stdout
     r = run("animate", "--rig", "ict", "--frames", "40", "--obj-dir", str(tmp_path / "objs"), "-o", str(out))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_solve_c3d_in_millimetres_to_glb_and_livelink(capture):
+    """A C3D in mm (converted to the rig's cm), out as a .glb rig animation and a Live Link take."""
+    from facegeom.io.c3d import write_c3d
+    from facegeom.io.gltf import read_glb_animation
+    from facegeom.io.takes import ict_weights, read_take
+
+    d, rig, ids, W, R, t = capture
+    X = np.einsum("tij,tpj->tpi", R, rig.neutral[ids][None] + np.einsum("tb,bpi->tpi", W, rig.deltas[:, ids]))
+    X = X + t[:, None]
+    write_c3d(d / "cap.c3d", X * 10.0, [f"v{i}" for i in ids], fps=60.0, unit="mm")
+    r = run("solve", str(d / "cap.c3d"), "-o", str(d / "anim.glb"), "--smooth", "off")
+    assert r.returncode == 0, r.stderr
+    g = read_glb_animation(d / "anim.glb")
+    assert list(g.names) == list(rig.names) and g.fps == pytest.approx(60.0)
+    assert np.abs(g.weights - W).max() < 1e-3  # float32 in the file; the capture is in mm, the rig in cm
+    assert np.abs(g.neutral - rig.neutral * 0.01).max() < 1e-6  # glTF metres
+    r = run("solve", str(d / "cap.c3d"), "-o", str(d / "take.csv"), "--smooth", "off")
+    assert r.returncode == 0, r.stderr
+    take = read_take(d / "take.csv")
+    back = ict_weights(take, rig.names, clip=False)
+    assert np.abs(back - W).max() < 1e-3

@@ -274,7 +274,7 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
                                      lambda: parse_method(fitter).build("fitters"), amount)
     ms = MarkerSequence(np.arange(start, start + frames, dtype=np.int64), tuple(f"v{i}" for i in ids),
                         info["markers"], str(path))
-    write_curves(output, SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False))
+    write_curves(output, SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False, rig))
     err = f"; weight error vs the take {info['weight_mae']:.4f}" if "weight_mae" in info else ""
     click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
                f"{info['retarget_s'] * 1e3:.1f} ms, solve {res.time_s:.2f} s on {len(res.names)} shapes{err}")

@@ -9,8 +9,15 @@ The steps, shared by the CLI and anything else that solves files:
 2. :func:`solve_file` reads the capture and runs
    :func:`facegeom.methods.marker_solve.solve_markers`;
 3. :func:`write_curves` writes the result; the format is picked from the
-   suffix in :data:`CURVE_WRITERS` (``.npz`` here; a ``.glb`` or Live Link
-   ``.csv`` writer is one more entry).
+   suffix in :data:`CURVE_WRITERS`: ``.npz`` (everything the solve reports),
+   ``.glb`` (the rig as a glTF 2.0 mesh with named morph targets and the
+   weights as an animation at the capture's frame rate) or ``.csv`` (a Live
+   Link Face take: the 52 ARKit weights, for anything that reads those).
+
+Lengths: a capture that states its unit (C3D does) is converted to the rig's
+centimetres (facegeom's convention, the ICT face's unit); one that states none
+is taken to be in the rig's units already. glTF lengths are metres, so the
+``.glb`` writer scales the rig by :data:`GLB_SCALE`.
 """
 from __future__ import annotations
 
@@ -29,7 +36,14 @@ from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
 from facegeom.methods.marker_solve import MarkerSolve, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
-__all__ = ["CURVE_WRITERS", "SolvedCapture", "marker_vertices", "solve_file", "write_curves", "write_curves_npz"]
+__all__ = ["CURVE_WRITERS", "SolvedCapture", "marker_vertices", "solve_file", "write_curves", "write_curves_glb",
+           "write_curves_livelink", "write_curves_npz"]
+
+RIG_UNIT = "cm"
+"""The unit of rig coordinates (the ICT face's; every facegeom rig is taken to use it)."""
+
+GLB_SCALE = 0.01
+"""Rig units (cm) -> glTF metres."""
 
 DEFAULT_FPS = 30.0
 """Frame rate written when the capture does not carry one (Live Link Face's default)."""
@@ -47,6 +61,8 @@ class SolvedCapture:
     fitter: str
     fps: float
     fps_known: bool
+    rig: object = None
+    """The :class:`~facegeom.model.rig.BlendshapeRig` solved for (the ``.glb`` writer needs its mesh)."""
 
 
 def _read_map(path: Path, names) -> np.ndarray:
@@ -125,6 +141,8 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
     is called as chunks finish. Errors name the capture file.
     """
     seq = read_marker_sequence(capture)
+    if getattr(seq, "unit", None) is not None:
+        seq = seq.in_unit(RIG_UNIT)
     ids = marker_vertices(seq.names, rig, markers)
     try:
         res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
@@ -134,13 +152,13 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
         raise InputError(exc.reason, capture) from None
     fps = getattr(seq, "fps", None)
     known = fps is not None and np.isfinite(fps) and fps > 0
-    return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known))
+    return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known), rig)
 
 
-def write_curves_npz(path: Path, solved: SolvedCapture) -> None:
-    """The curves as ``.npz``: weights (T,K), names, fps, frames, per-frame rigid transforms and the solve's info."""
+def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
+    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid transforms and the solve's info."""
     s = solved.solve
-    with open(path, "wb") as fh:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(
             fh, weights=s.weights, names=np.array(s.names), fps=np.float64(solved.fps),
             fps_known=np.bool_(solved.fps_known), frames=solved.sequence.frames,
@@ -148,12 +166,37 @@ def write_curves_npz(path: Path, solved: SolvedCapture) -> None:
             smoothing=s.smoothing, rms=s.rms, lost=s.lost, marker_names=np.array(solved.sequence.names),
             vertex_ids=solved.vertex_ids, fitter=np.array(solved.fitter),
             source=np.array(str(solved.sequence.path)), time_s=np.float64(s.time_s))
+    return path
+
+
+def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
+    """The rig (in metres) with its blendshapes as named morph targets and the weights as a glTF animation."""
+    from facegeom.io.gltf import write_rig_glb
+
+    rig = solved.rig
+    if rig is None:
+        raise InputError("a .glb needs the rig's mesh, and this solve carries no rig", path)
+    return write_rig_glb(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
+                         solved.solve.names, solved.solve.weights, solved.fps)
+
+
+def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
+    """The weights as a Live Link Face CSV take (the 52 ARKit shapes; see :func:`~facegeom.io.takes.ict_to_arkit`)."""
+    from facegeom.io.takes import ict_to_arkit, write_livelink_csv
+
+    W, names = ict_to_arkit(solved.solve.weights, solved.solve.names)
+    if not W.any() and solved.solve.weights.any():
+        raise InputError("none of the rig's shape names is an ICT/ARKit expression; a Live Link take "
+                         "cannot carry these weights (write .npz or .glb)", path)
+    return write_livelink_csv(path, W, names, solved.fps)
 
 
 CURVE_WRITERS = {
     ".npz": write_curves_npz,
+    ".glb": write_curves_glb,
+    ".csv": write_curves_livelink,
 }
-"""Output suffix -> writer ``(temporary path, SolvedCapture)``; written atomically by :func:`write_curves`."""
+"""Output suffix -> writer ``(path, SolvedCapture)``; every writer writes atomically."""
 
 
 def write_curves(path: str | os.PathLike, solved: SolvedCapture) -> Path:
@@ -162,6 +205,4 @@ def write_curves(path: str | os.PathLike, solved: SolvedCapture) -> Path:
     writer = CURVE_WRITERS.get(path.suffix.lower())
     if writer is None:
         raise InputError(f"unsupported curves format {path.suffix!r}; use {', '.join(CURVE_WRITERS)}", path)
-    with atomic_path(path) as tmp:
-        writer(Path(tmp), solved)
-    return path
+    return writer(path, solved)
