@@ -47,7 +47,7 @@ class _Progress:
 @click.argument("capture", type=click.Path(dir_okay=False))
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs; default: the ICT generic face.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Curves file (.npz).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Curves file: .npz (weights, head motion, solve info), .glb (the rig with named morph targets and the weights as a glTF animation) or .csv (a Live Link Face take).")
 @click.option("--fitter", default="sem-ls", show_default=True, help="A registered fitter (see `facegeom methods`).")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Fitter parameter, repeatable.")
 @click.option("--markers", default=None,
