@@ -30,7 +30,7 @@ from facegeom.pipelines.animate import drive_frames, face_error_mm
 from facegeom.registry import LINEUPS, parse_method, parse_methods
 from facegeom.viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
-__all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView"]
+__all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView", "CurvesView"]
 
 TRUE_MARKER_COLOR = (0.15, 0.15, 0.15)
 
@@ -390,3 +390,103 @@ class AnimateView(PlaybackView):
             psim.TextUnformatted(f"{label}: retarget {ret_ms:.1f} ms, deform {per_frame_ms:.2f} ms/frame")
             self.plot(f"{label} face error", self.frame_err[label])
             self.plot(f"{label} marker error", self.marker_err[label], height=40.0)
+
+
+class CurvesView(PlaybackView):
+    """Play an animation file (what ``facegeom solve`` writes): a ``.glb``, ``.npz`` curves or a Live Link take.
+
+    One face, played in real time at the file's frame rate; the panel shows the
+    file, the frame and the strongest weights of the frame as bars.
+
+    Parameters
+    ----------
+    anim : facegeom.pipelines.solve.RigAnimation
+        From :func:`facegeom.pipelines.solve.read_animation`.
+    frame : int
+        The first frame shown.
+    """
+
+    title = "facegeom view animate"
+    TOP = 10  # weights listed in the panel
+
+    def __init__(self, anim, frame: int = 0):
+        super().__init__(anim.n_frames, frame)
+        self.anim = anim
+        self.vmax = 1.0
+        self._t0: float | None = None
+        self._f0 = 0
+
+    def draw_colorbar(self) -> None:
+        """No colour scale: an animation file carries no truth to measure against."""
+
+    def copies(self) -> list[str]:
+        """The one face of the row."""
+        return ["animation"]
+
+    def shown_faces(self) -> dict:
+        """``animation`` -> the face at the current frame."""
+        return {"animation": self.anim.frame(self.frame)} if self._built else {}
+
+    def build(self) -> None:
+        """Register the face at the current frame and frame the camera on it (and its motion range)."""
+        self._built = True
+        a = self.anim
+        self.shift = np.zeros(3)
+        self.mesh("animation", a.frame(self.frame), a.triangles, self.shift)
+        for t in np.linspace(0, a.n_frames - 1, min(a.n_frames, 8)).astype(int):
+            self._grow_bounds(a.frame(int(t)))
+        self.show_frame()
+
+    def show_frame(self) -> None:
+        """Move the face to the current frame. Does nothing before :meth:`build`."""
+        import polyscope as ps
+
+        if not ps.is_initialized() or not self._built:
+            return
+        ps.get_surface_mesh("animation").update_vertex_positions(self.anim.frame(self.frame) + self.shift)
+
+    def play(self, on: bool = True) -> None:
+        """Start (``on=True``) or pause playback; playing keeps the file's frame rate (``speed`` times it)."""
+        super().play(on)
+        self._t0, self._f0 = (time.monotonic(), self.frame) if on else (None, self.frame)
+
+    def advance(self) -> None:
+        """Real-time playback: the frame is the time since play was pressed times fps (times ``speed``), wrapped."""
+        if not self.playing or self.frozen:
+            return
+        if self._t0 is None:
+            self._t0, self._f0 = time.monotonic(), self.frame
+        t = self._f0 + int((time.monotonic() - self._t0) * self.anim.fps * self.speed)
+        if t % self.n_frames != self.frame:
+            PlaybackView.set_frame(self, t)
+
+    def set_frame(self, t: int) -> None:
+        """Show frame ``t`` (wrapped); while playing, the clock restarts there (the slider and steps)."""
+        super().set_frame(t)
+        if self.playing:
+            self._t0, self._f0 = time.monotonic(), self.frame
+
+    def panel(self) -> None:
+        """The file, its frame rate and length, the playback controls and the frame's strongest weights."""
+        import polyscope.imgui as psim
+
+        a = self.anim
+        psim.TextWrapped(f"{Path(a.path).name}: {a.n_frames} frames at {a.fps:g} fps "
+                         f"({a.n_frames / a.fps:.1f} s), {len(a.names)} shapes")
+        self.playback_panel()
+        psim.TextUnformatted(f"frame {self.frame}  ({self.frame / a.fps:.2f} s)")
+        psim.Separator()
+        w = a.weights[self.frame]
+        order = np.argsort(-np.abs(w))[: self.TOP]
+        for k in order:
+            if abs(w[k]) < 1e-3:
+                break
+            psim.ProgressBar(float(np.clip(w[k], 0.0, 1.0)), (self.panel_width * 0.45, 0.0), f"{w[k]:.2f}")
+            psim.SameLine()
+            psim.TextUnformatted(a.names[k])
+
+    def state(self) -> dict:
+        """:meth:`BaseView.state` plus ``frame``, ``n_frames``, ``fps`` and ``playing``."""
+        out = super().state()
+        out.update(frame=self.frame, n_frames=self.n_frames, fps=self.anim.fps, playing=self.playing)
+        return out

@@ -76,6 +76,7 @@ def _demo_capture(ctx, folder: Path, frames: int = 300) -> None:
     from facegeom.io.takes import find_takes, ict_weights, read_take
     from facegeom.model import BlendshapeRig, locate_takes
     from facegeom.model.layouts import ict80
+    from facegeom.pipelines.solve import take_fps
 
     model = ctx.obj.face_model()
     rig = BlendshapeRig.from_face_model(model)
@@ -84,7 +85,7 @@ def _demo_capture(ctx, folder: Path, frames: int = 300) -> None:
     try:
         take = read_take(find_takes(locate_takes(None))[0])
         W = np.clip(ict_weights(take, rig.names)[:frames], 0.0, 1.0)
-        fps = float(take.timecode_fps) if np.isfinite(take.timecode_fps) and take.timecode_fps > 0 else fps
+        fps = take_fps(take)
         what = f"take {Path(take.path).name}"
     except FacegeomError:  # no takes on this machine: a synthetic performance instead
         s = np.linspace(0.0, 1.0, frames)[:, None]

@@ -149,19 +149,33 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
 
 
 @view.command("animate")
+@click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
+              help="Play this file instead: a .glb (a rig with a weights animation), .npz curves or a Live Link "
+                   ".csv take (what `facegeom solve` writes); curves and takes play on --rig.")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="With --input curves or a take: the rig (.npz or OBJ folder); default: the ICT generic face.")
 @click.option("--retargeters", default="tangent", show_default=True, help="';'-separated retargeter specs.")
 @click.option("--deformer", default="tangent", show_default=True, help="One deformer spec, e.g. 'biharmonic'.")
 @_take_options
 @_output_options
 @click.pass_obj
-def view_animate(obj, retargeters, deformer, take_path, takes_path, synthetic, start, frames, labels, seed, frame,
-                 screenshot, size, exit_after, state_path):
-    """Play the actor beside the driven character mesh (per-vertex error) and the true character."""
+def view_animate(obj, input_path, rig_path, retargeters, deformer, take_path, takes_path, synthetic, start, frames,
+                 labels, seed, frame, screenshot, size, exit_after, state_path):
+    """Play the actor beside the driven character mesh (per-vertex error) and the true character;
+    or, with --input, play an animation file (.glb, curves, Live Link take)."""
     from facegeom.viewer.app import check_display
 
     check_display(screenshot)
-    _check_screenshot(screenshot, take_path)
+    _check_screenshot(screenshot, take_path, input_path)
     _size(size)
+    if input_path is not None:
+        from facegeom.model import load_rig
+        from facegeom.pipelines.solve import read_animation
+        from facegeom.viewer.playback import CurvesView
+
+        anim = read_animation(input_path, lambda: load_rig(rig_path, obj.face_model))
+        _run(CurvesView(anim, frame=min(frame, anim.n_frames - 1)), screenshot, size, exit_after, state_path)
+        return
     from facegeom.viewer.playback import AnimateView, load_sequence
 
     model = obj.face_model()

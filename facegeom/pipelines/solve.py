@@ -36,8 +36,8 @@ from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
 from facegeom.methods.marker_solve import MarkerSolve, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
-__all__ = ["CURVE_WRITERS", "SolvedCapture", "marker_vertices", "solve_file", "write_curves", "write_curves_glb",
-           "write_curves_livelink", "write_curves_npz"]
+__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "marker_vertices", "read_animation", "solve_file", "take_fps",
+           "write_curves", "write_curves_glb", "write_curves_livelink", "write_curves_npz"]
 
 RIG_UNIT = "cm"
 """The unit of rig coordinates (the ICT face's; every facegeom rig is taken to use it)."""
@@ -206,3 +206,115 @@ def write_curves(path: str | os.PathLike, solved: SolvedCapture) -> Path:
     if writer is None:
         raise InputError(f"unsupported curves format {path.suffix!r}; use {', '.join(CURVE_WRITERS)}", path)
     return writer(path, solved)
+
+
+# ----------------------------------------------------------------------------- reading back (the viewer's player)
+
+@dataclass
+class RigAnimation:
+    """Weight curves on a rig, ready to play: frame ``t`` is ``neutral + weights[t] @ deltas``.
+
+    Attributes
+    ----------
+    neutral : (n, 3) float64
+        Rest positions in cm (a ``.glb``'s metres are converted).
+    triangles : (m, 3) int64
+    deltas : (K, n, 3) float64
+        Blendshape offsets in cm.
+    names : tuple of K str
+    weights : (T, K) float64
+    fps : float
+    path : str
+        The file read.
+    """
+
+    neutral: np.ndarray
+    triangles: np.ndarray
+    deltas: np.ndarray
+    names: tuple[str, ...]
+    weights: np.ndarray
+    fps: float
+    path: str
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return int(self.weights.shape[0])
+
+    def frame(self, t: int) -> np.ndarray:
+        """``(n, 3)`` vertex positions of frame ``t``."""
+        K, n = self.deltas.shape[:2]
+        return self.neutral + (self.weights[t] @ self.deltas.reshape(K, 3 * n)).reshape(n, 3)
+
+
+def take_fps(take) -> float:
+    """A take's frame rate from its row times (the timecode's frame base is not the capture rate), else 30."""
+    step = np.diff(np.asarray(take.times, dtype=np.float64))
+    step = step[np.isfinite(step) & (step > 0)]
+    return float(1.0 / np.median(step)) if step.size else DEFAULT_FPS
+
+
+def _rig_columns(path: Path, rig, names) -> np.ndarray:
+    """Column of each rig shape in ``names`` (-1: absent); an error when no name matches."""
+    where = {str(n): k for k, n in enumerate(names)}
+    cols = np.array([where.get(str(n), -1) for n in rig.names])
+    if (cols < 0).all():
+        raise InputError("none of the curves' shape names is a shape of the rig", path)
+    return cols
+
+
+def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
+    """Read what ``facegeom solve`` (or a glTF tool, or the Live Link Face app) writes, to play it.
+
+    ``.glb``: a mesh with morph targets and a weights animation (the file is
+    self-contained; ``rig`` is not used). ``.npz`` curves (``weights``, ``names``)
+    and Live Link ``.csv`` takes carry weights only: they play on ``rig`` (a
+    :class:`~facegeom.model.rig.BlendshapeRig`, or a callable returning one),
+    matched by shape name; rig shapes the file lacks stay at 0.
+
+    Raises
+    ------
+    InputError
+        An unknown suffix, a file that cannot be read, curves that fit no shape of the rig.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".glb":
+        from facegeom.io.gltf import read_glb_animation
+
+        g = read_glb_animation(path)
+        fps = g.fps if g.fps else DEFAULT_FPS
+        return RigAnimation(g.neutral / GLB_SCALE, g.faces, g.deltas / GLB_SCALE, tuple(g.names), g.weights,
+                            float(fps), str(path))
+    if suffix not in (".npz", ".csv"):
+        raise InputError(f"cannot play {suffix or 'a file without suffix'!r}; use .glb, .npz curves or a "
+                         "Live Link .csv take", path)
+    rig = rig() if callable(rig) else rig
+    if suffix == ".csv":
+        from facegeom.io.takes import ict_weights, read_take
+
+        take = read_take(path)
+        W = ict_weights(take, rig.names, clip=False)
+        fps = take_fps(take)
+        return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "weights" not in z or "names" not in z:
+                raise InputError("curves need the arrays 'weights' and 'names' (as `facegeom solve` writes)", path)
+            Wf = np.asarray(z["weights"], dtype=np.float64)
+            names = [str(n) for n in np.asarray(z["names"]).reshape(-1)]
+            fps = float(z["fps"]) if "fps" in z and np.asarray(z["fps"]).size == 1 else DEFAULT_FPS
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, TypeError) as exc:
+        raise InputError(f"not a readable .npz: {type(exc).__name__}: {exc}", path) from None
+    if Wf.ndim != 2 or Wf.shape[1] != len(names) or Wf.shape[0] == 0:
+        raise InputError(f"weights must have shape (T, {len(names)}) with T > 0 (one column per name), "
+                         f"got {Wf.shape}", path)
+    if not np.isfinite(Wf).all():
+        raise InputError("the weights contain NaN or inf", path)
+    if not (np.isfinite(fps) and fps > 0):
+        fps = DEFAULT_FPS
+    cols = _rig_columns(path, rig, names)
+    W = np.where(cols >= 0, Wf[:, np.maximum(cols, 0)], 0.0)
+    return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))
