@@ -71,6 +71,26 @@ def _camera(intr, R, t, k) -> PinholeCamera:
     return PinholeCamera(intr[0][k], intr[1][k], intr[2][k], U @ Vt, t[k])
 
 _TINY = 1e-300
+_BEHIND = "a fitted landmark went behind the camera (the expression moves it past the camera)"
+
+
+def _cut_path(order, step_e, step_gain, min_gain):
+    """A recorded greedy path cut where a target's step first gains less than ``min_gain (K,)``.
+
+    ``order, step_e, step_gain (K, B)`` as :meth:`SEMFitter._greedy_landmarks`
+    returns them. The greedy with ``min_gain`` makes the same selections up
+    to that step and stops there, so this is its result: ``e (K, B)``,
+    ``order (K, B)``.
+    """
+    K, B = order.shape
+    went = order >= 0
+    low = went & (step_gain < min_gain[:, None])
+    cut = np.where(low.any(axis=1), np.argmax(low, axis=1), went.sum(axis=1))
+    keep = went & (np.arange(B)[None] < cut[:, None])
+    e = np.zeros((K, B))
+    kk, ss = np.nonzero(keep)
+    e[kk, order[kk, ss]] = step_e[kk, ss]
+    return e, np.where(keep, order, -1)
 
 
 def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim", min_gain=None):
@@ -598,11 +618,13 @@ class SEMFitter(Params):
                 e, order = self._lsq_landmarks(rig, ids, L, R, t, *intr)
                 orders[:] = order
                 return e
-            e, order = self._sem_landmarks(rig, ids, L, R, t, *intr)
+            e, order, step_e, step_gain = self._greedy_landmarks(rig, ids, L, R, t, *intr)
             if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
                 F = rig.neutral[ids][None] + np.tensordot(e, rig.deltas[:, ids], 1)
                 resid = ((project_many(F, R, t, *intr) - L) ** 2).sum(axis=(1, 2))
-                e, order = self._sem_landmarks(rig, ids, L, R, t, *intr, self._ric_threshold(rig, resid, L[0].size, e))
+                # the second pass repeats the first up to its stop: cut the first instead of running it again
+                e, order = _cut_path(order, step_e, step_gain, np.broadcast_to(
+                    self._ric_threshold(rig, resid, L[0].size, e), (len(e),)).astype(np.float64))
             if self.refit:
                 e = np.stack([self._refit_landmarks(rig, ids, L[k], _camera(intr, R, t, k), e[k])
                               for k in range(len(e))])
@@ -624,96 +646,131 @@ class SEMFitter(Params):
 
         ``L (K, n, 2)`` landmarks of the vertices ``ids``; camera ``k`` is
         ``(R[k], t[k], f[k], cx[k], cy[k])``. Returns ``e (K, B)`` and the
-        selection orders ``(K, B)`` (-1 after the last). The work is done in
-        camera space (the rotated deltas are computed once), and the exclusion
-        test projects only the (target, candidate) pairs still alive.
+        selection orders ``(K, B)`` (-1 after the last). ``min_gain (K,)``
+        stops a target where its selection would gain less (``stop="ric"``):
+        the selections up to there are those of the run without it, so that
+        run is cut (:func:`_cut_path`) instead of being repeated.
+        """
+        e, order, step_e, step_gain = self._greedy_landmarks(rig, ids, L, R, t, f, cx, cy)
+        if min_gain is None:
+            return e, order
+        return _cut_path(order, step_e, step_gain, np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (len(e),)))
+
+    def _greedy_landmarks(self, rig, ids, L, R, t, f, cx, cy):
+        """The greedy of :meth:`_sem_landmarks` without a stop, recording every step.
+
+        Returns ``e (K, B)``, ``order (K, B)`` and per step ``s`` of target
+        ``k`` (where ``order[k, s] >= 0``) the coefficient it added,
+        ``step_e[k, s]``, and the decrease of the squared residual it was
+        credited with, ``step_gain[k, s] = 2 e p - e^2 |dB|^2`` (the quantity
+        ``min_gain`` is compared with).
+
+        Everything that does not change during the selection is computed once
+        per target in camera space: the rotated deltas ``RD``, the candidates'
+        projected motions ``M = Pi(B_i) - Pi(B_1)`` (eq. 20) and, for the
+        exclusion test (eq. 22), ``b_in = RD_in,x dTu_n - RD_in,y dTv_n``.
+        With ``x/d`` the perspective division, the index of the current face
+        ``F^t`` moved by ``e_i dB_i`` is then
+        ``1 - f (sum_n (a_n + e_i b_in) / (d_n + e_i RDd_in) - c0) / |dT|^2``
+        (``a_n = x_n dTu_n - y_n dTv_n`` and ``d_n`` of ``F^t``,
+        ``c0 = sum_n (x_n dTu_n - y_n dTv_n) / d_n`` of ``F^1``): a few
+        ``(K, B, n)`` operations per step. Targets that stopped are dropped
+        from the work arrays once half of them have.
         """
         K, n = L.shape[:2]
         B = rig.n_shapes
-        deltas = rig.deltas[:, ids]  # (B, n, 3)
-        fc, cxc, cyc = f[:, None], cx[:, None], cy[:, None]
-
-        def uv(pc, rows):
-            """Pixels of camera-space points ``pc (k, ..., n, 3)`` of targets ``rows`` -> u, v ``(k, ..., n)``."""
-            d = -pc[..., 2]
-            if not np.all(d > 0):
-                raise InputError("a fitted landmark went behind the camera (the expression moves it past the camera)")
-            sh = (rows.size,) + (1,) * (pc.ndim - 2)
-            return (cxc[rows].reshape(sh) + fc[rows].reshape(sh) * pc[..., 0] / d,
-                    cyc[rows].reshape(sh) - fc[rows].reshape(sh) * pc[..., 1] / d)
-
-        allk = np.arange(K)
         P1 = rig.neutral[ids] @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (K, n, 3) camera space
         if not np.all(P1[..., 2] < 0):
             k = int(np.argwhere(~(P1[..., 2] < 0))[0, 0])
             raise InputError(f"a landmark is behind the camera{f' (target {k})' if K > 1 else ''}")
-        RD = np.einsum("kij,bnj->kbni", R, deltas)  # rotated deltas (K, B, n, 3)
-        u1, v1 = uv(P1, allk)  # Pi(F^1)
-        uB, vB = uv(P1[:, None] + RD, allk)
-        Mu, Mv = uB - u1[:, None], vB - v1[:, None]  # Pi(B_i) - Pi(B_1): (K, B, n)
-        nrm2 = np.einsum("kbn,kbn->kb", Mu, Mu) + np.einsum("kbn,kbn->kb", Mv, Mv)
+        RD = np.einsum("kij,bnj->kbni", R, rig.deltas[:, ids])  # rotated deltas (K, B, n, 3)
+        d1 = -P1[..., 2]
+        X1, Y1 = P1[..., 0] / d1, P1[..., 1] / d1
+        RDd = -RD[..., 2]  # depth change of each candidate at full weight
+        dB = d1[:, None] + RDd
+        if not np.all(dB > 0):
+            raise InputError(_BEHIND)
+        fk = f[:, None, None]
+        M = np.concatenate([fk * ((P1[:, None, :, 0] + RD[..., 0]) / dB - X1[:, None]),
+                            -fk * ((P1[:, None, :, 1] + RD[..., 1]) / dB - Y1[:, None])], axis=2)  # (K, B, 2n)
+        nrm2 = np.einsum("kbm,kbm->kb", M, M)
         moves = nrm2 > _TINY
         safe2 = np.where(moves, nrm2, 1.0)
+        u1, v1 = cx[:, None] + f[:, None] * X1, cy[:, None] - f[:, None] * Y1  # Pi(F^1)
         dTu, dTv = L[..., 0] - u1, L[..., 1] - v1  # L - Pi(F^1)
         tt = np.einsum("kn,kn->k", dTu, dTu) + np.einsum("kn,kn->k", dTv, dTv)
         has_t = tt > _TINY
-        inv_tt = np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0)
-        min_gain = None if min_gain is None else np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (K,))
+        w = {  # per-target work arrays, rows = targets gid
+            "M": M, "RD": RD, "RDd": RDd, "bq": RD[..., 0] * dTu[:, None] - RD[..., 1] * dTv[:, None],
+            "PF": P1.copy(), "L": np.concatenate([L[..., 0], L[..., 1]], axis=1), "dTu": dTu, "dTv": dTv,
+            "c0": np.einsum("kn,kn->k", X1, dTu) - np.einsum("kn,kn->k", Y1, dTv),
+            "f": f, "cx": cx, "cy": cy, "nrm2": nrm2, "moves": moves, "safe2": safe2, "rsafe": np.sqrt(safe2),
+            "level": 1e-9 * np.sqrt(tt)[:, None] * np.sqrt(safe2), "has_t": has_t,
+            "inv_tt": np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0), "alive": moves.copy(),
+        }
+        gid = np.arange(K)
         e = np.zeros((K, B))
         order = np.full((K, B), -1, dtype=np.int64)
-        PF = P1.copy()  # the current face F^t, camera space
-        alive = moves.copy()
-        r_prev = np.ones(K)
+        step_e = np.zeros((K, B))
+        step_gain = np.full((K, B), np.inf)
         upper = self._upper
-        act = np.flatnonzero(alive.any(axis=1))  # targets still selecting
+        act = np.flatnonzero(w["alive"].any(axis=1))  # rows of w still selecting
         for step in range(B):
             if act.size == 0:
                 break
-            uF, vF = uv(PF[act], act)
-            proj = (np.einsum("kbn,kn->kb", Mu[act], L[act, :, 0] - uF)
-                    + np.einsum("kbn,kn->kb", Mv[act], L[act, :, 1] - vF))  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            if act.size <= gid.size // 2:  # compact the work arrays to the targets still selecting
+                w = {key: v[act] for key, v in w.items()}
+                gid, act = gid[act], np.arange(act.size)
+            a = (lambda key: w[key]) if act.size == gid.size else (lambda key: w[key][act])
+            PF, fa = a("PF"), a("f")
+            d = -PF[..., 2]
+            xd, yd = PF[..., 0] / d, PF[..., 1] / d
+            res = a("L") - np.concatenate([a("cx")[:, None] + fa[:, None] * xd, a("cy")[:, None] - fa[:, None] * yd],
+                                          axis=1)  # L - Pi(F^t)
+            proj = np.matmul(a("M"), res[:, :, None])[:, :, 0]  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            safe2 = a("safe2")
             # eq. 21 (clamped, eq. 18); a projection at rounding level counts as none
-            level = 1e-9 * np.sqrt(tt[act])[:, None] * np.sqrt(safe2[act])
-            ei = np.where(moves[act] & (proj > level), proj / safe2[act], 0.0)
+            ei = np.where(a("moves") & (proj > a("level")), proj / safe2, 0.0)
             if upper is not None:
                 ei = np.minimum(ei, upper)
-            al = alive[act]
+            al = a("alive").copy()
             if self.exclusion and step > 0:
-                kk, bb = np.nonzero(al & has_t[act][:, None])
-                if kk.size:
-                    g = act[kk]
-                    moved = PF[g] + ei[kk, bb][:, None, None] * RD[g, bb]  # F^t + e_i dB_i
-                    um, vm = uv(moved, g)
-                    r = 1.0 - (np.einsum("pn,pn->p", um - u1[g], dTu[g])
-                               + np.einsum("pn,pn->p", vm - v1[g], dTv[g])) * inv_tt[g]  # eq. 22
-                    # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
-                    worse = np.abs(r) - np.abs(r_prev[g]) > 1e-11
-                    al[kk[worse], bb[worse]] = False
+                has_t, c0, inv_tt = a("has_t"), a("c0"), a("inv_tt")
+                mask = al & has_t[:, None]
+                em = np.where(mask, ei, 0.0)[:, :, None]
+                den = d[:, None, :] + em * a("RDd")  # depth of F^t + e_i dB_i
+                if not np.all(den > 0):
+                    raise InputError(_BEHIND)
+                an = PF[..., 0] * a("dTu") - PF[..., 1] * a("dTv")
+                r = 1.0 - fa[:, None] * (((an[:, None, :] + em * a("bq")) / den).sum(axis=2) - c0[:, None]) \
+                    * inv_tt[:, None]  # eq. 22
+                r_prev = np.where(has_t, 1.0 - fa * ((an / d).sum(axis=1) - c0) * inv_tt, 1.0)
+                # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
+                al &= ~(mask & (np.abs(r) - np.abs(r_prev)[:, None] > 1e-11))
             # once no alive candidate has a positive coefficient, every later selection adds 0 and leaves the
             # face, the residual and the index unchanged: the coefficients are final, stop this target here
             go = (al & (ei > 0)).any(axis=1)
             if self.select == "gain":
-                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2[act], -np.inf)
+                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2, -np.inf)
             else:
-                score = np.where(al, proj / np.sqrt(safe2[act]), -np.inf)  # eq. 20
+                score = np.where(al, proj / a("rsafe"), -np.inf)  # eq. 20
             pick = np.argmax(score, axis=1)
             rows = np.arange(act.size)
             ep = ei[rows, pick]
-            if min_gain is not None:
-                go &= ~(2.0 * ep * proj[rows, pick] - ep * ep * nrm2[act, pick] < min_gain[act])
+            gain = 2.0 * ep * proj[rows, pick] - ep * ep * a("nrm2")[rows, pick]
             al[rows, pick] = False
-            alive[act] = al
-            g = act[go]
-            pg = pick[go]
-            e[g, pg] += ep[go]
-            PF[g] += ep[go][:, None, None] * RD[g, pg]
-            ug, vg = uv(PF[g], g)
-            r_prev[g] = np.where(has_t[g], 1.0 - (np.einsum("kn,kn->k", ug - u1[g], dTu[g])
-                                                  + np.einsum("kn,kn->k", vg - v1[g], dTv[g])) * inv_tt[g], r_prev[g])
-            order[g, step] = pg
-            alive[act[~go]] = False
-            act = g[alive[g].any(axis=1)]
-        return e, order
+            al[~go] = False
+            w["alive"][act] = al
+            g, pg, gk = act[go], pick[go], gid[act[go]]
+            e[gk, pg] += ep[go]
+            order[gk, step] = pg
+            step_e[gk, step] = ep[go]
+            step_gain[gk, step] = gain[go]
+            w["PF"][g] += ep[go][:, None, None] * w["RD"][g, pg]
+            if not np.all(w["PF"][g][..., 2] < 0):
+                raise InputError(_BEHIND)
+            act = g[al[go].any(axis=1)]
+        return e, order, step_e, step_gain
 
     def _lsq_landmarks(self, rig, ids, L, R, t, f, cx, cy):
         """``coefficients="lsq"`` on landmarks: :func:`sem_orthogonal_gram` on each target's projected motions.
