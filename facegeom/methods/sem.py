@@ -679,20 +679,21 @@ class SEMFitter(Params):
         """
         K, n = L.shape[:2]
         B = rig.n_shapes
-        P1 = rig.neutral[ids] @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (K, n, 3) camera space
-        if not np.all(P1[..., 2] < 0):
-            k = int(np.argwhere(~(P1[..., 2] < 0))[0, 0])
+        P1 = np.matmul(R, rig.neutral[ids].T) + t[:, :, None]  # (K, 3, n) camera space, coordinate-major
+        if not np.all(P1[:, 2] < 0):
+            k = int(np.argwhere(~(P1[:, 2] < 0))[0, 0])
             raise InputError(f"a landmark is behind the camera{f' (target {k})' if K > 1 else ''}")
-        RD = np.einsum("kij,bnj->kbni", R, rig.deltas[:, ids])  # rotated deltas (K, B, n, 3)
-        d1 = -P1[..., 2]
-        X1, Y1 = P1[..., 0] / d1, P1[..., 1] / d1
-        RDd = -RD[..., 2]  # depth change of each candidate at full weight
+        # rotated deltas (K, 3, B, n): one product for all targets
+        RD = (R.reshape(3 * K, 3) @ rig.deltas[:, ids].reshape(-1, 3).T).reshape(K, 3, B, n)
+        d1 = -P1[:, 2]
+        X1, Y1 = P1[:, 0] / d1, P1[:, 1] / d1
+        RDd = -RD[:, 2]  # depth change of each candidate at full weight
         dB = d1[:, None] + RDd
         if not np.all(dB > 0):
             raise InputError(_BEHIND)
         fk = f[:, None, None]
-        M = np.concatenate([fk * ((P1[:, None, :, 0] + RD[..., 0]) / dB - X1[:, None]),
-                            -fk * ((P1[:, None, :, 1] + RD[..., 1]) / dB - Y1[:, None])], axis=2)  # (K, B, 2n)
+        M = np.concatenate([fk * ((P1[:, None, 0] + RD[:, 0]) / dB - X1[:, None]),
+                            -fk * ((P1[:, None, 1] + RD[:, 1]) / dB - Y1[:, None])], axis=2)  # (K, B, 2n)
         nrm2 = np.einsum("kbm,kbm->kb", M, M)
         moves = nrm2 > _TINY
         safe2 = np.where(moves, nrm2, 1.0)
@@ -701,7 +702,8 @@ class SEMFitter(Params):
         tt = np.einsum("kn,kn->k", dTu, dTu) + np.einsum("kn,kn->k", dTv, dTv)
         has_t = tt > _TINY
         w = {  # per-target work arrays, rows = targets gid
-            "M": M, "RD": RD, "RDd": RDd, "bq": RD[..., 0] * dTu[:, None] - RD[..., 1] * dTv[:, None],
+            "M": M, "RD": RD, "RDd": np.ascontiguousarray(RDd),
+            "bq": RD[:, 0] * dTu[:, None] - RD[:, 1] * dTv[:, None],
             "PF": P1.copy(), "L": np.concatenate([L[..., 0], L[..., 1]], axis=1), "dTu": dTu, "dTv": dTv,
             "c0": np.einsum("kn,kn->k", X1, dTu) - np.einsum("kn,kn->k", Y1, dTv),
             "f": f, "cx": cx, "cy": cy, "nrm2": nrm2, "moves": moves, "safe2": safe2, "rsafe": np.sqrt(safe2),
@@ -723,11 +725,11 @@ class SEMFitter(Params):
                 gid, act = gid[act], np.arange(act.size)
             a = (lambda key: w[key]) if act.size == gid.size else (lambda key: w[key][act])
             PF, fa = a("PF"), a("f")
-            d = -PF[..., 2]
-            xd, yd = PF[..., 0] / d, PF[..., 1] / d
+            d = -PF[:, 2]
+            xd, yd = PF[:, 0] / d, PF[:, 1] / d
             res = a("L") - np.concatenate([a("cx")[:, None] + fa[:, None] * xd, a("cy")[:, None] - fa[:, None] * yd],
                                           axis=1)  # L - Pi(F^t)
-            proj = np.matmul(a("M"), res[:, :, None])[:, :, 0]  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            proj = np.einsum("kbm,km->kb", a("M"), res)  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
             safe2 = a("safe2")
             # eq. 21 (clamped, eq. 18); a projection at rounding level counts as none
             ei = np.where(a("moves") & (proj > a("level")), proj / safe2, 0.0)
@@ -738,12 +740,15 @@ class SEMFitter(Params):
                 has_t, c0, inv_tt = a("has_t"), a("c0"), a("inv_tt")
                 mask = al & has_t[:, None]
                 em = np.where(mask, ei, 0.0)[:, :, None]
-                den = d[:, None, :] + em * a("RDd")  # depth of F^t + e_i dB_i
+                den = em * a("RDd")
+                den += d[:, None, :]  # depth of F^t + e_i dB_i
                 if not np.all(den > 0):
                     raise InputError(_BEHIND)
-                an = PF[..., 0] * a("dTu") - PF[..., 1] * a("dTv")
-                r = 1.0 - fa[:, None] * (((an[:, None, :] + em * a("bq")) / den).sum(axis=2) - c0[:, None]) \
-                    * inv_tt[:, None]  # eq. 22
+                an = PF[:, 0] * a("dTu") - PF[:, 1] * a("dTv")
+                num = em * a("bq")
+                num += an[:, None, :]
+                num /= den
+                r = 1.0 - fa[:, None] * (num.sum(axis=2) - c0[:, None]) * inv_tt[:, None]  # eq. 22
                 r_prev = np.where(has_t, 1.0 - fa * ((an / d).sum(axis=1) - c0) * inv_tt, 1.0)
                 # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
                 al &= ~(mask & (np.abs(r) - np.abs(r_prev)[:, None] > 1e-11))
@@ -766,8 +771,8 @@ class SEMFitter(Params):
             order[gk, step] = pg
             step_e[gk, step] = ep[go]
             step_gain[gk, step] = gain[go]
-            w["PF"][g] += ep[go][:, None, None] * w["RD"][g, pg]
-            if not np.all(w["PF"][g][..., 2] < 0):
+            w["PF"][g] += ep[go][:, None, None] * w["RD"][g, :, pg]
+            if not np.all(w["PF"][g, 2] < 0):
                 raise InputError(_BEHIND)
             act = g[al[go].any(axis=1)]
         return e, order, step_e, step_gain
