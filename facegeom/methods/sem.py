@@ -232,64 +232,84 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
 
 
 def _orthogonal_chunk(c, G, tt, m, upper):
+    """:func:`sem_orthogonal_gram` on one chunk of targets.
+
+    The selected shapes are orthonormalised as they come (Gram-Schmidt in the
+    inner products, i.e. a Cholesky factor grown a row per step): row ``j`` of
+    ``A (K, S, B)`` holds ``q_j . dB_i`` for the ``j``-th orthonormal direction
+    ``q_j`` of a target's selection and every candidate, ``z_j = q_j . dT``.
+    A step then costs ``O(j B)`` per target: the new row, the remaining
+    projections ``p -= z_j A_j`` and ``RSS = |dT|^2 - sum z_j^2``. The
+    least-squares coefficients are only needed where GCV was best: one
+    triangular solve per target at the end.
+    """
     K, B = c.shape
     diag = np.diag(G).copy()
     moves = diag > _TINY
     inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
     scale = np.maximum(tt, _TINY)
-    Ginv = np.zeros((K, B, B))  # inverse of G on each target's selection, zero elsewhere
-    sel = np.zeros((K, B), dtype=bool)
+    S = max(min(B, m - 1), 0)
+    A = np.zeros((K, S, B))  # A[k, j] = q_j . dB_i
+    z = np.zeros((K, S))  # q_j . dT
+    picked = np.full((K, S), -1, dtype=np.int64)  # the shape behind q_j
+    rank = np.zeros(K, dtype=np.int64)
+    zz = np.zeros(K)  # sum of z_j^2: the part of |dT|^2 explained
+    proj = c.copy()  # dT^t . dB_i, the remaining motion against every candidate
     alive = np.broadcast_to(moves, (K, B)).copy()
-    e = np.zeros((K, B))
-    best_e = np.zeros((K, B))
     best_gcv = m * tt / float(m) ** 2  # the empty selection
     best_k = np.zeros(K, dtype=np.int64)
-    order = np.full((K, B), -1, dtype=np.int64)
     rows = np.arange(K)
     active = np.ones(K, dtype=bool)
-    for step in range(min(B, m - 1)):
-        proj = c - e @ G
+    level = 1e-9 * np.sqrt(scale)
+    for step in range(S):
         score = np.where(alive, proj * inv_norm, -np.inf)
-        pick = np.argmax(score, axis=1)
-        sp = score[rows, pick]
+        p = np.argmax(score, axis=1)
         # a projection at rounding level (the target already reached) is no motion towards it
-        active &= sp > 1e-9 * np.sqrt(scale)
+        active &= score[rows, p] > level
         if not active.any():
             break
-        p = pick
         alive[rows[active], p[active]] = False
-        g = G[p] * sel  # (K, B): the new shape against the selected ones
-        w = np.matmul(Ginv, g[:, :, None])[:, :, 0]
-        schur = diag[p] - np.einsum("ki,ki->k", g, w)
+        hi = step  # rank <= step: rows beyond are zero
+        Ap = A[rows, :hi, p]  # (K, hi): the new shape on the selected directions
+        schur = diag[p] - np.einsum("kj,kj->k", Ap, Ap)
         # a shape in the span of the selection adds nothing: skip it (and targets that stopped)
         ok = active & (schur > 1e-10 * diag[p])
         if not ok.any():
             continue
-        s = np.where(ok, 1.0 / np.where(ok, schur, 1.0), 0.0)
-        sw = s[:, None] * w
-        Ginv += sw[:, :, None] * w[:, None, :]  # no-op where s = 0
-        a = rows[ok]
-        pa = p[ok]
-        Ginv[a, :, pa] = -sw[ok]
-        Ginv[a, pa, :] = -sw[ok]
-        Ginv[a, pa, pa] = s[ok]
-        sel[a, pa] = True
-        e = np.matmul(Ginv, (c * sel)[:, :, None])[:, :, 0]
-        ea = e[a]
-        order[a, step] = pa
-        rss = np.maximum(tt[a] - np.einsum("ki,ki->k", ea, c[a]), 0.0)
-        k_sel = sel[a].sum(axis=1)
-        gcv = m * rss / (m - k_sel).astype(np.float64) ** 2
+        if ok.all():
+            a, pa, Apa, Aa = rows, p, Ap, A[:, :hi]
+        else:
+            a = rows[ok]
+            pa, Apa, Aa = p[a], Ap[a], A[a, :hi]
+        sq = np.sqrt(schur[a])
+        row = (G[pa] - np.einsum("kj,kjb->kb", Apa, Aa)) / sq[:, None]
+        zn = (c[a, pa] - np.einsum("kj,kj->k", Apa, z[a, :hi])) / sq
+        ra = rank[a]
+        A[a, ra] = row
+        z[a, ra] = zn
+        picked[a, ra] = pa
+        rank[a] = ra + 1
+        proj[a] -= zn[:, None] * row
+        zz[a] += zn * zn
+        rss = np.maximum(tt[a] - zz[a], 0.0)
+        gcv = m * rss / (m - (ra + 1)).astype(np.float64) ** 2
         better = gcv < best_gcv[a]
         best_gcv[a[better]] = gcv[better]
-        best_e[a[better]] = ea[better]
-        best_k[a[better]] = k_sel[better]
-    # the selection in order, cut where GCV was best
-    picked = order >= 0  # steps that selected (a skipped candidate leaves -1)
-    rank = np.cumsum(picked, axis=1) - 1
-    kk, step = np.nonzero(picked & (rank < best_k[:, None]))
+        best_k[a[better]] = ra[better] + 1
+    # coefficients of the selection cut where GCV was best: A[k, :bk, picked[k, :bk]] is upper triangular
+    kmax = int(best_k.max(initial=0))
+    best_e = np.zeros((K, B))
     out_order = np.full((K, B), -1, dtype=np.int64)
-    out_order[kk, rank[kk, step]] = order[kk, step]
+    if kmax:
+        j = np.arange(kmax)
+        use = j[None] < best_k[:, None]  # (K, kmax)
+        cols = np.where(use, picked[:, :kmax], 0)
+        U = np.take_along_axis(A[:, :kmax], np.broadcast_to(cols[:, None, :], (K, kmax, kmax)), axis=2)
+        U = np.where(use[:, :, None] & use[:, None, :], U, 0.0) + np.where(use, 0.0, 1.0)[:, :, None] * np.eye(kmax)
+        x = np.linalg.solve(U, np.where(use, z[:, :kmax], 0.0)[:, :, None])[:, :, 0]
+        kk, jj = np.nonzero(use)
+        best_e[kk, picked[kk, jj]] = x[kk, jj]
+        out_order[:, :kmax] = np.where(use, picked[:, :kmax], -1)
     hi = np.inf if upper is None else upper
     bad = np.flatnonzero(((best_e < -1e-12) | (best_e > hi + 1e-12)).any(axis=1))
     for k in bad:  # bounded least squares on the chosen selection
@@ -638,7 +658,9 @@ class SEMFitter(Params):
             cams = [tg.camera for tg in targets]
         else:
             e, R, t = fit_with_poses(rig, ids, L, intr, solve, self.alternations)
-            cams = [_camera(intr, R, t, k) for k in range(len(targets))]
+            U, _, Vt = np.linalg.svd(R)  # the nearest rotations, free of accumulated rounding (all at once)
+            R = U @ Vt
+            cams = [PinholeCamera(intr[0][k], intr[1][k], intr[2][k], R[k], t[k]) for k in range(len(targets))]
         return e, cams, [[int(i) for i in o if i >= 0] for o in orders]
 
     def _sem_landmarks(self, rig, ids, L, R, t, f, cx, cy, min_gain=None):
