@@ -50,6 +50,7 @@ shapes' coefficients on the data.
 """
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -57,6 +58,7 @@ from functools import partial
 import numpy as np
 from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
@@ -320,6 +322,33 @@ def _orthogonal_chunk(c, G, tt, m, upper):
     return best_e, out_order
 
 
+def _products(Tf, DN, min_rows: int = 64):
+    """``Tf @ DN`` and the squared row norms of ``Tf (K, m)``, the targets split over the cores.
+
+    Each core takes a block of targets with a one-thread BLAS product written
+    as ``DN^T Tf^T`` (OpenBLAS's faster kernel for this tall, thin shape: ~40 %
+    less CPU time than ``Tf @ DN`` here) and the norms of the same rows while
+    they are in cache. On a machine shared with other jobs, BLAS's own threads
+    wait for each other at every synchronisation; blocks of whole products do not.
+    """
+    K = Tf.shape[0]
+    n_blocks = max(1, min(os.cpu_count() or 1, K // min_rows))
+    bounds = np.linspace(0, K, n_blocks + 1).astype(int)
+    blocks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def block(sl):
+        X = Tf[sl]
+        return DN.T @ X.T, np.einsum("ij,ij->i", X, X)
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        if n_blocks > 1:
+            with ThreadPoolExecutor(n_blocks) as pool:
+                outs = list(pool.map(block, blocks))
+        else:
+            outs = [block(blocks[0])]
+    return np.concatenate([o[0] for o in outs], axis=1).T, np.concatenate([o[1] for o in outs])
+
+
 def _bounded_gram_lsq(Gs, cs, upper):
     """``argmin e.Gs.e - 2 cs.e`` over ``0 <= e <= upper`` (via the Cholesky factor of ``Gs``)."""
     from scipy.linalg import cholesky, solve_triangular
@@ -562,9 +591,8 @@ class SEMFitter(Params):
         Tf = T.reshape(K, -1)
         # one GEMM gives every T . dB_i and T . n; |dT|^2 = |T|^2 - 2 T . n + |n|^2 (no (K, 3n) temporary;
         # the cancellation costs ~1e-16 |T|^2, far below any motion worth fitting)
-        cn = Tf @ np.c_[D, n_flat]
+        cn, t2 = _products(Tf, np.c_[D, n_flat])
         c = cn[:, :-1] - (n_flat @ D)[None]
-        t2 = np.einsum("ij,ij->i", Tf, Tf)
         tt = np.maximum(t2 - 2.0 * cn[:, -1] + n_flat @ n_flat, 0.0)
         near = np.flatnonzero(tt <= 1e-10 * t2)  # (almost) the neutral itself: recompute exactly
         if near.size:
