@@ -143,3 +143,17 @@ def test_threads_give_the_one_thread_result(face_model, rig):
         np.testing.assert_array_equal(a.weights, b.weights)
         np.testing.assert_array_equal(a.info["camera"].t, b.info["camera"].t)
         assert a.info["order"] == b.info["order"]
+
+
+def test_speed_experiment_tables(face_model, rig):
+    from facegeom.bench import fit as bf
+    from facegeom.registry import parse_methods
+
+    specs = parse_methods("sem-ls;l2reg", "fitters", [])
+    mesh = bf.run_mesh_throughput(rig, specs, count=40, one_by_one=3, repeats=2)
+    assert [r["method"] for r in mesh] == ["sem-ls", "l2reg"]
+    assert mesh[0]["path"] == "batched" and all(r["fits_per_s"] > 0 for r in mesh)
+    marks = bf.run_landmark_throughput(face_model, specs[:1], count=8, repeats=2)
+    assert marks[0]["estimated_pose"] > 0 and marks[0]["known_pose"] > 0
+    table = bf.summarize({"landmark_speed": marks, "mesh_speed": mesh}, specs)
+    assert "Landmark throughput" in table and "Mesh throughput" in table and "l2reg" in table
