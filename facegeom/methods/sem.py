@@ -759,9 +759,13 @@ class SEMFitter(Params):
         dB = d1[:, None] + RDd
         if not np.all(dB > 0):
             raise InputError(_BEHIND)
-        fk = f[:, None, None]
-        M = np.concatenate([fk * ((P1[:, None, 0] + RD[:, 0]) / dB - X1[:, None]),
-                            -fk * ((P1[:, None, 1] + RD[:, 1]) / dB - Y1[:, None])], axis=2)  # (K, B, 2n)
+        M = np.empty((K, B, 2 * n))  # (K, B, 2n): u then v, in place (no (K, B, n) temporaries)
+        for j, (c1, sign) in enumerate(((X1, 1.0), (Y1, -1.0))):
+            Mj = M[:, :, j * n:(j + 1) * n]
+            np.add(P1[:, None, j], RD[:, j], out=Mj)
+            Mj /= dB
+            Mj -= c1[:, None]
+            Mj *= sign * f[:, None, None]
         nrm2 = np.einsum("kbm,kbm->kb", M, M)
         moves = nrm2 > _TINY
         safe2 = np.where(moves, nrm2, 1.0)
