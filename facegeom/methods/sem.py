@@ -213,7 +213,7 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
         chosen least-squares coefficients leave ``[0, upper]`` is refitted on its
         selection with the bounds (bounded least squares).
     chunk : int
-        Targets updated together (keeps the ``(chunk, B, B)`` inverses in cache).
+        Targets updated together (keeps the ``(chunk, B, B)`` factors in cache).
 
     Returns
     -------
