@@ -50,7 +50,7 @@ from facegeom.model import (
 )
 from facegeom.model.scenarios import fitting_cases
 
-EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal")
+EXPERIMENTS = ("landmarks", "clouds", "meshes", "temporal", "speed")
 KEY_SHAPES = ("jawOpen", "eyeBlink_L", "eyeBlink_R", "mouthSmile_L", "mouthSmile_R", "browInnerUp_L", "mouthFunnel")
 
 
@@ -133,13 +133,14 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
     return rows
 
 
-def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10):
+def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10, repeats=1):
     """Landmark fits per second on one rig: known pose and estimated pose.
 
     A method that solves landmark targets together (``"landmarks"`` in
     :func:`~facegeom.interfaces.batched_targets`) fits ``count`` targets in one
     :func:`~facegeom.interfaces.fit_many`; others are timed one by one on
-    ``one_by_one`` targets.
+    ``one_by_one`` targets. The rate is the median of ``repeats`` timed runs
+    (on a shared machine single runs vary by 2x).
     """
     rng = np.random.default_rng([int(seed), 57])
     cases = fitting_cases(model, count, int(seed) + 1000)
@@ -162,16 +163,19 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
             except FacegeomError:
                 row[key] = float("nan")
                 continue
-            if "landmarks" in batched_targets(m):
-                t = time.perf_counter()
-                fit_many(m, rig, targets)
-                n, row["path"] = len(targets), "batched"
-            else:
-                n, row["path"] = min(one_by_one, len(targets)), "one by one"
-                t = time.perf_counter()
-                for tg in targets[:n]:
-                    m.fit(rig, tg)
-            row[key] = n / (time.perf_counter() - t)
+            rates = []
+            for _ in range(max(1, int(repeats))):
+                if "landmarks" in batched_targets(m):
+                    t = time.perf_counter()
+                    fit_many(m, rig, targets)
+                    n, row["path"] = len(targets), "batched"
+                else:
+                    n, row["path"] = min(one_by_one, len(targets)), "one by one"
+                    t = time.perf_counter()
+                    for tg in targets[:n]:
+                        m.fit(rig, tg)
+                rates.append(n / (time.perf_counter() - t))
+            row[key] = float(np.median(rates))
         rows.append(row)
     return rows
 
@@ -273,7 +277,7 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
         after a 10-target warm-up (``"batched"``) when the method batches mesh
         targets, else the first 100 one by one (``"one by one"``).
     """
-    rows, throughput = [], []
+    rows = []
     rigs = {}
     for ci, c in enumerate(progress_bar(cases, "meshes", progress)):
         rig = BlendshapeRig.from_face_model(model, c.identity)
@@ -289,29 +293,45 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
             row.update(_common(rig, r, c.weights, V))
             rows.append(row)
     # throughput on one rig: many targets at once where a method has a batched path
-    rig = rigs[0]
+    return rows, run_mesh_throughput(rigs[0], specs, seed)
+
+
+def run_mesh_throughput(rig, specs, seed=0, count=2000, one_by_one=100, repeats=1):
+    """Mesh fits per second on one rig: ``count`` random sparse targets in correspondence.
+
+    Each shape is active with probability 0.08, weight U(0.2, 1). A method that
+    batches mesh targets (``"mesh"`` in :func:`~facegeom.interfaces.batched_targets`)
+    fits them all in one :func:`~facegeom.interfaces.fit_many` after a
+    10-target warm-up (``"batched"``); others fit the first ``one_by_one`` one by
+    one. The rate is the median of ``repeats`` timed runs. Returns one dict
+    per method that accepts meshes: ``method``, ``fits_per_s``, ``path``.
+    """
     rng = np.random.default_rng([int(seed), 31])
-    W = np.where(rng.random((2000, rig.n_shapes)) < 0.08, rng.uniform(0.2, 1.0, (2000, rig.n_shapes)), 0.0)
+    W = np.where(rng.random((count, rig.n_shapes)) < 0.08, rng.uniform(0.2, 1.0, (count, rig.n_shapes)), 0.0)
     T = rig.neutral[None] + np.tensordot(W, rig.deltas, 1)
+    throughput = []
     for spec in specs:
         m = spec.build("fitters")
         try:
             m.fit(rig, MeshTarget(T[0]))
         except FacegeomError:
             continue
-        if "mesh" in batched_targets(m):
-            fit_many(m, rig, T[:10])
-            t = time.perf_counter()
-            fit_many(m, rig, T)
-            n, dt, how = len(T), time.perf_counter() - t, "batched"
-        else:
-            n = 100
-            t = time.perf_counter()
-            for k in range(n):
-                m.fit(rig, MeshTarget(T[k]))
-            dt, how = time.perf_counter() - t, "one by one"
-        throughput.append({"method": spec.label, "fits_per_s": n / dt, "path": how})
-    return rows, throughput
+        rates = []
+        for _ in range(max(1, int(repeats))):
+            if "mesh" in batched_targets(m):
+                fit_many(m, rig, T[:10])
+                t = time.perf_counter()
+                fit_many(m, rig, T)
+                n, dt, how = len(T), time.perf_counter() - t, "batched"
+            else:
+                n = min(one_by_one, len(T))
+                t = time.perf_counter()
+                for k in range(n):
+                    m.fit(rig, MeshTarget(T[k]))
+                dt, how = time.perf_counter() - t, "one by one"
+            rates.append(n / dt)
+        throughput.append({"method": spec.label, "fits_per_s": float(np.median(rates)), "path": how})
+    return throughput
 
 
 # --------------------------------------------------------------------------- temporal stability
@@ -360,7 +380,7 @@ def summarize(results: dict, specs) -> str:
     Parameters
     ----------
     results : dict
-        Any of ``landmarks``, ``landmark_speed``, ``clouds`` and ``temporal``
+        Any of ``landmarks``, ``landmark_speed``, ``mesh_speed``, ``clouds`` and ``temporal``
         (lists of rows) and ``meshes`` (the rows and throughput of
         :func:`run_meshes`).
     specs : list of MethodSpec
@@ -391,6 +411,10 @@ def summarize(results: dict, specs) -> str:
         parts.append("Landmark throughput (one rig, 23 landmarks)\n\n" + format_table(header, [
             [r["method"], r.get("known_pose", float("nan")), r.get("estimated_pose", float("nan")), r.get("path", "-")]
             for r in rows]))
+    if "mesh_speed" in results:
+        header = ["method", "fits/s", "path"]
+        parts.append("Mesh throughput (one rig, 9,409 vertices, 2,000 sparse targets)\n\n" + format_table(header, [
+            [r["method"], r["fits_per_s"], r["path"]] for r in results["mesh_speed"]]))
     if "clouds" in results:
         rows = results["clouds"]
         header = ["method", "NE (%)", "vertex (mm)", "Corr", "active", "precision", "recall", "coef MAE", "time (ms)"]
@@ -457,7 +481,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     specs : list of MethodSpec
         The fitters.
     experiments : collection of str
-        Any of ``landmarks``, ``clouds``, ``meshes``, ``temporal``.
+        Any of ``landmarks``, ``clouds``, ``meshes``, ``temporal``, ``speed`` (only the landmark and
+        mesh throughputs, medians of 3 runs).
     count : int
         Number of targets (:func:`~facegeom.model.scenarios.fitting_cases`).
     seed : int
@@ -497,7 +522,7 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         The rows per experiment (keys as in :func:`summarize`).
     table : str
         The summary of :func:`summarize`. Files written into ``out``:
-        ``fit-landmarks.csv`` and ``fit-landmark-speed.csv``,
+        ``fit-landmarks.csv`` and ``fit-landmark-speed.csv``, ``fit-mesh-speed.csv``,
         ``fit-clouds.csv``, ``fit-meshes.csv`` (per case; the throughput is only
         in the summary), ``fit-temporal.csv`` (for the experiments run),
         ``fit-summary.md`` and ``fit.png``.
@@ -519,6 +544,13 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         report.csv(results["landmarks"], "landmarks")
         results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px)
         report.csv(results["landmark_speed"], "landmark-speed")
+    if "speed" in experiments:  # only the throughputs, each the median of 3 runs
+        if "landmark_speed" not in results:
+            results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px, repeats=3)
+            report.csv(results["landmark_speed"], "landmark-speed")
+        results["mesh_speed"] = run_mesh_throughput(BlendshapeRig.from_face_model(model, cases[0].identity), specs,
+                                                    seed, repeats=3)
+        report.csv(results["mesh_speed"], "mesh-speed")
     if "clouds" in experiments:
         results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, samplings, points, seed=seed,
                                        progress=progress)

@@ -50,12 +50,15 @@ shapes' coefficients on the data.
 """
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import numpy as np
 from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
@@ -80,6 +83,26 @@ def _camera(intr, R, t, k) -> PinholeCamera:
     return PinholeCamera(intr[0][k], intr[1][k], intr[2][k], U @ Vt, t[k])
 
 _TINY = 1e-300
+_BEHIND = "a fitted landmark went behind the camera (the expression moves it past the camera)"
+
+
+def _cut_path(order, step_e, step_gain, min_gain):
+    """A recorded greedy path cut where a target's step first gains less than ``min_gain (K,)``.
+
+    ``order, step_e, step_gain (K, B)`` as :meth:`SEMFitter._greedy_landmarks`
+    returns them. The greedy with ``min_gain`` makes the same selections up
+    to that step and stops there, so this is its result: ``e (K, B)``,
+    ``order (K, B)``.
+    """
+    K, B = order.shape
+    went = order >= 0
+    low = went & (step_gain < min_gain[:, None])
+    cut = np.where(low.any(axis=1), np.argmax(low, axis=1), went.sum(axis=1))
+    keep = went & (np.arange(B)[None] < cut[:, None])
+    e = np.zeros((K, B))
+    kk, ss = np.nonzero(keep)
+    e[kk, order[kk, ss]] = step_e[kk, ss]
+    return e, np.where(keep, order, -1)
 
 
 def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, select: str = "esim", min_gain=None):
@@ -199,7 +222,7 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
         chosen least-squares coefficients leave ``[0, upper]`` is refitted on its
         selection with the bounds (bounded least squares).
     chunk : int
-        Targets updated together (keeps the ``(chunk, B, B)`` inverses in cache).
+        Targets updated together (keeps the ``(chunk, B, B)`` factors in cache).
 
     Returns
     -------
@@ -221,64 +244,84 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
 
 
 def _orthogonal_chunk(c, G, tt, m, upper):
+    """:func:`sem_orthogonal_gram` on one chunk of targets.
+
+    The selected shapes are orthonormalised as they come (Gram-Schmidt in the
+    inner products, i.e. a Cholesky factor grown a row per step): row ``j`` of
+    ``A (K, S, B)`` holds ``q_j . dB_i`` for the ``j``-th orthonormal direction
+    ``q_j`` of a target's selection and every candidate, ``z_j = q_j . dT``.
+    A step then costs ``O(j B)`` per target: the new row, the remaining
+    projections ``p -= z_j A_j`` and ``RSS = |dT|^2 - sum z_j^2``. The
+    least-squares coefficients are only needed where GCV was best: one
+    triangular solve per target at the end.
+    """
     K, B = c.shape
     diag = np.diag(G).copy()
     moves = diag > _TINY
     inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
     scale = np.maximum(tt, _TINY)
-    Ginv = np.zeros((K, B, B))  # inverse of G on each target's selection, zero elsewhere
-    sel = np.zeros((K, B), dtype=bool)
+    S = max(min(B, m - 1), 0)
+    A = np.zeros((K, S, B))  # A[k, j] = q_j . dB_i
+    z = np.zeros((K, S))  # q_j . dT
+    picked = np.full((K, S), -1, dtype=np.int64)  # the shape behind q_j
+    rank = np.zeros(K, dtype=np.int64)
+    zz = np.zeros(K)  # sum of z_j^2: the part of |dT|^2 explained
+    proj = c.copy()  # dT^t . dB_i, the remaining motion against every candidate
     alive = np.broadcast_to(moves, (K, B)).copy()
-    e = np.zeros((K, B))
-    best_e = np.zeros((K, B))
     best_gcv = m * tt / float(m) ** 2  # the empty selection
     best_k = np.zeros(K, dtype=np.int64)
-    order = np.full((K, B), -1, dtype=np.int64)
     rows = np.arange(K)
     active = np.ones(K, dtype=bool)
-    for step in range(min(B, m - 1)):
-        proj = c - e @ G
+    level = 1e-9 * np.sqrt(scale)
+    for step in range(S):
         score = np.where(alive, proj * inv_norm, -np.inf)
-        pick = np.argmax(score, axis=1)
-        sp = score[rows, pick]
+        p = np.argmax(score, axis=1)
         # a projection at rounding level (the target already reached) is no motion towards it
-        active &= sp > 1e-9 * np.sqrt(scale)
+        active &= score[rows, p] > level
         if not active.any():
             break
-        p = pick
         alive[rows[active], p[active]] = False
-        g = G[p] * sel  # (K, B): the new shape against the selected ones
-        w = np.matmul(Ginv, g[:, :, None])[:, :, 0]
-        schur = diag[p] - np.einsum("ki,ki->k", g, w)
+        hi = step  # rank <= step: rows beyond are zero
+        Ap = A[rows, :hi, p]  # (K, hi): the new shape on the selected directions
+        schur = diag[p] - np.einsum("kj,kj->k", Ap, Ap)
         # a shape in the span of the selection adds nothing: skip it (and targets that stopped)
         ok = active & (schur > 1e-10 * diag[p])
         if not ok.any():
             continue
-        s = np.where(ok, 1.0 / np.where(ok, schur, 1.0), 0.0)
-        sw = s[:, None] * w
-        Ginv += sw[:, :, None] * w[:, None, :]  # no-op where s = 0
-        a = rows[ok]
-        pa = p[ok]
-        Ginv[a, :, pa] = -sw[ok]
-        Ginv[a, pa, :] = -sw[ok]
-        Ginv[a, pa, pa] = s[ok]
-        sel[a, pa] = True
-        e = np.matmul(Ginv, (c * sel)[:, :, None])[:, :, 0]
-        ea = e[a]
-        order[a, step] = pa
-        rss = np.maximum(tt[a] - np.einsum("ki,ki->k", ea, c[a]), 0.0)
-        k_sel = sel[a].sum(axis=1)
-        gcv = m * rss / (m - k_sel).astype(np.float64) ** 2
+        if ok.all():
+            a, pa, Apa, Aa = rows, p, Ap, A[:, :hi]
+        else:
+            a = rows[ok]
+            pa, Apa, Aa = p[a], Ap[a], A[a, :hi]
+        sq = np.sqrt(schur[a])
+        row = (G[pa] - np.einsum("kj,kjb->kb", Apa, Aa)) / sq[:, None]
+        zn = (c[a, pa] - np.einsum("kj,kj->k", Apa, z[a, :hi])) / sq
+        ra = rank[a]
+        A[a, ra] = row
+        z[a, ra] = zn
+        picked[a, ra] = pa
+        rank[a] = ra + 1
+        proj[a] -= zn[:, None] * row
+        zz[a] += zn * zn
+        rss = np.maximum(tt[a] - zz[a], 0.0)
+        gcv = m * rss / (m - (ra + 1)).astype(np.float64) ** 2
         better = gcv < best_gcv[a]
         best_gcv[a[better]] = gcv[better]
-        best_e[a[better]] = ea[better]
-        best_k[a[better]] = k_sel[better]
-    # the selection in order, cut where GCV was best
-    picked = order >= 0  # steps that selected (a skipped candidate leaves -1)
-    rank = np.cumsum(picked, axis=1) - 1
-    kk, step = np.nonzero(picked & (rank < best_k[:, None]))
+        best_k[a[better]] = ra[better] + 1
+    # coefficients of the selection cut where GCV was best: A[k, :bk, picked[k, :bk]] is upper triangular
+    kmax = int(best_k.max(initial=0))
+    best_e = np.zeros((K, B))
     out_order = np.full((K, B), -1, dtype=np.int64)
-    out_order[kk, rank[kk, step]] = order[kk, step]
+    if kmax:
+        j = np.arange(kmax)
+        use = j[None] < best_k[:, None]  # (K, kmax)
+        cols = np.where(use, picked[:, :kmax], 0)
+        U = np.take_along_axis(A[:, :kmax], np.broadcast_to(cols[:, None, :], (K, kmax, kmax)), axis=2)
+        U = np.where(use[:, :, None] & use[:, None, :], U, 0.0) + np.where(use, 0.0, 1.0)[:, :, None] * np.eye(kmax)
+        x = np.linalg.solve(U, np.where(use, z[:, :kmax], 0.0)[:, :, None])[:, :, 0]
+        kk, jj = np.nonzero(use)
+        best_e[kk, picked[kk, jj]] = x[kk, jj]
+        out_order[:, :kmax] = np.where(use, picked[:, :kmax], -1)
     hi = np.inf if upper is None else upper
     bad = np.flatnonzero(((best_e < -1e-12) | (best_e > hi + 1e-12)).any(axis=1))
     for k in bad:  # bounded least squares on the chosen selection
@@ -286,6 +329,33 @@ def _orthogonal_chunk(c, G, tt, m, upper):
         best_e[k] = 0.0
         best_e[k, idx] = _bounded_gram_lsq(G[np.ix_(idx, idx)], c[k, idx], hi)
     return best_e, out_order
+
+
+def _products(Tf, DN, min_rows: int = 64):
+    """``Tf @ DN`` and the squared row norms of ``Tf (K, m)``, the targets split over the cores.
+
+    Each core takes a block of targets with a one-thread BLAS product written
+    as ``DN^T Tf^T`` (OpenBLAS's faster kernel for this tall, thin shape: ~40 %
+    less CPU time than ``Tf @ DN`` here) and the norms of the same rows while
+    they are in cache. On a machine shared with other jobs, BLAS's own threads
+    wait for each other at every synchronisation; blocks of whole products do not.
+    """
+    K = Tf.shape[0]
+    n_blocks = max(1, min(os.cpu_count() or 1, K // min_rows))
+    bounds = np.linspace(0, K, n_blocks + 1).astype(int)
+    blocks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def block(sl):
+        X = Tf[sl]
+        return DN.T @ X.T, np.einsum("ij,ij->i", X, X)
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        if n_blocks > 1:
+            with ThreadPoolExecutor(n_blocks) as pool:
+                outs = list(pool.map(block, blocks))
+        else:
+            outs = [block(blocks[0])]
+    return np.concatenate([o[0] for o in outs], axis=1).T, np.concatenate([o[1] for o in outs])
 
 
 def _bounded_gram_lsq(Gs, cs, upper):
@@ -433,7 +503,7 @@ class SEMFitter(Params):
 
     batched_targets = frozenset({"mesh", "landmarks"})
 
-    def fit_many(self, rig: BlendshapeRig, targets, chunk: int = 256) -> list[FitResult]:
+    def fit_many(self, rig: BlendshapeRig, targets, chunk: int = 256, workers: int = 1) -> list[FitResult]:
         """Fit ``K`` targets at once: :func:`facegeom.interfaces.fit_many`'s fast paths.
 
         Unweighted mesh targets are solved together on the Gram matrix (one
@@ -451,6 +521,11 @@ class SEMFitter(Params):
         chunk : int
             Landmark targets solved together at most (keeps the ``(chunk, B, L, 3)``
             work arrays in cache).
+        workers : int
+            Threads solving landmark chunks side by side (numpy releases the GIL
+            in its array operations). The default, 1, suits a machine whose
+            cores are busy already (a batch job's workers, a shared machine:
+            there 2 threads cost ~20 % more CPU time for no gain).
 
         Returns
         -------
@@ -474,7 +549,7 @@ class SEMFitter(Params):
         marks = [k for k, tg in enumerate(targets) if isinstance(tg, LandmarkTarget)]
         if marks:
             t0 = time.perf_counter()
-            E, cams, orders = self._landmark_batches(rig, [targets[k] for k in marks], chunk)
+            E, cams, orders = self._landmark_batches(rig, [targets[k] for k in marks], chunk, workers)
             share = (time.perf_counter() - t0) / len(marks)
             for j, k in enumerate(marks):
                 out[k] = FitResult(E[j], partial(rig.evaluate, E[j]),
@@ -528,9 +603,8 @@ class SEMFitter(Params):
         Tf = T.reshape(K, -1)
         # one GEMM gives every T . dB_i and T . n; |dT|^2 = |T|^2 - 2 T . n + |n|^2 (no (K, 3n) temporary;
         # the cancellation costs ~1e-16 |T|^2, far below any motion worth fitting)
-        cn = Tf @ np.c_[D, n_flat]
+        cn, t2 = _products(Tf, np.c_[D, n_flat])
         c = cn[:, :-1] - (n_flat @ D)[None]
-        t2 = np.einsum("ij,ij->i", Tf, Tf)
         tt = np.maximum(t2 - 2.0 * cn[:, -1] + n_flat @ n_flat, 0.0)
         near = np.flatnonzero(tt <= 1e-10 * t2)  # (almost) the neutral itself: recompute exactly
         if near.size:
@@ -576,7 +650,7 @@ class SEMFitter(Params):
         e, cams, orders = self._landmarks_batch(rig, [target])
         return e[0], {"order": orders[0], "camera": cams[0], "pose_estimated": not target.camera.posed}
 
-    def _landmark_batches(self, rig: BlendshapeRig, targets, chunk: int):
+    def _landmark_batches(self, rig: BlendshapeRig, targets, chunk: int, workers: int = 1):
         """Coefficients ``(K, B)``, (estimated) cameras and selection orders for ``K`` checked landmark targets.
 
         The same computation as :meth:`fit` on each target, vectorised over the
@@ -590,9 +664,20 @@ class SEMFitter(Params):
         groups: dict = {}
         for k, tg in enumerate(targets):
             groups.setdefault((tg.vertex_ids.tobytes(), tg.camera.posed), []).append(k)
-        # chunks keep the (K, B, n, 3) work arrays in cache
-        for rows in (g[c0:c0 + chunk] for g in groups.values() for c0 in range(0, len(g), chunk)):
-            e, cs, os_ = self._landmarks_batch(rig, [targets[k] for k in rows])
+        # chunks keep the (K, B, n, 3) work arrays in cache; they are independent, so they run on the cores
+        # (numpy releases the GIL inside its array operations)
+        chunks = [g[c0:c0 + chunk] for g in groups.values() for c0 in range(0, len(g), chunk)]
+        n_workers = max(1, min(len(chunks), int(workers)))
+
+        def one(rows):
+            return self._landmarks_batch(rig, [targets[k] for k in rows])
+
+        if n_workers > 1:
+            with ThreadPoolExecutor(n_workers) as pool:
+                outs = list(pool.map(one, chunks))
+        else:
+            outs = [one(rows) for rows in chunks]
+        for rows, (e, cs, os_) in zip(chunks, outs):
             E[rows] = e
             for k, c, o in zip(rows, cs, os_):
                 cams[k], orders[k] = c, o
@@ -610,11 +695,13 @@ class SEMFitter(Params):
                 e, order = self._lsq_landmarks(rig, ids, L, R, t, *intr)
                 orders[:] = order
                 return e
-            e, order = self._sem_landmarks(rig, ids, L, R, t, *intr)
+            e, order, step_e, step_gain = self._greedy_landmarks(rig, ids, L, R, t, *intr)
             if self.stop == "ric":  # second pass: stop where a selection gains less than noise would
                 F = rig.neutral[ids][None] + np.tensordot(e, rig.deltas[:, ids], 1)
                 resid = ((project_many(F, R, t, *intr) - L) ** 2).sum(axis=(1, 2))
-                e, order = self._sem_landmarks(rig, ids, L, R, t, *intr, self._ric_threshold(rig, resid, L[0].size, e))
+                # the second pass repeats the first up to its stop: cut the first instead of running it again
+                e, order = _cut_path(order, step_e, step_gain, np.broadcast_to(
+                    self._ric_threshold(rig, resid, L[0].size, e), (len(e),)).astype(np.float64))
             if self.refit:
                 e = np.stack([self._refit_landmarks(rig, ids, L[k], _camera(intr, R, t, k), e[k])
                               for k in range(len(e))])
@@ -628,7 +715,9 @@ class SEMFitter(Params):
             cams = [tg.camera for tg in targets]
         else:
             e, R, t = fit_with_poses(rig, ids, L, intr, solve, self.alternations)
-            cams = [_camera(intr, R, t, k) for k in range(len(targets))]
+            U, _, Vt = np.linalg.svd(R)  # the nearest rotations, free of accumulated rounding (all at once)
+            R = U @ Vt
+            cams = [PinholeCamera(intr[0][k], intr[1][k], intr[2][k], R[k], t[k]) for k in range(len(targets))]
         return e, cams, [[int(i) for i in o if i >= 0] for o in orders]
 
     def _sem_landmarks(self, rig, ids, L, R, t, f, cx, cy, min_gain=None):
@@ -636,96 +725,146 @@ class SEMFitter(Params):
 
         ``L (K, n, 2)`` landmarks of the vertices ``ids``; camera ``k`` is
         ``(R[k], t[k], f[k], cx[k], cy[k])``. Returns ``e (K, B)`` and the
-        selection orders ``(K, B)`` (-1 after the last). The work is done in
-        camera space (the rotated deltas are computed once), and the exclusion
-        test projects only the (target, candidate) pairs still alive.
+        selection orders ``(K, B)`` (-1 after the last). ``min_gain (K,)``
+        stops a target where its selection would gain less (``stop="ric"``):
+        the selections up to there are those of the run without it, so that
+        run is cut (:func:`_cut_path`) instead of being repeated.
+        """
+        e, order, step_e, step_gain = self._greedy_landmarks(rig, ids, L, R, t, f, cx, cy)
+        if min_gain is None:
+            return e, order
+        return _cut_path(order, step_e, step_gain, np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (len(e),)))
+
+    def _greedy_landmarks(self, rig, ids, L, R, t, f, cx, cy):
+        """The greedy of :meth:`_sem_landmarks` without a stop, recording every step.
+
+        Returns ``e (K, B)``, ``order (K, B)`` and per step ``s`` of target
+        ``k`` (where ``order[k, s] >= 0``) the coefficient it added,
+        ``step_e[k, s]``, and the decrease of the squared residual it was
+        credited with, ``step_gain[k, s] = 2 e p - e^2 |dB|^2`` (the quantity
+        ``min_gain`` is compared with).
+
+        Everything that does not change during the selection is computed once
+        per target in camera space: the rotated deltas ``RD``, the candidates'
+        projected motions ``M = Pi(B_i) - Pi(B_1)`` (eq. 20) and, for the
+        exclusion test (eq. 22), ``b_in = RD_in,x dTu_n - RD_in,y dTv_n``.
+        With ``x/d`` the perspective division, the index of the current face
+        ``F^t`` moved by ``e_i dB_i`` is then
+        ``1 - f (sum_n (a_n + e_i b_in) / (d_n + e_i RDd_in) - c0) / |dT|^2``
+        (``a_n = x_n dTu_n - y_n dTv_n`` and ``d_n`` of ``F^t``,
+        ``c0 = sum_n (x_n dTu_n - y_n dTv_n) / d_n`` of ``F^1``): a few
+        operations on the (target, candidate) pairs with ``e_i > 0`` per step
+        (with ``e_i = 0`` the index is the previous selection's). Targets that
+        stopped are dropped from the work arrays once half of them have.
         """
         K, n = L.shape[:2]
         B = rig.n_shapes
-        deltas = rig.deltas[:, ids]  # (B, n, 3)
-        fc, cxc, cyc = f[:, None], cx[:, None], cy[:, None]
-
-        def uv(pc, rows):
-            """Pixels of camera-space points ``pc (k, ..., n, 3)`` of targets ``rows`` -> u, v ``(k, ..., n)``."""
-            d = -pc[..., 2]
-            if not np.all(d > 0):
-                raise InputError("a fitted landmark went behind the camera (the expression moves it past the camera)")
-            sh = (rows.size,) + (1,) * (pc.ndim - 2)
-            return (cxc[rows].reshape(sh) + fc[rows].reshape(sh) * pc[..., 0] / d,
-                    cyc[rows].reshape(sh) - fc[rows].reshape(sh) * pc[..., 1] / d)
-
-        allk = np.arange(K)
-        P1 = rig.neutral[ids] @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (K, n, 3) camera space
-        if not np.all(P1[..., 2] < 0):
-            k = int(np.argwhere(~(P1[..., 2] < 0))[0, 0])
+        P1 = np.matmul(R, rig.neutral[ids].T) + t[:, :, None]  # (K, 3, n) camera space, coordinate-major
+        if not np.all(P1[:, 2] < 0):
+            k = int(np.argwhere(~(P1[:, 2] < 0))[0, 0])
             raise InputError(f"a landmark is behind the camera{f' (target {k})' if K > 1 else ''}")
-        RD = np.einsum("kij,bnj->kbni", R, deltas)  # rotated deltas (K, B, n, 3)
-        u1, v1 = uv(P1, allk)  # Pi(F^1)
-        uB, vB = uv(P1[:, None] + RD, allk)
-        Mu, Mv = uB - u1[:, None], vB - v1[:, None]  # Pi(B_i) - Pi(B_1): (K, B, n)
-        nrm2 = np.einsum("kbn,kbn->kb", Mu, Mu) + np.einsum("kbn,kbn->kb", Mv, Mv)
+        # rotated deltas (K, 3, B, n): one product for all targets
+        RD = (R.reshape(3 * K, 3) @ rig.deltas[:, ids].reshape(-1, 3).T).reshape(K, 3, B, n)
+        d1 = -P1[:, 2]
+        X1, Y1 = P1[:, 0] / d1, P1[:, 1] / d1
+        RDd = -RD[:, 2]  # depth change of each candidate at full weight
+        dB = d1[:, None] + RDd
+        if not np.all(dB > 0):
+            raise InputError(_BEHIND)
+        M = np.empty((K, B, 2 * n))  # (K, B, 2n): u then v, in place (no (K, B, n) temporaries)
+        for j, (c1, sign) in enumerate(((X1, 1.0), (Y1, -1.0))):
+            Mj = M[:, :, j * n:(j + 1) * n]
+            np.add(P1[:, None, j], RD[:, j], out=Mj)
+            Mj /= dB
+            Mj -= c1[:, None]
+            Mj *= sign * f[:, None, None]
+        nrm2 = np.einsum("kbm,kbm->kb", M, M)
         moves = nrm2 > _TINY
         safe2 = np.where(moves, nrm2, 1.0)
+        u1, v1 = cx[:, None] + f[:, None] * X1, cy[:, None] - f[:, None] * Y1  # Pi(F^1)
         dTu, dTv = L[..., 0] - u1, L[..., 1] - v1  # L - Pi(F^1)
         tt = np.einsum("kn,kn->k", dTu, dTu) + np.einsum("kn,kn->k", dTv, dTv)
         has_t = tt > _TINY
-        inv_tt = np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0)
-        min_gain = None if min_gain is None else np.broadcast_to(np.asarray(min_gain, dtype=np.float64), (K,))
+        w = {  # per-target work arrays, rows = targets gid
+            "M": M, "RD": RD, "RDd": np.ascontiguousarray(RDd),
+            "bq": RD[:, 0] * dTu[:, None] - RD[:, 1] * dTv[:, None],
+            "PF": P1.copy(), "L": np.concatenate([L[..., 0], L[..., 1]], axis=1), "dTu": dTu, "dTv": dTv,
+            "c0": np.einsum("kn,kn->k", X1, dTu) - np.einsum("kn,kn->k", Y1, dTv),
+            "f": f, "cx": cx, "cy": cy, "nrm2": nrm2, "moves": moves, "safe2": safe2, "rsafe": np.sqrt(safe2),
+            "level": 1e-9 * np.sqrt(tt)[:, None] * np.sqrt(safe2), "has_t": has_t,
+            "inv_tt": np.where(has_t, 1.0 / np.where(has_t, tt, 1.0), 0.0), "alive": moves.copy(),
+        }
+        gid = np.arange(K)
         e = np.zeros((K, B))
         order = np.full((K, B), -1, dtype=np.int64)
-        PF = P1.copy()  # the current face F^t, camera space
-        alive = moves.copy()
-        r_prev = np.ones(K)
+        step_e = np.zeros((K, B))
+        step_gain = np.full((K, B), np.inf)
         upper = self._upper
-        act = np.flatnonzero(alive.any(axis=1))  # targets still selecting
+        act = np.flatnonzero(w["alive"].any(axis=1))  # rows of w still selecting
         for step in range(B):
             if act.size == 0:
                 break
-            uF, vF = uv(PF[act], act)
-            proj = (np.einsum("kbn,kn->kb", Mu[act], L[act, :, 0] - uF)
-                    + np.einsum("kbn,kn->kb", Mv[act], L[act, :, 1] - vF))  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            if act.size <= gid.size // 2:  # compact the work arrays to the targets still selecting
+                w = {key: v[act] for key, v in w.items()}
+                gid, act = gid[act], np.arange(act.size)
+            a = (lambda key: w[key]) if act.size == gid.size else (lambda key: w[key][act])
+            PF, fa = a("PF"), a("f")
+            d = -PF[:, 2]
+            xd, yd = PF[:, 0] / d, PF[:, 1] / d
+            res = a("L") - np.concatenate([a("cx")[:, None] + fa[:, None] * xd, a("cy")[:, None] - fa[:, None] * yd],
+                                          axis=1)  # L - Pi(F^t)
+            proj = np.einsum("kbm,km->kb", a("M"), res)  # (Pi(B_i) - Pi(B_1)) . (L - Pi(F^t))
+            safe2 = a("safe2")
             # eq. 21 (clamped, eq. 18); a projection at rounding level counts as none
-            level = 1e-9 * np.sqrt(tt[act])[:, None] * np.sqrt(safe2[act])
-            ei = np.where(moves[act] & (proj > level), proj / safe2[act], 0.0)
+            ei = np.where(a("moves") & (proj > a("level")), proj / safe2, 0.0)
             if upper is not None:
                 ei = np.minimum(ei, upper)
-            al = alive[act]
+            al = a("alive").copy()
             if self.exclusion and step > 0:
-                kk, bb = np.nonzero(al & has_t[act][:, None])
+                # only a candidate that moves the face can change the index: with e_i = 0 it stays the previous
+                # selection's (in exact arithmetic), so only pairs with e_i > 0 are evaluated
+                kk, bb = np.nonzero(al & a("has_t")[:, None] & (ei > 0))
                 if kk.size:
-                    g = act[kk]
-                    moved = PF[g] + ei[kk, bb][:, None, None] * RD[g, bb]  # F^t + e_i dB_i
-                    um, vm = uv(moved, g)
-                    r = 1.0 - (np.einsum("pn,pn->p", um - u1[g], dTu[g])
-                               + np.einsum("pn,pn->p", vm - v1[g], dTv[g])) * inv_tt[g]  # eq. 22
-                    # |r| > |r_prev| beyond rounding (a candidate with e_i = 0 leaves r unchanged, in exact arithmetic)
-                    worse = np.abs(r) - np.abs(r_prev[g]) > 1e-11
+                    c0, inv_tt = a("c0"), a("inv_tt")
+                    rk = act[kk]  # rows of w
+                    ep_ = ei[kk, bb][:, None]
+                    den = ep_ * w["RDd"][rk, bb]
+                    den += d[kk]  # depth of F^t + e_i dB_i
+                    if not den.min() > 0:
+                        raise InputError(_BEHIND)
+                    an = PF[:, 0] * a("dTu") - PF[:, 1] * a("dTv")
+                    num = ep_ * w["bq"][rk, bb]
+                    num += an[kk]
+                    num /= den
+                    r = 1.0 - fa[kk] * (num.sum(axis=1) - c0[kk]) * inv_tt[kk]  # eq. 22
+                    r_prev = 1.0 - fa * ((an / d).sum(axis=1) - c0) * inv_tt
+                    # |r| > |r_prev| beyond rounding
+                    worse = np.abs(r) - np.abs(r_prev[kk]) > 1e-11
                     al[kk[worse], bb[worse]] = False
             # once no alive candidate has a positive coefficient, every later selection adds 0 and leaves the
             # face, the residual and the index unchanged: the coefficients are final, stop this target here
             go = (al & (ei > 0)).any(axis=1)
             if self.select == "gain":
-                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2[act], -np.inf)
+                score = np.where(al, 2.0 * ei * proj - ei * ei * safe2, -np.inf)
             else:
-                score = np.where(al, proj / np.sqrt(safe2[act]), -np.inf)  # eq. 20
+                score = np.where(al, proj / a("rsafe"), -np.inf)  # eq. 20
             pick = np.argmax(score, axis=1)
             rows = np.arange(act.size)
             ep = ei[rows, pick]
-            if min_gain is not None:
-                go &= ~(2.0 * ep * proj[rows, pick] - ep * ep * nrm2[act, pick] < min_gain[act])
+            gain = 2.0 * ep * proj[rows, pick] - ep * ep * a("nrm2")[rows, pick]
             al[rows, pick] = False
-            alive[act] = al
-            g = act[go]
-            pg = pick[go]
-            e[g, pg] += ep[go]
-            PF[g] += ep[go][:, None, None] * RD[g, pg]
-            ug, vg = uv(PF[g], g)
-            r_prev[g] = np.where(has_t[g], 1.0 - (np.einsum("kn,kn->k", ug - u1[g], dTu[g])
-                                                  + np.einsum("kn,kn->k", vg - v1[g], dTv[g])) * inv_tt[g], r_prev[g])
-            order[g, step] = pg
-            alive[act[~go]] = False
-            act = g[alive[g].any(axis=1)]
-        return e, order
+            al[~go] = False
+            w["alive"][act] = al
+            g, pg, gk = act[go], pick[go], gid[act[go]]
+            e[gk, pg] += ep[go]
+            order[gk, step] = pg
+            step_e[gk, step] = ep[go]
+            step_gain[gk, step] = gain[go]
+            w["PF"][g] += ep[go][:, None, None] * w["RD"][g, :, pg]
+            if not np.all(w["PF"][g, 2] < 0):
+                raise InputError(_BEHIND)
+            act = g[al[go].any(axis=1)]
+        return e, order, step_e, step_gain
 
     def _lsq_landmarks(self, rig, ids, L, R, t, f, cx, cy):
         """``coefficients="lsq"`` on landmarks: :func:`sem_orthogonal_gram` on each target's projected motions.

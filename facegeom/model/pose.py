@@ -78,7 +78,7 @@ def estimate_poses(points3d, points2d, focal, cx, cy, R0=None, t0=None, iteratio
 
     ``focal, cx, cy``: scalars or ``(K,)``. ``R0, t0``: initial poses (default:
     the closed-form scaled-orthographic one). Levenberg-Marquardt stops per
-    target when a step changes the cost by less than ``1e-12`` relative.
+    target when a step (taken or rejected) changes the cost by less than ``1e-12`` relative.
     """
     P = np.asarray(points3d, dtype=np.float64)
     q = np.asarray(points2d, dtype=np.float64)
@@ -137,7 +137,9 @@ def estimate_poses(points3d, points2d, focal, cx, cy, R0=None, t0=None, iteratio
         tiny = np.abs(step).max(axis=1) <= 1e-12
         cost[b] = costn[better]
         lam[a] = np.where(better, lam[a] / 3.0, lam[a] * 4.0)
-        active[a[(better & small) | tiny | (lam[a] > 1e12)]] = False
+        # converged: a step, taken or not, that changes the cost by rounding only (at the minimum, raising the
+        # damping until a rounding-level decrease turns up would only spend iterations)
+        active[a[small | tiny | (lam[a] > 1e12)]] = False
     return R, t
 
 
