@@ -54,8 +54,9 @@ def test_auto_equals_soft_labels_of_the_chosen_weight():
     """The smoother is eq. 18 with soft labels: the chosen lambda's result equals TangentSolver with that beta."""
     V, F, h, T = _case()
     P = T[h] + np.random.default_rng(1).normal(0.0, 0.03, (h.size, 3))
-    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position").fit(V, F, h)
+    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv").fit(V, F, h)
     Y = d.deform(P)
+    assert d.power_ == 1.0
     k = np.clip(np.linalg.eigvalsh(d.solver_.schur_complement()), 0, None)
     beta = k.mean() / d.lambda_  # lambda is relative to the mean eigenvalue of the labels' energy
     Y_soft = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", beta=beta).fit(V, F, h).deform(P)
