@@ -204,7 +204,8 @@ def test_kabsch_recovers_rotation():
     np.testing.assert_allclose(t, [1, 2, 3], atol=1e-12)
 
 
-@pytest.mark.parametrize("params", CONFIGS + [{"dense_map": False}, {"select": "ml"}, {"select": "ml", "dense_map": False}])
+@pytest.mark.parametrize("params", CONFIGS + [{"dense_map": False}, {"select": "ml"},
+                                              {"select": "ml", "dense_map": False}])
 def test_deform_many_equals_deform_frame_by_frame(params):
     from facegeom.pipelines.animate import drive_frames
 
