@@ -343,3 +343,100 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
         report.plot(lambda: plot(rows, specs), dpi=120)
     report.done()
     return rows, table
+
+
+def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30.0, 100.0, 1e5),
+                        noise_mm=(0.0, 0.2, 0.5)) -> list[dict]:
+    """How well does ``beta="auto"`` choose? Every candidate of the self-tuned tangent deformer, scored (issue 19).
+
+    For every case, noise level and ``smoothness``, the deformer is fitted
+    with ``select="ml"`` (whose candidates hold all of GCV's: the power 1) and
+    every candidate (spectral power x relative weight) is applied; the rows
+    give the face error of exact interpolation, of the GCV and REML choices,
+    of the best candidate chosen with the truth in hand (``oracle``, a bound
+    for any selection rule from the markers), and ``joint gcv``: GCV over the
+    weight and the smoothness values together.
+
+    Parameters
+    ----------
+    model : FaceModel
+    cases : list of RealisticDrivingCase
+        From :func:`~facegeom.model.scenarios.realistic_driving_cases` (the same
+        cases, layouts and noise draws as :func:`run_realistic`).
+    smoothness : sequence of float
+        Values of the biharmonic weight to score.
+    noise_mm : sequence of float
+        Marker-noise levels (mm per coordinate).
+
+    Returns
+    -------
+    list of dict
+        One row per case, level and rule: ``case``, ``noise_mm``, ``rule``,
+        ``mean_mm`` (the biharmonic baseline is the rule ``biharmonic``).
+    """
+    from facegeom.baselines.libigl_deformers import BiharmonicDeformer
+    from facegeom.constants import CM_TO_MM
+    from facegeom.methods.tangent import TangentDeformer, _AutoSmoother, robust_kabsch
+
+    F = model.triangles
+    rows = []
+    for case in cases:
+        handles = layout(model, f"random{case.markers}", case.layout_seed)
+        X = model.identity_neutral(case.identity)
+        T = model.face(case.identity, case.expression)
+        rng = np.random.default_rng(case.noise_seed)
+        noisy = [(float(s), T[handles] + rng.normal(0.0, float(s) / CM_TO_MM, (handles.size, 3))) for s in noise_mm]
+        bh = BiharmonicDeformer().fit(X, F, handles)
+        fitted = []
+        for s in smoothness:
+            d = TangentDeformer(select="ml", smoothness=float(s)).fit(X, F, handles)
+            fitted.append((s, d, _AutoSmoother(d.solver_.schur_complement(), "gcv")))
+        for level, P in noisy:
+            rows.append({"case": case.index, "noise_mm": level, "rule": "biharmonic",
+                         "mean_mm": face_errors_mm(bh.deform(P), T)["mean_mm"]})
+            Rm, t = robust_kabsch(X[handles], P)
+            Z = (P - t) @ Rm - X[handles]
+            joint = []
+            for s, d, gcv in fitted:
+                sm = d.smoother_
+                z = sm.U.T @ Z
+                zz = np.einsum("md,md->m", z, z)[:, None]
+                err = np.array([face_errors_mm(((keep[:, None] * z).T @ d._coef_map).T @ Rm.T + X @ Rm.T + t, T)
+                                ["mean_mm"] for keep in sm._keep])
+                one = sm.powers == 1.0
+                g_gcv = int(gcv._choose(zz)[0])
+                g_ml = int(sm._choose(zz)[0])
+                S = gcv._lin @ zz
+                joint.append((float(S[g_gcv, 0]), float(err[one][g_gcv])))
+                for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
+                                ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
+                    rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
+            rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
+    return rows
+
+
+def summarize_selection_study(rows: list[dict]) -> tuple[list[str], list[list]]:
+    """Mean face error per rule and noise level, and its ratio to biharmonic: a table for ``format_table``."""
+    levels = sorted({r["noise_mm"] for r in rows})
+    rules = list(dict.fromkeys(r["rule"] for r in rows))
+    mean = {(ru, lv): float(np.mean([r["mean_mm"] for r in rows if r["rule"] == ru and r["noise_mm"] == lv]))
+            for ru in rules for lv in levels}
+    header = ["rule"] + [f"noise {lv:g} mm (x biharmonic)" for lv in levels]
+    out = [[ru] + [f"{mean[ru, lv]:.4f} ({mean[ru, lv] / mean['biharmonic', lv]:.3f})" for lv in levels]
+           for ru in rules]
+    return header, out
+
+
+if __name__ == "__main__":  # python -m facegeom.bench.drive SEED CASES: the selection study on the realistic cases
+    import sys
+
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import load_face_model, locate_takes
+
+    _seed, _count = (int(sys.argv[1]), int(sys.argv[2])) if len(sys.argv) > 2 else (0, 20)
+    _model = load_face_model(None)
+    _where = locate_takes(None)
+    _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(_where)]
+    _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes))
+    print(f"selection study: {_count} realistic cases, seed {_seed}")
+    print(format_table(*summarize_selection_study(_rows)))
