@@ -374,9 +374,9 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
         One row per case, level and rule: ``case``, ``noise_mm``, ``rule``,
         ``mean_mm`` (the biharmonic baseline is the rule ``biharmonic``).
     """
-    from facegeom.baselines.libigl_deformers import BiharmonicDeformer
     from facegeom.constants import CM_TO_MM
     from facegeom.methods.tangent import TangentDeformer, _AutoSmoother, robust_kabsch
+    from facegeom.registry import create
 
     F = model.triangles
     rows = []
@@ -386,7 +386,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
         T = model.face(case.identity, case.expression)
         rng = np.random.default_rng(case.noise_seed)
         noisy = [(float(s), T[handles] + rng.normal(0.0, float(s) / CM_TO_MM, (handles.size, 3))) for s in noise_mm]
-        bh = BiharmonicDeformer().fit(X, F, handles)
+        bh = create("deformers", "biharmonic").fit(X, F, handles)
         fitted = []
         for s in smoothness:
             d = TangentDeformer(select="ml", smoothness=float(s)).fit(X, F, handles)
