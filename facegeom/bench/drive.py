@@ -427,16 +427,66 @@ def summarize_selection_study(rows: list[dict]) -> tuple[list[str], list[list]]:
     return header, out
 
 
-if __name__ == "__main__":  # python -m facegeom.bench.drive SEED CASES: the selection study on the realistic cases
+def run_speed(model, specs: list[MethodSpec], layouts=("ict80", "random120"), repeats: int = 5, frames: int = 300,
+              deforms: int = 20) -> list[list]:
+    """Fit, ``deform`` and ``deform_many`` times of deformers on the face, interleaved in one process (medians).
+
+    Per repeat and layout (``random<k>`` with seed 7), every spec is fitted
+    once, then times ``deforms`` single deforms and three ``deform_many``
+    calls of ``frames`` frames (jaw open / smile mixes plus 0.2 mm noise), all
+    with one BLAS thread so that a loaded machine does not stall the products.
+
+    Returns
+    -------
+    list of list
+        One line per spec: label, fit (s), deform (ms), deform_many (ms per frame).
+    """
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    faces = np.stack([model.face(None, {"jawOpen": float(a), "mouthSmile_L": float(b)})
+                      for a, b in rng.uniform(0.0, 1.0, (frames, 2))])
+    res = {s.label: ([], [], []) for s in specs}
+    with threadpool_limits(1):
+        for _ in range(repeats):
+            for name in layouts:
+                h = layout(model, name, 7)
+                P = faces[:, h] + rng.normal(0.0, 0.02, (frames, h.size, 3))
+                for spec in specs:
+                    d = spec.build("deformers")
+                    t = time.perf_counter()
+                    d.fit(model.neutral, model.triangles, h)
+                    res[spec.label][0].append(time.perf_counter() - t)
+                    for i in range(deforms):
+                        t = time.perf_counter()
+                        d.deform(P[i])
+                        res[spec.label][1].append(time.perf_counter() - t)
+                    for _ in range(3):
+                        t = time.perf_counter()
+                        d.deform_many(P)
+                        res[spec.label][2].append((time.perf_counter() - t) / frames)
+    return [[k, float(np.median(f)), 1e3 * float(np.median(d)), 1e3 * float(np.median(m))]
+            for k, (f, d, m) in res.items()]
+
+
+if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | speed [REPEATS]: issue 19's studies
     import sys
 
-    from facegeom.io import find_takes, ict_weights, read_take
-    from facegeom.model import load_face_model, locate_takes
+    from facegeom.model import load_face_model
+    from facegeom.registry import parse_methods
 
-    _seed, _count = (int(sys.argv[1]), int(sys.argv[2])) if len(sys.argv) > 2 else (0, 20)
     _model = load_face_model(None)
-    _where = locate_takes(None)
-    _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(_where)]
-    _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes))
-    print(f"selection study: {_count} realistic cases, seed {_seed}")
-    print(format_table(*summarize_selection_study(_rows)))
+    if sys.argv[1:2] == ["speed"]:
+        _specs = parse_methods("issue3=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
+        _reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+        print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)"],
+                           run_speed(_model, _specs, repeats=_reps)))
+    else:
+        from facegeom.io import find_takes, ict_weights, read_take
+        from facegeom.model import locate_takes
+
+        _seed, _count = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (0, 20)
+        _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(locate_takes(None))]
+        _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes))
+        print(f"selection study: {_count} realistic cases, seed {_seed}")
+        print(format_table(*summarize_selection_study(_rows)))
