@@ -29,6 +29,12 @@ gives, per noise level, every method's mean error and the ratio of the default
   markers are) in mm, the mean over the whole mesh, and the paper's Frobenius
   error ``||Y - Y_true||_F`` over all vertices in mm. Times: ``fit`` and the
   median of 5 ``deform`` calls.
+
+Two studies of the default ``tangent`` deformer (issue 19), run as
+``python -m facegeom.bench.drive study SEED CASES`` (:func:`run_selection_study`:
+how its self-tuning chooses, against exact interpolation, REML and an oracle)
+and ``python -m facegeom.bench.drive speed [REPEATS]`` (:func:`run_speed`: fit,
+deform and ``deform_many`` times against the issue-3 default).
 """
 from __future__ import annotations
 
