@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError, SolveError
-from facegeom.methods.tangent import AUTO_LAMBDAS, TangentDeformer, TangentSolver
+from facegeom.methods.tangent import AUTO_LAMBDAS, AUTO_POWERS, TangentDeformer, TangentSolver
 
 from .conftest import grid_mesh
 
@@ -54,8 +54,9 @@ def test_auto_equals_soft_labels_of_the_chosen_weight():
     """The smoother is eq. 18 with soft labels: the chosen lambda's result equals TangentSolver with that beta."""
     V, F, h, T = _case()
     P = T[h] + np.random.default_rng(1).normal(0.0, 0.03, (h.size, 3))
-    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position").fit(V, F, h)
+    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv").fit(V, F, h)
     Y = d.deform(P)
+    assert d.power_ == 1.0
     k = np.clip(np.linalg.eigvalsh(d.solver_.schur_complement()), 0, None)
     beta = k.mean() / d.lambda_  # lambda is relative to the mean eigenvalue of the labels' energy
     Y_soft = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", beta=beta).fit(V, F, h).deform(P)
@@ -131,12 +132,40 @@ def test_robust_kabsch_ignores_the_markers_an_expression_moves():
     robust_err = np.abs(robust_kabsch(P, moved)[0] - R).max()
     assert robust_err < 0.2 * plain_err
     frames = np.stack([Q, moved, moved + [0.1, 0, 0]])
-    Rm, tm = robust_kabsch_many(P, frames)
-    for i, F in enumerate(frames):
-        Ri, ti = robust_kabsch(P, F)
-        np.testing.assert_allclose(Rm[i], Ri, atol=1e-10)
-        np.testing.assert_allclose(tm[i], ti, atol=1e-10)
+    for m in (60, 59):  # the batched median: an even and an odd number of markers
+        Rm, tm = robust_kabsch_many(P[:m], frames[:, :m])
+        for i, F in enumerate(frames[:, :m]):
+            Ri, ti = robust_kabsch(P[:m], F)
+            np.testing.assert_allclose(Rm[i], Ri, atol=1e-10)
+            np.testing.assert_allclose(tm[i], ti, atol=1e-10)
     Rw, tw = kabsch_many(P, frames, np.ones((3, 60)))
     np.testing.assert_allclose(Rw, kabsch_many(P, frames)[0], atol=1e-12)
     with pytest.raises(InputError, match="align"):
         TangentDeformer(align="robustly")
+
+
+def test_ml_selection_smooths_noise_and_keeps_clean_markers_close():
+    """``select="ml"``: REML over the weight and the spectral power; noisy frames are smoothed, clean ones hardly."""
+    V, F, h, T = _case()
+    ml, exact = TangentDeformer(select="ml").fit(V, F, h), TangentDeformer(beta=None).fit(V, F, h)
+    err_ml, err_exact = [], []
+    for seed in range(8):
+        P = T[h] + np.random.default_rng(seed).normal(0.0, 0.03, (h.size, 3))
+        err_ml.append(np.linalg.norm(ml.deform(P) - T, axis=1).mean())
+        assert ml.lambda_ > 0 and ml.power_ in AUTO_POWERS
+        err_exact.append(np.linalg.norm(exact.deform(P) - T, axis=1).mean())
+    assert np.mean(err_ml) < 0.8 * np.mean(err_exact)
+    clean = ml.deform(T[h])
+    assert np.abs(clean[h] - T[h]).max() < 0.01 * np.abs(T[h] - V[h]).max()  # clean markers are (nearly) met
+    with pytest.raises(InputError, match="select"):
+        TangentDeformer(select="reml")
+
+
+def test_gcv_smoother_in_eigen_coefficients_equals_the_label_basis():
+    """deform maps the smoothed eigen-coefficients with U^T map; the same as smoothing the labels, then the map."""
+    V, F, h, T = _case()
+    d = TangentDeformer(align="none").fit(V, F, h)
+    Z = T[h] - V[h] + np.random.default_rng(4).normal(0.0, 0.03, (h.size, 3))
+    Zs, g = d.smoother_.smooth(Z)
+    np.testing.assert_allclose(d.deform(T[h] + Z - (T[h] - V[h])), d.solver_.solve(Zs) + V, atol=1e-12)
+    assert d.lambda_ == d.smoother_.lambdas[g] > 0

@@ -345,3 +345,13 @@ def test_view_animate_plays_a_solved_glb_and_livelink_take(tmp_path, face_model)
     r = subprocess.run([sys.executable, "-m", "facegeom", "view", "animate", "--input", str(tmp_path / "a.obj"),
                         "--screenshot", str(tmp_path / "x.png")], capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "cannot play '.obj'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_min_fit_seconds_parses_the_slow_machine_setting():
+    from facegeom.viewer.workers import min_fit_seconds
+
+    assert min_fit_seconds("laplacian", "laplacian=6") == 6.0
+    assert min_fit_seconds("laplacian", "rbf=2, laplacian=1.5") == 1.5
+    assert min_fit_seconds("tangent", "laplacian=6") == 0.0
+    assert min_fit_seconds("laplacian", "laplacian=x") == 0.0 and min_fit_seconds("laplacian", "laplacian=-1") == 0.0
+    assert min_fit_seconds("laplacian", "") == 0.0

@@ -125,7 +125,9 @@ def window(xserver, tmp_path_factory, face_model):
     display, fbfile = xserver
     out = tmp_path_factory.mktemp("window")
     state = out / "state.json"
-    env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path}
+    # laplacian's fit takes 2-12 s depending on the machine's load; stretched to at least 6 s so the drag
+    # below always happens while it fits (the stretch is inside its worker process, not in the window)
+    env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path, "FACEGEOM_VIEWER_MIN_FIT": "laplacian=6"}
     env.pop("WAYLAND_DISPLAY", None)
     log = open(out / "viewer.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "facegeom", "view", "drive", "--methods", "rbf;biharmonic;tangent",
@@ -314,7 +316,9 @@ def test_fit_view_opens_at_once_and_keeps_drawing_while_fitters_run(xserver, tmp
     still running shows "fitting..."); each face appears when its fit is done."""
     display, fbfile = xserver
     state = tmp_path / "fit-state.json"
-    env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path}
+    # laplacian's fit takes 2-12 s depending on the machine's load; stretched to at least 6 s so the drag
+    # below always happens while it fits (the stretch is inside its worker process, not in the window)
+    env = {**os.environ, "DISPLAY": display, "FACEGEOM_DATA": face_model.path, "FACEGEOM_VIEWER_MIN_FIT": "laplacian=6"}
     with open(tmp_path / "fit.log", "w") as log:
         proc = subprocess.Popen([sys.executable, "-m", "facegeom", "view", "fit", "--methods", "sem;l1reg",
                                  "--state", str(state), "--exit-after", "60"], env=env, stdout=log,

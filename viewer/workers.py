@@ -20,7 +20,15 @@ import sys
 import time
 import traceback
 
-__all__ = ["MethodWorker", "worker_context"]
+__all__ = ["MethodWorker", "min_fit_seconds", "worker_context"]
+
+MIN_FIT_ENV = "FACEGEOM_VIEWER_MIN_FIT"
+"""``name=seconds[,name=seconds...]``: a deformer named here takes at least that long to fit in its worker.
+
+A stand-in for a slow machine (on a fast one the laplacian fit ends before a
+person, or a test, can drag a marker during it); it delays only the worker's
+answer, never the window.
+"""
 
 _CTX = None
 
@@ -38,6 +46,22 @@ def worker_context():
         else:  # pragma: no cover - macOS / Windows
             _CTX = mp.get_context("spawn")
     return _CTX
+
+
+def min_fit_seconds(name: str, text: str | None = None) -> float:
+    """Seconds the fit of deformer ``name`` is stretched to, from :data:`MIN_FIT_ENV` (0 when unset or invalid)."""
+    import os
+
+    text = os.environ.get(MIN_FIT_ENV, "") if text is None else text
+    for item in text.split(","):
+        key, _, value = item.partition("=")
+        if key.strip() == name:
+            try:
+                v = float(value)
+            except ValueError:
+                return 0.0
+            return v if 0.0 < v < 600.0 else 0.0
+    return 0.0
 
 
 def _serve(conn) -> None:
@@ -70,6 +94,7 @@ def _serve(conn) -> None:
                 d = spec.build("deformers")
                 t = time.perf_counter()  # the fit only, not the plugin's import
                 d.fit(V, F, H)
+                time.sleep(max(0.0, min_fit_seconds(spec.name) - (time.perf_counter() - t)))
                 deformer = d
                 out = None
             elif op == "deform":

@@ -29,6 +29,12 @@ gives, per noise level, every method's mean error and the ratio of the default
   markers are) in mm, the mean over the whole mesh, and the paper's Frobenius
   error ``||Y - Y_true||_F`` over all vertices in mm. Times: ``fit`` and the
   median of 5 ``deform`` calls.
+
+Two studies of the default ``tangent`` deformer (issue 19), run as
+``python -m facegeom.bench.drive study SEED CASES`` (:func:`run_selection_study`:
+how its self-tuning chooses, against exact interpolation, REML and an oracle)
+and ``python -m facegeom.bench.drive speed [REPEATS]`` (:func:`run_speed`: fit,
+deform and ``deform_many`` times against the issue-3 default).
 """
 from __future__ import annotations
 
@@ -343,3 +349,153 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
         report.plot(lambda: plot(rows, specs), dpi=120)
     report.done()
     return rows, table
+
+
+def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30.0, 100.0, 1e5),
+                        noise_mm=(0.0, 0.2, 0.5)) -> list[dict]:
+    """How well does ``beta="auto"`` choose? Every candidate of the self-tuned tangent deformer, scored (issue 19).
+
+    For every case, noise level and ``smoothness``, the deformer is fitted
+    with ``select="ml"`` (whose candidates hold all of GCV's: the power 1) and
+    every candidate (spectral power x relative weight) is applied; the rows
+    give the face error of exact interpolation, of the GCV and REML choices,
+    of the best candidate chosen with the truth in hand (``oracle``, a bound
+    for any selection rule from the markers), ``joint gcv``: GCV over the
+    weight and the smoothness values together, and ``joint oracle``: the best
+    candidate over all smoothness values.
+
+    Parameters
+    ----------
+    model : FaceModel
+    cases : list of RealisticDrivingCase
+        From :func:`~facegeom.model.scenarios.realistic_driving_cases` (the same
+        cases, layouts and noise draws as :func:`run_realistic`).
+    smoothness : sequence of float
+        Values of the biharmonic weight to score.
+    noise_mm : sequence of float
+        Marker-noise levels (mm per coordinate).
+
+    Returns
+    -------
+    list of dict
+        One row per case, level and rule: ``case``, ``noise_mm``, ``rule``,
+        ``mean_mm`` (the biharmonic baseline is the rule ``biharmonic``).
+    """
+    from facegeom.constants import CM_TO_MM
+    from facegeom.methods.tangent import TangentDeformer, _AutoSmoother, robust_kabsch
+    from facegeom.registry import create
+
+    F = model.triangles
+    rows = []
+    for case in cases:
+        handles = layout(model, f"random{case.markers}", case.layout_seed)
+        X = model.identity_neutral(case.identity)
+        T = model.face(case.identity, case.expression)
+        rng = np.random.default_rng(case.noise_seed)
+        noisy = [(float(s), T[handles] + rng.normal(0.0, float(s) / CM_TO_MM, (handles.size, 3))) for s in noise_mm]
+        bh = create("deformers", "biharmonic").fit(X, F, handles)
+        fitted = []
+        for s in smoothness:
+            d = TangentDeformer(select="ml", smoothness=float(s)).fit(X, F, handles)
+            fitted.append((s, d, _AutoSmoother(d.solver_.schur_complement(), "gcv")))
+        for level, P in noisy:
+            rows.append({"case": case.index, "noise_mm": level, "rule": "biharmonic",
+                         "mean_mm": face_errors_mm(bh.deform(P), T)["mean_mm"]})
+            Rm, t = robust_kabsch(X[handles], P)
+            Z = (P - t) @ Rm - X[handles]
+            joint = []
+            for s, d, gcv in fitted:
+                sm = d.smoother_
+                z = sm.U.T @ Z
+                zz = np.einsum("md,md->m", z, z)[:, None]
+                err = np.array([face_errors_mm(((keep[:, None] * z).T @ d._coef_map).T @ Rm.T + X @ Rm.T + t, T)
+                                ["mean_mm"] for keep in sm._keep])
+                one = sm.powers == 1.0
+                g_gcv = int(gcv._choose(zz)[0])
+                g_ml = int(sm._choose(zz)[0])
+                S = gcv._lin @ zz
+                joint.append((float(S[g_gcv, 0]), float(err[one][g_gcv]), float(err.min())))
+                for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
+                                ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
+                    rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
+            rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
+            rows.append({"case": case.index, "noise_mm": level, "rule": "joint oracle",
+                         "mean_mm": min(j[2] for j in joint)})
+    return rows
+
+
+def summarize_selection_study(rows: list[dict]) -> tuple[list[str], list[list]]:
+    """Mean face error per rule and noise level, and its ratio to biharmonic: a table for ``format_table``."""
+    levels = sorted({r["noise_mm"] for r in rows})
+    rules = list(dict.fromkeys(r["rule"] for r in rows))
+    mean = {(ru, lv): float(np.mean([r["mean_mm"] for r in rows if r["rule"] == ru and r["noise_mm"] == lv]))
+            for ru in rules for lv in levels}
+    header = ["rule"] + [f"noise {lv:g} mm (x biharmonic)" for lv in levels]
+    out = [[ru] + [f"{mean[ru, lv]:.4f} ({mean[ru, lv] / mean['biharmonic', lv]:.3f})" for lv in levels]
+           for ru in rules]
+    return header, out
+
+
+def run_speed(model, specs: list[MethodSpec], layouts=("ict80", "random120"), repeats: int = 5, frames: int = 300,
+              deforms: int = 20) -> list[list]:
+    """Fit, ``deform`` and ``deform_many`` times of deformers on the face, interleaved in one process (medians).
+
+    Per repeat and layout (``random<k>`` with seed 7), every spec is fitted
+    once, then times ``deforms`` single deforms and three ``deform_many``
+    calls of ``frames`` frames (jaw open / smile mixes plus 0.2 mm noise), all
+    with one BLAS thread so that a loaded machine does not stall the products.
+
+    Returns
+    -------
+    list of list
+        One line per spec: label, fit (s), deform (ms), deform_many (ms per frame).
+    """
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    faces = np.stack([model.face(None, {"jawOpen": float(a), "mouthSmile_L": float(b)})
+                      for a, b in rng.uniform(0.0, 1.0, (frames, 2))])
+    res = {s.label: ([], [], []) for s in specs}
+    with threadpool_limits(1):
+        for _ in range(repeats):
+            for name in layouts:
+                h = layout(model, name, 7)
+                P = faces[:, h] + rng.normal(0.0, 0.02, (frames, h.size, 3))
+                for spec in specs:
+                    d = spec.build("deformers")
+                    t = time.perf_counter()
+                    d.fit(model.neutral, model.triangles, h)
+                    res[spec.label][0].append(time.perf_counter() - t)
+                    for i in range(deforms):
+                        t = time.perf_counter()
+                        d.deform(P[i])
+                        res[spec.label][1].append(time.perf_counter() - t)
+                    for _ in range(3):
+                        t = time.perf_counter()
+                        d.deform_many(P)
+                        res[spec.label][2].append((time.perf_counter() - t) / frames)
+    return [[k, float(np.median(f)), 1e3 * float(np.median(d)), 1e3 * float(np.median(m))]
+            for k, (f, d, m) in res.items()]
+
+
+if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | speed [REPEATS]: issue 19's studies
+    import sys
+
+    from facegeom.model import load_face_model
+    from facegeom.registry import parse_methods
+
+    _model = load_face_model(None)
+    if sys.argv[1:2] == ["speed"]:
+        _specs = parse_methods("issue3=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
+        _reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+        print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)"],
+                           run_speed(_model, _specs, repeats=_reps)))
+    else:
+        from facegeom.io import find_takes, ict_weights, read_take
+        from facegeom.model import locate_takes
+
+        _seed, _count = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (0, 20)
+        _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(locate_takes(None))]
+        _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes))
+        print(f"selection study: {_count} realistic cases, seed {_seed}")
+        print(format_table(*summarize_selection_study(_rows)))
