@@ -102,7 +102,7 @@ def _demo_capture(ctx, folder: Path, frames: int = 300) -> None:
     ctx.invoke(solve_cmd, capture=str(c3d), rig_path=None, output=str(glb), fitter="sem-ls", params=(),
                markers=None, smooth="auto")
     back = read_glb_animation(glb)
-    click.echo(f"weight error against the take {np.abs(back.weights - W).mean():.4f} (mean abs); open {glb} in any "
+    click.echo(f"weight error against the truth {np.abs(back.weights - W).mean():.4f} (mean abs); open {glb} in any "
                "glTF viewer (Blender, three.js editor, https://gltf-viewer.donmccurdy.com)")
 
 

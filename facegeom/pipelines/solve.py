@@ -36,7 +36,8 @@ from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
 from facegeom.methods.marker_solve import MarkerSolve, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
-__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "marker_vertices", "read_animation", "solve_file", "take_fps",
+__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "marker_vertices", "read_animation", "solve_file",
+           "take_fps",
            "write_curves", "write_curves_glb", "write_curves_livelink", "write_curves_npz"]
 
 RIG_UNIT = "cm"
@@ -156,7 +157,7 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
 
 
 def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
-    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid transforms and the solve's info."""
+    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid transforms, solve info."""
     s = solved.solve
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(
