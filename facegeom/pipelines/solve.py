@@ -157,7 +157,7 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
 
 
 def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
-    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid transforms, solve info."""
+    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid motion, solve info."""
     s = solved.solve
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(
