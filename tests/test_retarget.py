@@ -14,6 +14,7 @@ from facegeom.methods.tangent_retarget import (
     lowrank_denoise,
     marker_affine_fit,
     marker_kernel_fit,
+    neighbour_maps,
     temporal_windows,
 )
 
@@ -231,7 +232,7 @@ def test_degenerate_configuration_is_a_clear_error():
 
 def test_bad_parameters():
     for kw in ({"strategy": "x"}, {"window": 0}, {"d": 0}, {"beta": -1.0}, {"field": "x"}, {"smoothness": -1},
-               {"kernel": "yes"}):
+               {"kernel": "yes"}, {"pool": 1}):
         with pytest.raises(InputError):
             TangentRetargeter(**kw)
 
@@ -286,3 +287,32 @@ def test_source_smoothing_is_chosen_by_the_labels():
     e_auto = np.linalg.norm(TangentRetargeter().fit(noisy, lab, Y_true[lab]).transform() - Y_true)
     e_none = np.linalg.norm(TangentRetargeter(source_smoothing=0).fit(noisy, lab, Y_true[lab]).transform() - Y_true)
     assert e_auto < 0.7 * e_none, (e_auto, e_none)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 10_000))
+def test_neighbour_maps_recover_a_shared_map(seed):
+    """Markers all moved by one linear map: every neighbourhood's pooled map is that map."""
+    rng = np.random.default_rng(seed)
+    S = smooth_sequence(T=30, p=9, seed=seed)
+    M = rng.normal(size=(3, 3)) + 3 * np.eye(3)
+    lab = np.arange(0, 30, 3)
+    P = S[lab] - S[lab].mean(axis=0)
+    C = np.einsum("lpi,lpj->pij", P, P)
+    Cy = np.einsum("lpi,lpj->pij", P, P @ M)
+    for A in neighbour_maps(S.mean(axis=0), C, Cy):
+        assert np.allclose(A, M, atol=1e-6)
+
+
+def test_pooled_map_fits_clean_shared_map_and_stays_close_otherwise():
+    """With pooling on, clean data from one affine map is still reproduced; noisy labels stay near the truth."""
+    S = smooth_sequence(T=60, p=8, seed=3)
+    M = np.array([[1.2, 0.1, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 1.1]])
+    Y = S @ M + 0.5
+    lab = np.arange(0, 60, 6)
+    fit, _ = marker_affine_fit(S, lab, Y[lab], "auto", return_loo=True)
+    assert np.abs(fit - Y).max() < 1e-3
+    noisy = Y[lab] + np.random.default_rng(0).normal(scale=0.05, size=Y[lab].shape)
+    pooled = TangentRetargeter(pool=True, source_smoothing=0).fit(S, lab, noisy).transform()
+    plain = TangentRetargeter(pool=False, source_smoothing=0).fit(S, lab, noisy).transform()
+    assert np.abs(pooled - Y).mean() < 0.05 and np.abs(plain - Y).mean() < 0.05
