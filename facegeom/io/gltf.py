@@ -113,16 +113,13 @@ def _check_fps(path, fps) -> float:
 
 
 def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals; +z for vertices on no (non-degenerate) triangle."""
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    fn = np.cross(b - a, c - a)
-    N = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(N, F[:, k], fn)
-    length = np.linalg.norm(N, axis=1)
-    ok = length > 1e-30
-    N[ok] /= length[ok, None]
-    N[~ok] = (0.0, 0.0, 1.0)
+    """Area-weighted unit vertex normals (libigl); +z for vertices on no (non-degenerate) triangle."""
+    import igl
+
+    N = igl.per_vertex_normals(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                               igl.PerVertexNormalsWeightingType.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+    bad = ~np.isfinite(N).all(axis=1) | (np.linalg.norm(N, axis=1) < 0.5)
+    N[bad] = (0.0, 0.0, 1.0)
     return N.astype(np.float32)
 
 

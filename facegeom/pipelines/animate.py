@@ -110,6 +110,24 @@ def animate(model, seq: sq.Sequence, retargeter, deformer, labels: int = 10, reg
                      {"retarget_s": t_ret, "deformer_fit_s": t_fit, "drive_s": t_drive})
 
 
+def _take_window(model, path, start: int, frames: int, labels: int, seed: int):
+    """A take's window on the actor and the character of ``seed`` at the ``ict80`` markers -> ``(W, seq, ids)``.
+
+    ``W`` are the window's ICT weights ``(frames, K)``; errors name the take.
+    """
+    path = Path(path)
+    W = ict_weights(read_take(path), model.expression_names)
+    if start + frames > W.shape[0]:
+        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
+                         f"runs past its end", path)
+    if labels > frames:
+        raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
+    ids = layout(model, "ict80")
+    W = W[start:start + frames]
+    seq = sq.make_sequence(model, W, ids, seed, sq.make_character(model, seed), f"{path.stem}@{start}")
+    return W, seq, ids
+
+
 def animate_take(model, path, start: int, frames: int, labels: int, seed: int, retargeter,
                  deformer) -> tuple[Animation, sq.Sequence, np.ndarray]:
     """Performance-driven animation of one window of a Live Link Face take.
@@ -148,17 +166,7 @@ def animate_take(model, path, start: int, frames: int, labels: int, seed: int, r
     InputError
         An unreadable take, a window past its end, more labels than frames.
     """
-    path = Path(path)
-    take = read_take(path)
-    W = ict_weights(take, model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
-                         f"runs past its end", path)
-    if labels > frames:
-        raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
-    ids = layout(model, "ict80")
-    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
-                           f"{path.stem}@{start}")
+    W, seq, ids = _take_window(model, path, start, frames, labels, seed)
     anim = animate(model, seq, retargeter(), deformer(), labels, region=FACE_AREA)
     return anim, seq, ids
 
@@ -216,22 +224,12 @@ def solve_take(model, path, start: int, frames: int, labels: int, seed: int, ret
     """
     from facegeom.methods.marker_solve import solve_markers
 
-    path = Path(path)
-    take = read_take(path)
-    W = ict_weights(take, model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
-                         f"runs past its end", path)
-    if labels > frames:
-        raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
-    ids = layout(model, "ict80")
-    seq = sq.make_sequence(model, W[start:start + frames], ids, seed, sq.make_character(model, seed),
-                           f"{path.stem}@{start}")
+    W, seq, ids = _take_window(model, path, start, frames, labels, seed)
     lab = evenly_spread(frames, labels)
     t0 = time.perf_counter()
     markers = retargeter().fit(seq.source, lab, seq.target[lab]).transform()
     info = {"retarget_s": time.perf_counter() - t0, "markers": markers}
     res = solve_markers(markers, ids, rig, fitter(), smooth=smooth)
     if tuple(rig.names) == tuple(model.expression_names):
-        info["weight_mae"] = float(np.abs(res.weights - W[start:start + frames]).mean())
+        info["weight_mae"] = float(np.abs(res.weights - W).mean())
     return res, seq, ids, info
