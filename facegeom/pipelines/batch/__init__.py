@@ -61,7 +61,9 @@ kills the process running its chunk. On Dask the scheduler retries the task on
 another worker; when the chunk still kills its worker every time (Dask's
 ``KilledWorker``), its items are resubmitted one task each (at most ``chunk``
 extra tasks per such chunk; the items written before the crash are skipped), so
-only the crashing input fails. The normal path pays nothing for this. Inline,
+only the crashing input fails. A single input whose worker died is run once more
+alone, after every other task: Dask counts a worker's death against every task
+queued on it, so an innocent input next to a crashing one can be killed too. The normal path pays nothing for this. Inline,
 chunks run in this process and a crash ends the run (outputs written so far are
 kept; a rerun resumes) unless ``isolate=True``: then each chunk runs in a
 forked child (the shared state is built once in the parent and inherited), and

@@ -225,6 +225,19 @@ def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retrie
 
     token = hashlib.sha1(f"{spec['key']}{time.time_ns()}{os.getpid()}".encode()).hexdigest()[:8]
     futures = {}
+    suspects: list[tuple[list[dict], str]] = []  # single inputs killed with their worker, to rerun alone
+    alone: set[str] = set()  # names of tasks that ran with no other task in flight
+
+    def rerun_alone(done) -> None:
+        """When nothing else is in flight, submit the next suspect: no other task can share its worker."""
+        if futures or not suspects:
+            return
+        c, name = suspects.pop(0)
+        alone.add(f"{name}-alone")
+        f = client.submit(run_chunk, spec, c, retries=retries, key=f"facegeom-{spec['operation']}-{token}-{name}-alone")
+        futures[f] = (c, f"{name}-alone")
+        done.add(f)
+
     for k, c in enumerate(chunks):
         f = client.submit(run_chunk, spec, c, key=f"facegeom-{spec['operation']}-{token}-{k}", retries=retries)
         futures[f] = (c, str(k))
@@ -244,6 +257,13 @@ def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retrie
                             futures[f] = ([it], f"{name}-{j}")
                             done.add(f)
                         continue
+                    if type(exc).__name__ == "KilledWorker" and name not in alone:
+                        # one input whose worker died: it may only have been queued on the worker a crashing
+                        # input killed; it runs again on its own once everything else is done
+                        fut.release()
+                        suspects.append((c, name))
+                        rerun_alone(done)
+                        continue
                     msg = _task_error(exc, len(c))
                     for it in c:
                         rows[it["index"]] = make_row(it, "failed", msg, None, "")
@@ -252,6 +272,7 @@ def run_on_dask(client, spec: dict, chunks: list[list[dict]], rows: dict, retrie
                         rows[r["index"]] = r
                 fut.release()  # the rows are here: a later worker death must not recompute the task
                 bar.update(len(c))
+                rerun_alone(done)
     finally:
         if futures:
             client.cancel(list(futures))
