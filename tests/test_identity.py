@@ -375,3 +375,35 @@ def test_bench_identity_small(face_model, tmp_path):
     assert (tmp_path / "identity.csv").is_file() and "| neutral" in (tmp_path / "identity-summary.md").read_text()
     mesh = {r["condition"]: r["vertex_mm"] for r in rows if r["protocol"] == "mesh"}
     assert mesh["identity"] < 0.2 < mesh["generic"]
+
+
+def test_estimate_noise_follows_the_residual(face_model, person):
+    """One image, pose free: the re-estimated sigma lies between noise_px and the true noise, grows with it,
+    is floored at noise_px / 2 on clean landmarks, and is noise_px when switched off."""
+    a, w = person
+    V = face_model.face(a, w)
+    ids = face_model.landmarks
+    cam = look_at_camera(V, yaw=20.0)
+    e = np.random.default_rng(5).normal(size=(ids.size, 2))
+    sig = []
+    for true in (0.0, 1.5, 3.0):
+        tg = LandmarkTarget(cam.project(V[ids]) + true * e, ids, PinholeCamera(cam.focal, cam.cx, cam.cy))
+        sig.append(IdentityFitter(noise_px=1.0).fit(face_model, tg).info["noise"][0])
+        if true == 3.0:
+            assert IdentityFitter(noise_px=1.0, estimate_noise=False).fit(face_model, tg).info["noise"] == [1.0]
+    assert 0.5 <= sig[0] < 1.0 < sig[1] < 1.5 < sig[2] < 3.0
+    with pytest.raises(InputError, match="estimate_noise"):
+        IdentityFitter(estimate_noise="yes")
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(noise=st.floats(0.0, 4.0), noise_px=st.floats(0.3, 3.0), yaw=st.floats(-30, 30))
+def test_estimate_noise_is_floored_and_finite(face_model, person, noise, noise_px, yaw):
+    a, w = person
+    V = face_model.face(a, w)
+    ids = face_model.landmarks[:40]
+    tg = unposed(V, ids, yaw, np.random.default_rng(0), noise)
+    fit = IdentityFitter(noise_px=noise_px).fit(face_model, tg)
+    s = fit.info["noise"][0]
+    assert np.isfinite(s) and s >= 0.5 * noise_px - 1e-12
+    assert np.isfinite(fit.identity).all() and np.isfinite(fit.info["energy"])
