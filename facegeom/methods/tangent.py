@@ -458,7 +458,7 @@ def _nearest_rotations(A: np.ndarray) -> np.ndarray:
         z = np.sqrt(np.sqrt(np.einsum("kt,kt->t", C, C) / np.einsum("kt,kt->t", X, X)) / det)
         Xn = X * (0.5 * z)
         Xn += C * (0.5 / (z * det))
-        if step >= 3:
+        if step >= 3 or step == POLAR_STEPS - 1:  # (the first steps never converge for scaled blocks)
             d = Xn - X
             moved = np.einsum("kt,kt->t", d, d)
             X = Xn
