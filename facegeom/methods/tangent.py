@@ -412,8 +412,15 @@ def robust_kabsch(P: np.ndarray, Q: np.ndarray, iterations: int = ROBUST_ITERATI
 
 # flat indices (row-major in a 3 x 3 block) of the four factors of every cofactor:
 # C[i, j] = X[i+1, j+1] X[i+2, j+2] - X[i+1, j+2] X[i+2, j+1] (indices mod 3)
-_COF = tuple(np.array([3 * ((i + di) % 3) + (j + dj) % 3 for i in range(3) for j in range(3)])
-             for di, dj in ((1, 1), (2, 2), (1, 2), (2, 1)))
+# (all four as one index array, so a step gathers once)
+_COF = np.array([3 * ((i + di) % 3) + (j + dj) % 3 for di, dj in ((1, 1), (2, 2), (1, 2), (2, 1))
+                 for i in range(3) for j in range(3)])
+
+
+def _cofactors(X: np.ndarray) -> np.ndarray:
+    """Cofactor matrices of the 3 x 3 blocks of ``X (9, T)`` (row-major blocks), same layout."""
+    g = X[_COF].reshape(4, 9, X.shape[1])
+    return g[0] * g[1] - g[2] * g[3]
 
 #: Scaled Newton steps of :func:`_nearest_rotations` before the frames that have not converged go to the SVD.
 POLAR_STEPS = 8
@@ -444,7 +451,7 @@ def _nearest_rotations(A: np.ndarray) -> np.ndarray:
     """
     T = A.shape[2]
     X = A.reshape(9, T)
-    C = X[_COF[0]] * X[_COF[1]] - X[_COF[2]] * X[_COF[3]]
+    C = _cofactors(X)
     det = np.einsum("kt,kt->t", X[:3], C[:3])
     ok = det > 0
     if not ok.all():  # no Newton for these frames: identity stand-ins, then the SVD
@@ -453,7 +460,7 @@ def _nearest_rotations(A: np.ndarray) -> np.ndarray:
         det = np.where(ok, det, 1.0)
     for step in range(POLAR_STEPS):
         if step:
-            C = X[_COF[0]] * X[_COF[1]] - X[_COF[2]] * X[_COF[3]]
+            C = _cofactors(X)
             det = np.einsum("kt,kt->t", X[:3], C[:3])
         z = np.sqrt(np.sqrt(np.einsum("kt,kt->t", C, C) / np.einsum("kt,kt->t", X, X)) / det)
         Xn = X * (0.5 * z)
