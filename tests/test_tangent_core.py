@@ -337,9 +337,10 @@ def test_nearest_rotations_newton_equals_svd_and_falls_back():
         svd = tangent._rotations_svd
         tangent._rotations_svd = lambda B: calls.append(B.shape[0]) or svd(B)
         tangent._nearest_rotations(np.ascontiguousarray(A.transpose(1, 2, 0)))
+        assert calls == [T]  # one step: nothing converged, every frame went to the SVD
         tangent.POLAR_STEPS = steps
         R = tangent._nearest_rotations(np.ascontiguousarray(A.transpose(1, 2, 0))).transpose(2, 0, 1)
+        assert calls == [T]  # the default number of steps: every well-conditioned frame converged by Newton
     finally:
         tangent.POLAR_STEPS, tangent._rotations_svd = steps, svd
-    assert calls == [T]  # one step: nothing converged, every frame went to the SVD
     np.testing.assert_allclose(R, _rotations_svd(A), rtol=0, atol=1e-12)
