@@ -289,7 +289,9 @@ def _frames(rng, P, T, noise):
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), m=st.integers(3, 130), T=st.integers(1, 40),
+# m >= 5: with 3-4 markers and an exact fit (e.g. a mirrored planar set, which a rotation reproduces), rounding noise
+# sets the weights and can leave two collinear markers carrying the fit, ill-conditioned in both implementations
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(5, 130), T=st.integers(1, 40),
        noise=st.sampled_from([0.0, 1e-3, 0.3, 5.0]), planar=st.booleans())
 def test_robust_kabsch_many_equals_the_previous_implementation(seed, m, T, noise, planar):
     from facegeom.methods.tangent import robust_kabsch_many
