@@ -289,10 +289,12 @@ def _frames(rng, P, T, noise):
 
 
 @settings(max_examples=40, deadline=None)
-# m >= 5: with 3-4 markers and an exact fit (e.g. a mirrored planar set, which a rotation reproduces), rounding noise
-# sets the weights and can leave two collinear markers carrying the fit, ill-conditioned in both implementations
+# noise > 0 and m >= 5: with an exact fit (no noise, or a mirrored planar set, which a rotation reproduces) rounding
+# noise sets the Cauchy weights, and with 3-4 markers the median weighting can leave two of them carrying the fit:
+# there the result moves by 1e-10 to 1 under a 1e-15 perturbation of the input in both implementations (exact
+# motions are checked against the truth below)
 @given(seed=st.integers(0, 2**31 - 1), m=st.integers(5, 130), T=st.integers(1, 40),
-       noise=st.sampled_from([0.0, 1e-3, 0.3, 5.0]), planar=st.booleans())
+       noise=st.sampled_from([1e-3, 0.3, 5.0]), planar=st.booleans())
 def test_robust_kabsch_many_equals_the_previous_implementation(seed, m, T, noise, planar):
     from facegeom.methods.tangent import robust_kabsch_many
 
@@ -309,6 +311,18 @@ def test_robust_kabsch_many_equals_the_previous_implementation(seed, m, T, noise
     np.testing.assert_allclose(R, R0, rtol=0, atol=1e-10)
     np.testing.assert_allclose(t, t0, rtol=0, atol=1e-10 * (1.0 + np.abs(Q).max()))
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+
+
+def test_robust_kabsch_many_returns_an_exact_rigid_motion():
+    from facegeom.methods.tangent import robust_kabsch_many
+
+    rng = np.random.default_rng(11)
+    P = rng.normal(size=(40, 3)) * np.array([60.0, 40.0, 20.0]) + 300.0
+    R = Rotation.from_rotvec(rng.normal(size=(30, 3)) * 2).as_matrix()
+    t = rng.normal(scale=100.0, size=(30, 3))
+    Rf, tf = robust_kabsch_many(P, np.einsum("tij,mj->tmi", R, P) + t[:, None, :])
+    np.testing.assert_allclose(Rf, R, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(tf, t, rtol=0, atol=1e-6)
 
 
 def test_nearest_rotations_newton_equals_svd_and_falls_back():
