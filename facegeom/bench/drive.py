@@ -441,26 +441,34 @@ def run_speed(model, specs: list[MethodSpec], layouts=("ict80", "random120"), re
     """Fit, ``deform`` and ``deform_many`` times of deformers on the face, interleaved in one process (medians).
 
     Per repeat and layout (``random<k>`` with seed 7), every spec is fitted
-    once, then times ``deforms`` single deforms and three ``deform_many``
-    calls of ``frames`` frames (jaw open / smile mixes plus 0.2 mm noise), all
-    with one BLAS thread so that a loaded machine does not stall the products.
+    once and times ``deforms`` single deforms; then three rounds of one
+    ``deform_many`` call of ``frames`` frames (jaw open / smile mixes plus
+    0.2 mm noise) per spec, the specs taking turns, all with one BLAS thread
+    so that a loaded machine does not stall the products. Because the specs
+    take turns (in alternating order), each ``deform_many`` time has a
+    neighbour of the first spec measured moments apart: the ratio of the two, medianed over rounds,
+    layouts and repeats, is the relative speed, steadier on a shared machine
+    than the ratio of the pooled medians (which mixes layouts of different
+    marker counts).
 
     Returns
     -------
     list of list
-        One line per spec: label, fit (s), deform (ms), deform_many (ms per frame).
+        One line per spec: label, fit (s), deform (ms), deform_many (ms per
+        frame), deform_many relative to the first spec (median paired ratio).
     """
     from threadpoolctl import threadpool_limits
 
     rng = np.random.default_rng(0)
     faces = np.stack([model.face(None, {"jawOpen": float(a), "mouthSmile_L": float(b)})
                       for a, b in rng.uniform(0.0, 1.0, (frames, 2))])
-    res = {s.label: ([], [], []) for s in specs}
+    res = {s.label: ([], [], [], []) for s in specs}
     with threadpool_limits(1):
         for _ in range(repeats):
             for name in layouts:
                 h = layout(model, name, 7)
                 P = faces[:, h] + rng.normal(0.0, 0.02, (frames, h.size, 3))
+                fitted = []
                 for spec in specs:
                     d = spec.build("deformers")
                     t = time.perf_counter()
@@ -470,12 +478,18 @@ def run_speed(model, specs: list[MethodSpec], layouts=("ict80", "random120"), re
                         t = time.perf_counter()
                         d.deform(P[i])
                         res[spec.label][1].append(time.perf_counter() - t)
-                    for _ in range(3):
+                    fitted.append((spec.label, d))
+                for r in range(3):
+                    times = {}
+                    for label, d in (fitted if r % 2 == 0 else fitted[::-1]):  # alternate who goes first
                         t = time.perf_counter()
                         d.deform_many(P)
-                        res[spec.label][2].append((time.perf_counter() - t) / frames)
-    return [[k, float(np.median(f)), 1e3 * float(np.median(d)), 1e3 * float(np.median(m))]
-            for k, (f, d, m) in res.items()]
+                        times[label] = (time.perf_counter() - t) / frames
+                    for label, dt in times.items():
+                        res[label][2].append(dt)
+                        res[label][3].append(dt / times[fitted[0][0]])
+    return [[k, float(np.median(f)), 1e3 * float(np.median(d)), 1e3 * float(np.median(m)), float(np.median(r))]
+            for k, (f, d, m, r) in res.items()]
 
 
 if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | speed [REPEATS]: issue 19's studies
@@ -488,7 +502,8 @@ if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | 
     if sys.argv[1:2] == ["speed"]:
         _specs = parse_methods("issue3=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
         _reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
-        print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)"],
+        print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)",
+                            "deform_many (x first)"],
                            run_speed(_model, _specs, repeats=_reps)))
     else:
         from facegeom.io import find_takes, ict_weights, read_take

@@ -410,44 +410,129 @@ def robust_kabsch(P: np.ndarray, Q: np.ndarray, iterations: int = ROBUST_ITERATI
     return R, t
 
 
+# flat indices (row-major in a 3 x 3 block) of the four factors of every cofactor:
+# C[i, j] = X[i+1, j+1] X[i+2, j+2] - X[i+1, j+2] X[i+2, j+1] (indices mod 3)
+# (all four as one index array, so a step gathers once)
+_COF = np.array([3 * ((i + di) % 3) + (j + dj) % 3 for di, dj in ((1, 1), (2, 2), (1, 2), (2, 1))
+                 for i in range(3) for j in range(3)])
+
+
+def _cofactors(X: np.ndarray) -> np.ndarray:
+    """Cofactor matrices of the 3 x 3 blocks of ``X (9, T)`` (row-major blocks), same layout."""
+    g = X[_COF].reshape(4, 9, X.shape[1])
+    return g[0] * g[1] - g[2] * g[3]
+
+
+#: Scaled Newton steps of :func:`_nearest_rotations` before the frames that have not converged go to the SVD.
+POLAR_STEPS = 8
+
+
+def _rotations_svd(A: np.ndarray) -> np.ndarray:
+    """The rotations nearest to the ``(T, 3, 3)`` stack ``A`` by batched SVDs (``V diag(1, 1, s) U^T`` of ``A^T``)."""
+    U, _, Vt = np.linalg.svd(np.swapaxes(A, 1, 2))
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    s = np.sign(np.linalg.det(V @ Ut))
+    s[s == 0] = 1.0
+    V = V.copy()
+    V[:, :, 2] *= s[:, None]
+    return V @ Ut
+
+
+def _nearest_rotations(A: np.ndarray) -> np.ndarray:
+    """The rotation nearest to each 3 x 3 block of ``A (3, 3, T)`` (entry ``[j, a, t]``), same layout.
+
+    For ``det A > 0`` that is the orthogonal polar factor, found by Newton's
+    iteration ``X <- (z X + X^-T / z) / 2`` with Frobenius-norm scaling ``z``
+    (Higham), every 3 x 3 block at once with the inverse from cofactors, so the
+    cost is a few elementwise passes over ``9 T`` numbers per step instead of
+    ``T`` LAPACK calls. It converges quadratically; a frame whose last step
+    still moved it by more than ``1e-8`` (so its error can exceed rounding),
+    and every frame with ``det A <= 0`` (reflections, rank-deficient blocks),
+    goes to :func:`_rotations_svd`, the reference it equals up to rounding.
+    """
+    T = A.shape[2]
+    X = A.reshape(9, T)
+    C = _cofactors(X)
+    det = np.einsum("kt,kt->t", X[:3], C[:3])
+    ok = det > 0
+    if not ok.all():  # no Newton for these frames: identity stand-ins, then the SVD
+        X = np.where(ok, X, np.eye(3).reshape(9, 1))
+        C = np.where(ok, C, np.eye(3).reshape(9, 1))
+        det = np.where(ok, det, 1.0)
+    for step in range(POLAR_STEPS):
+        if step:
+            C = _cofactors(X)
+            det = np.einsum("kt,kt->t", X[:3], C[:3])
+        z = np.sqrt(np.sqrt(np.einsum("kt,kt->t", C, C) / np.einsum("kt,kt->t", X, X)) / det)
+        Xn = X * (0.5 * z)
+        Xn += C * (0.5 / (z * det))
+        if step >= 3 or step == POLAR_STEPS - 1:  # (steps 1-3 leave > 1e-5 on blocks of condition ~4)
+            d = Xn - X
+            moved = np.einsum("kt,kt->t", d, d)
+            X = Xn
+            if (moved < 1e-16).all():
+                break
+        else:
+            X = Xn
+    bad = ~(ok & (moved < 1e-16))
+    R = X.reshape(3, 3, T)
+    if bad.any():
+        R = R.copy()
+        R[:, :, bad] = _rotations_svd(A[:, :, bad].transpose(2, 0, 1)).transpose(1, 2, 0)
+    return R
+
+
 def robust_kabsch_many(P: np.ndarray, Q: np.ndarray, iterations: int = ROBUST_ITERATIONS
                        ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`robust_kabsch` of ``P (m,3)`` onto every frame of ``Q (T,m,3)``, batched: ``R (T,3,3)``, ``t (T,3)``.
 
-    The frames are laid out side by side once, as an ``(m, 3T)`` block, so every
-    reweighting round is a few passes over it and two ``(3, m) x (m, 3T)``
-    products, whatever ``T``.
+    The frames are laid out once as a ``(3T, m)`` block (row ``j T + t`` = the
+    ``j``-th coordinate of frame ``t``'s centred markers). A reweighting round
+    is one ``(3T, 4) x (4, m)`` product for the residuals (rotation and
+    translation together), a few passes over the block (squared distances, a
+    row sort for the median, Cauchy weights) and one ``(4T, m) x (m, 4)``
+    product for all weighted cross-covariances, centroids and weight sums; the
+    rotations come from :func:`_nearest_rotations`.
     """
     T, m = Q.shape[:2]
-    p0, q0 = P.mean(axis=0), Q.mean(axis=1)  # both centred first: no cancellation far from the origin
-    Pc = P - p0
-    Qm = np.ascontiguousarray((Q - q0[:, None, :]).transpose(1, 0, 2)).reshape(m, 3 * T)  # column 3t+j = Q[t, :, j]
-    mp, mq = np.zeros((T, 3)), np.zeros((T, 3))
-    H = (Pc.T @ Qm).reshape(3, T, 3).transpose(1, 0, 2) / m
-    for it in range(iterations + 1):
-        U, _, Vt = np.linalg.svd(H)
-        V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
-        s = np.sign(np.linalg.det(V @ Ut))
-        s[s == 0] = 1.0
-        V = V.copy()
-        V[:, :, 2] *= s[:, None]
-        R = V @ Ut
-        tc = mq - np.einsum("tij,tj->ti", R, mp)  # the translation between the centred point sets
-        if it == iterations:
-            break
-        D = (Pc @ R.transpose(2, 0, 1).reshape(3, 3 * T) - Qm + tc.ravel()).reshape(m, T, 3)  # (m, T, 3) residuals
-        r = np.sqrt(np.einsum("mti,mti->mt", D, D))
-        part = np.partition(r, (m - 1) // 2 if m % 2 else (m // 2 - 1, m // 2), axis=0)
-        c = part[m // 2] if m % 2 else 0.5 * (part[m // 2 - 1] + part[m // 2])  # the median per frame
+    Qm = np.ascontiguousarray(Q.transpose(2, 0, 1))  # (3, T, m)
+    p0, q0 = P.mean(axis=0), Qm.mean(axis=2)  # both centred first: no cancellation far from the origin
+    Qm -= q0[:, :, None]
+    Qm = Qm.reshape(3 * T, m)  # row j T + t = Q[t, :, j] - q0[t, j]
+    P1 = np.empty((m, 4))
+    P1[:, :3], P1[:, 3] = P - p0, 1.0
+    # plain fit: uniform weights, both centroids zero
+    A = (Qm @ P1[:, :3]).reshape(3, T, 3).transpose(0, 2, 1)  # A[j, a, t] = m H_t[a, j]
+    R, tc = _nearest_rotations(np.ascontiguousarray(A)), np.zeros((3, T))
+    Rb = np.empty((3 * T, 4))
+    W = np.empty((4 * T, m))
+    lo, hi = (m - 1) // 2, m // 2  # the median is the mean of the sorted values lo and hi
+    for _ in range(iterations):
+        Rb[:, :3] = R.transpose(0, 2, 1).reshape(3 * T, 3)
+        Rb[:, 3] = tc.ravel()
+        D = Rb @ P1.T  # (3T, m): R_t p_i + tc_t
+        D -= Qm
+        D *= D
+        w = W[3 * T:]
+        np.add(D[:T], D[T:2 * T], out=w)
+        w += D[2 * T:]  # (T, m) squared residuals
+        s = np.sort(w, axis=1)  # the median of the distances from the squared ones (sqrt is monotonic)
+        c = np.sqrt(s[:, hi]) if lo == hi else 0.5 * (np.sqrt(s[:, lo]) + np.sqrt(s[:, hi]))
         if not (c > 0).any():
             break
-        w = np.where(c > 0, 1.0 / (1.0 + (r / np.where(c > 0, c, 1.0)) ** 2), 1.0)  # (m, T) Cauchy weights
-        w /= w.sum(axis=0)
-        mp = w.T @ Pc
-        Wq = Qm.reshape(m, T, 3) * w[:, :, None]
-        mq = Wq.sum(axis=0)
-        H = (Pc.T @ Wq.reshape(m, 3 * T)).reshape(3, T, 3).transpose(1, 0, 2) - mp[:, :, None] * mq[:, None, :]
-    return R, q0 + tc - np.einsum("tij,j->ti", R, p0)
+        w *= np.where(c > 0, 1.0 / np.where(c > 0, c * c, 1.0), 0.0)[:, None]  # Cauchy weights 1 / (1 + r^2 / c^2)
+        w += 1.0
+        np.divide(1.0, w, out=w)
+        np.multiply(Qm.reshape(3, T, m), w, out=W[:3 * T].reshape(3, T, m))
+        G = W @ P1  # (4T, 4)
+        S = G[3 * T:, 3]
+        mp = G[3 * T:, :3].T / S  # (3, T)
+        mqr = G[:3 * T, 3].reshape(3, T)
+        A = G[:3 * T, :3].reshape(3, T, 3).transpose(0, 2, 1) - mqr[:, None, :] * mp[None, :, :]
+        R = _nearest_rotations(np.ascontiguousarray(A))
+        tc = mqr / S - np.einsum("jat,at->jt", R, mp)
+    t = (q0 + tc - np.einsum("jat,a->jt", R, p0)).T
+    return np.ascontiguousarray(R.transpose(2, 0, 1)), t
 
 
 #: Default weight of the biharmonic prior relative to the tangent alignment energy (see the README: tuned on
