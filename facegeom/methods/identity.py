@@ -166,6 +166,9 @@ GCV_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # identity_scale="gcv": factors of t
 DOF_SCALE_MAX = 16.0  # identity_scale="dof": the largest factor (the GCV grid's largest)
 STATS_FLOOR = 1e-3  # expression_statistics: variance added to every weight (a std of ~0.03)
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
+CLOUD_TRIM_MADS = 3.0  # point clouds: pairs farther than median + this many (scaled) MADs are dropped
+CLOUD_EDGE_SPACINGS = 2.0  # point clouds: a vertex meeting the cloud more sideways than this (spacings) is off its edge
+CLOUD_NORMAL_K = 16  # point clouds: neighbours of the normal estimate
 
 
 @dataclass
@@ -561,6 +564,33 @@ def _skew(y):
     return S
 
 
+def _trim(d):
+    """Inliers among distances ``d``: at most the median plus ``CLOUD_TRIM_MADS`` scaled MADs (all if too few)."""
+    if d.size < 8:
+        return np.ones(d.size, dtype=bool)
+    med = float(np.median(d))
+    mad = 1.4826 * float(np.median(np.abs(d - med)))
+    return d <= med + CLOUD_TRIM_MADS * max(mad, 1e-12)
+
+
+def _cloud_normals(target, tree):
+    """``(normals (N, 3), spacing)`` of a point cloud: its own normals or the least-variance direction of the
+    ``CLOUD_NORMAL_K`` nearest points, and the median distance to the nearest other point."""
+    P = target.points
+    kq = min(CLOUD_NORMAL_K, P.shape[0])
+    d, nb = tree.query(P, kq)
+    d, nb = d.reshape(P.shape[0], kq), nb.reshape(P.shape[0], kq)
+    spacing = float(np.median(d[:, 1])) if kq > 1 else 0.0
+    if target.normals is not None:
+        return np.asarray(target.normals), spacing
+    if kq < 3:
+        return np.tile([0.0, 0.0, 1.0], (P.shape[0], 1)), spacing
+    X = P[nb] - P[nb].mean(axis=1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", X, X)
+    _, vecs = np.linalg.eigh(C)
+    return vecs[:, :, 0], spacing
+
+
 class _State:
     """Per-fit bookkeeping: the targets' linear systems, poses and correspondences.
 
@@ -665,33 +695,55 @@ class _State:
                     self.R[k], self.t[k] = _kabsch(self._face3d(x, k), self._data3d(k), self.sub[k][3])
 
     def _match(self, x, k):
-        """Symmetric closest points of cloud ``k``, folded into one weighted target per region vertex.
+        """Trimmed symmetric closest points of cloud ``k``, folded into one weighted target per region vertex.
 
-        Each region vertex ``j`` is pulled to its closest cloud point (weight 1)
-        and to the mean ``Ybar_j`` of the ``c_j`` (sub-sampled) cloud points whose
-        closest vertex it is (weight ``s c_j``, ``s`` = vertices / points, so both
-        directions weigh the same): the same quadratic as a mesh target at
-        ``(p_j + s c_j Ybar_j) / (1 + s c_j)`` with weight ``1 + s c_j``. The
-        second direction keeps the face from shrinking onto part of the scan.
+        Each region vertex ``j`` is pulled to its closest cloud point ``p_j``
+        (weight ``v_j``, 1 or 0) and to the mean ``Ybar_j`` of the ``c_j``
+        (sub-sampled) cloud points whose closest vertex it is (weight ``s c_j``,
+        ``s`` = vertices / points, so both directions weigh the same): the same
+        quadratic as a mesh target at ``(v_j p_j + s c_j Ybar_j) / (v_j + s c_j)``
+        with weight ``v_j + s c_j``. The second direction keeps the face from
+        shrinking onto part of the scan. A partial scan (a side hidden, the
+        scan cropped) must not pull the unseen part of the face onto its edge
+        (that turned and shifted the face, and the identity followed: see
+        :func:`_trim`), so a vertex->cloud pair counts (``v_j = 1``) only when its
+        offset lies along the cloud's normal at ``p_j`` (a vertex beyond the
+        scan's edge meets it sideways) and its distance is not an outlier; a
+        cloud->vertex pair only when its distance is not an outlier.
         """
         tg = self.targets[k]
         F = self._face3d(x, k) @ self.R[k].T + self.t[k]
-        _, j = self.trees[k].query(F)
+        dist, j = self.trees[k].query(F)
+        normals, spacing = self._cloud_geometry(k)
+        D = F - tg.points[j]
+        tangential = np.linalg.norm(D - np.einsum("mi,mi->m", D, normals[j])[:, None] * normals[j], axis=1)
+        v = (_trim(dist) & (tangential <= CLOUD_EDGE_SPACINGS * spacing)).astype(np.float64)
         sub = self.samples[k]
-        _, i = cKDTree(F).query(tg.points[sub])
+        Q = tg.points[sub]
+        d2, i = cKDTree(F).query(Q)
+        ok = _trim(d2)
         m = F.shape[0]
-        c = np.bincount(i, minlength=m).astype(np.float64)
+        c = np.bincount(i[ok], minlength=m).astype(np.float64)
         S = np.zeros((m, 3))
-        np.add.at(S, i, tg.points[sub])
+        np.add.at(S, i[ok], Q[ok])
         scale = m / float(sub.size)
-        wts = 1.0 + scale * c
-        key = (j, i)
-        self.changed = self.changed or self.prev[k] is None or not (
-            np.array_equal(j, self.prev[k][0]) and np.array_equal(i, self.prev[k][1]))
+        wts = v + scale * c
+        key = (j, i, v)
+        self.changed = self.changed or self.prev[k] is None or not all(
+            np.array_equal(a, b) for a, b in zip(key, self.prev[k]))
         self.prev[k] = key
-        self.corr[k] = (tg.points[j] + scale * S) / wts[:, None]
+        safe = np.maximum(wts, 1e-300)[:, None]
+        self.corr[k] = np.where(wts[:, None] > 0, (v[:, None] * tg.points[j] + scale * S) / safe, F)
         A = self.sub[k][1]
         self.sub[k] = (self.sub[k][0], A, A.T @ (A * np.repeat(wts, 3)[:, None]), wts)
+
+    def _cloud_geometry(self, k):
+        """Cloud ``k``'s unit normals ``(N, 3)`` (given, or by PCA of neighbours) and median point spacing (kept)."""
+        if not hasattr(self, "geometry"):
+            self.geometry = {}
+        if k not in self.geometry:
+            self.geometry[k] = _cloud_normals(self.targets[k], self.trees[k])
+        return self.geometry[k]
 
     def apply_pose_steps(self, p):
         """Apply the Gauss-Newton pose steps ``p (6 P,)`` (rotation vector, translation) of the free poses."""
