@@ -16,7 +16,8 @@ rigid pose, from
 (c) a mesh in vertex correspondence (:class:`~facegeom.model.targets.MeshTarget`),
 (d) a point cloud (:class:`~facegeom.model.targets.PointCloudTarget`), with
     closest-point correspondences re-found every round (ICP, as the
-    point-cloud paths of the other fitters).
+    point-cloud paths of the other fitters; trimmed, so a partial scan works:
+    see ``_State.anneal``).
 
 Mixed lists (meshes and landmarks of one person) work the same way.  The
 result, :class:`IdentityFit`, carries a user-specific
@@ -795,7 +796,7 @@ class _State:
         pairs 2.02; plus the spread floor 1.95; plus the slower decay 0.9
         (halving: 1.95, 0.8: 1.90, 0.95: 1.98) 1.85. Tried and not kept:
         point-to-plane vertex -> cloud pairs (the cloud's normals by PCA of 16
-        neighbours; 1.97 halving, 1.88 at 0.9, and worse on full scans: 2.7
+        neighbours; 1.97 halving with the edge test below, 1.88 at 0.9, and worse on full scans: 2.7
         against 1.9 mm), and dropping the vertices whose closest point lies
         sideways, off the scan's edge (1.93 against 1.95; full scans 2.4
         against 2.1 mm).
