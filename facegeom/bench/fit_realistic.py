@@ -217,12 +217,21 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
     """Fit ``points`` noisy surface samples (0.5 mm) of the observed part of every case's face.
 
     ``identity_fitter``: callable(PointCloudTarget) -> BlendshapeRig for the ``fitted`` mode.
-    Fitters with a ``region`` parameter match the face area. Rows as :func:`run_meshes`.
+    Fitters with a ``region`` parameter match the face area. Rows as :func:`run_meshes`,
+    plus ``identity_ms`` (the identity fit's time, ``fitted`` rows; else NaN).
     """
     rng = np.random.default_rng(7321)
     tris = face_area_triangles(model)
     region = np.arange(FACE_AREA)
     rows = []
+    spent = {}
+
+    def timed(target):
+        t = time.perf_counter()
+        rig = identity_fitter(target)
+        spent["s"] = time.perf_counter() - t
+        return rig
+
     for ci, c in enumerate(progress_bar(cases, "realistic clouds", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
@@ -230,8 +239,11 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
         vis = tris[seen[tris].all(axis=1)]
         P = sample_surface(V, vis, points, rng) + rng.normal(size=(points, 3)) * MESH_NOISE_CM
         target = PointCloudTarget(P)
-        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes, identity_fitter, region):
-            rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean())))
+        spent.clear()
+        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes,
+                                            None if identity_fitter is None else timed, region):
+            rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean()),
+                             identity_ms=spent.get("s", np.nan) * 1e3 if mode == "fitted" else np.nan))
     return rows
 
 

@@ -1,0 +1,142 @@
+"""Identity fitting from partial, noisy point clouds (facegeom.methods.identity, issue 18 §1(d))."""
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from facegeom.constants import FACE_AREA
+from facegeom.methods.identity import IdentityFitter, _trim
+from facegeom.model import PointCloudTarget
+
+
+def face_mm(A, B):
+    """Mean vertex distance over the face area, mm (the model is in cm)."""
+    return float(np.linalg.norm(A[:FACE_AREA] - B[:FACE_AREA], axis=1).mean() * 10)
+
+
+def partial_scan(model, V, rng, points=10000, strip=0.25, side=1, noise_cm=0.05):
+    """Points sampled by area on the face area of ``V`` minus a side strip of ``strip`` of its width, plus noise."""
+    tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
+    X = model.neutral[:FACE_AREA, 0]
+    lo, hi = float(X.min()), float(X.max())
+    cut = strip * (hi - lo)
+    seen = (X < hi - cut) if side > 0 else (X > lo + cut)
+    tris = tris[seen[tris].all(axis=1)]
+    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
+    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    f = rng.choice(len(tris), points, p=area / area.sum())
+    u = rng.random((points, 2))
+    u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
+    P = a[f] + u[:, :1] * (b[f] - a[f]) + u[:, 1:] * (c[f] - a[f])
+    return P + rng.normal(size=P.shape) * noise_cm
+
+
+@pytest.fixture(scope="module")
+def scan(face_model):
+    rng = np.random.default_rng(18)
+    a = face_model.random_identity(rng)
+    w = np.zeros(face_model.n_expressions)
+    w[[face_model.expression_index("jawOpen"), face_model.expression_index("mouthSmile_L")]] = [0.4, 0.5]
+    V = face_model.face(a, w)
+    return a, w, V, partial_scan(face_model, V, rng)
+
+
+@pytest.fixture(scope="module")
+def scan_fit(face_model, scan):
+    return IdentityFitter().fit(face_model, PointCloudTarget(scan[3]))
+
+
+def test_partial_scan_identity_beats_the_generic_neutral(face_model, scan, scan_fit):
+    """A quarter of the face hidden: the fitted identity is much nearer the truth than the generic neutral.
+
+    Before the trimmed ICP the hidden side was pulled onto the scan's edge: the
+    face turned by 11-14 degrees and the fitted neutral ended farther from the
+    person than the generic one.
+    """
+    a, w, V, _ = scan
+    truth = face_model.face(a)
+    generic = face_mm(face_model.face(), truth)
+    assert face_mm(scan_fit.rig.neutral, truth) < 0.8 * generic
+    assert face_mm(scan_fit.posed_vertices(), V) < 0.8 * face_mm(face_model.face(), V)
+    angle = np.degrees(np.arccos(np.clip((np.trace(scan_fit.rotations[0]) - 1) / 2, -1, 1)))
+    assert angle < 4.0  # the scan is in the model's frame: no turn
+    assert scan_fit.info["rms"][0] < 1.5  # mm, at the kept pairs
+
+
+def test_partial_scan_hidden_side_follows_the_identity(face_model, scan, scan_fit):
+    """The unseen strip is extrapolated by the identity, not dragged onto the scan's edge.
+
+    (Before the trimmed ICP: 36 mm on the hidden strip against 4.0 for the
+    generic face; now about 4.2 against a seen part of about 2.8.)
+    """
+    a, w, V, _ = scan
+    X = face_model.neutral[:FACE_AREA, 0]
+    hidden = X >= X.max() - 0.25 * (X.max() - X.min())
+    err = np.linalg.norm(scan_fit.posed_vertices()[:FACE_AREA] - V[:FACE_AREA], axis=1) * 10
+    generic = np.linalg.norm(face_model.face()[:FACE_AREA] - V[:FACE_AREA], axis=1) * 10
+    assert err[hidden].mean() < 1.25 * generic[hidden].mean()
+    assert err[hidden].mean() < 2.0 * err[~hidden].mean()
+
+
+def test_scan_side_does_not_matter(face_model, scan):
+    """Mirror test: hiding the other side gives an identity about as good (no bias towards one side)."""
+    a, w, V, _ = scan
+    rng = np.random.default_rng(19)
+    truth = face_model.face(a)
+    fits = [IdentityFitter().fit(face_model, PointCloudTarget(partial_scan(face_model, V, rng, side=s)))
+            for s in (-1, 1)]
+    errs = [face_mm(f.rig.neutral, truth) for f in fits]
+    generic = face_mm(face_model.face(), truth)
+    assert max(errs) < 0.85 * generic
+
+
+@settings(max_examples=40, deadline=None)
+@given(d=st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=8, max_size=60), k=st.integers(-8, 8))
+def test_trim_keeps_the_median_and_is_scale_free(d, k):
+    """Property: at least half the pairs are kept, the nearest always, and a change of unit changes nothing.
+
+    (Scaled by a power of two, so the scaling is exact in floating point; a
+    zero spread has an absolute floor, so it is left out of the unit check.)
+    """
+    d = np.asarray(d)
+    keep = _trim(d)
+    assert keep.sum() >= (d.size + 1) // 2
+    assert keep[np.argmin(d)]
+    if np.median(np.abs(d - np.median(d))) > 0:
+        assert np.array_equal(_trim(d * 2.0 ** k), keep)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(8, 200), far=st.floats(50.0, 1e6), seed=st.integers(0, 2**16))
+def test_trim_drops_a_far_outlier(n, far, seed):
+    """Property: one distance far beyond a noisy bulk is dropped, the bulk's median kept."""
+    rng = np.random.default_rng(seed)
+    d = np.abs(rng.normal(1.0, 0.1, n))
+    d[0] = far
+    keep = _trim(d)
+    assert not keep[0]
+    assert keep[np.argsort(d)[n // 2]]
+
+
+def test_trim_few_pairs_keeps_all():
+    """Too few pairs for a spread: nothing is dropped."""
+    assert _trim(np.array([0.1, 5.0, 100.0])).all()
+
+
+def test_partial_scan_off_the_model_frame(face_model, scan):
+    """A partial scan turned by 10 degrees and moved by 6 mm: the rigid alignment first keeps the identity good.
+
+    (Without it the shape rounds explained the turn with the identity: neutral
+    6.4 mm from the person's for a 15 % strip, generic 3.7.)
+    """
+    from scipy.spatial.transform import Rotation
+
+    a, w, V, _ = scan
+    P = partial_scan(face_model, V, np.random.default_rng(5), strip=0.15)
+    axis = np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
+    R = Rotation.from_rotvec(np.radians(10.0) * axis).as_matrix()
+    T = np.array([0.5, -0.25, 0.15])
+    fit = IdentityFitter().fit(face_model, PointCloudTarget(P @ R.T + T))
+    truth = face_model.face(a)
+    assert face_mm(fit.rig.neutral, truth) < 0.8 * face_mm(face_model.face(), truth)
+    assert np.degrees(np.arccos(np.clip((np.trace(fit.rotations[0].T @ R) - 1) / 2, -1, 1))) < 4.0
