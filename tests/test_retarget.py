@@ -316,3 +316,30 @@ def test_pooled_map_fits_clean_shared_map_and_stays_close_otherwise():
     pooled = TangentRetargeter(pool=True, source_smoothing=0).fit(S, lab, noisy).transform()
     plain = TangentRetargeter(pool=False, source_smoothing=0).fit(S, lab, noisy).transform()
     assert np.abs(pooled - Y).mean() < 0.05 and np.abs(plain - Y).mean() < 0.05
+
+
+def test_noise_sources_match_the_realistic_protocol():
+    """The noise-source split reuses the realistic protocol's frames and noise: 'none'/'both' equal its rows."""
+    from types import SimpleNamespace
+
+    from facegeom.bench.retarget import run_noise_sources, run_realistic
+    from facegeom.registry import LINEUPS, parse_methods
+
+    seqs = []
+    for k in range(2):
+        S = smooth_sequence(T=30, p=5, seed=k)
+        Y = 1.2 * S + 0.05 * np.sin(S)
+        seqs.append(SimpleNamespace(name=f"s{k}", source=S, target=Y, n_frames=30))
+    specs = parse_methods("copy;rbf", "retargeters", LINEUPS["retarget"])
+    real = run_realistic(seqs, specs, label_counts=(6,), noise_mm=0.5, seed=3, progress=False)
+    split = run_noise_sources(seqs, specs, labels=6, noise_mm=0.5, seed=3)
+    for noisy, level in (("none", 0.0), ("both", 0.5)):
+        a = sorted((r["sequence"], r["method"], r["mean_mm"]) for r in real if r["noise_mm"] == level)
+        b = sorted((r["sequence"], r["method"], r["mean_mm"]) for r in split if r["noisy"] == noisy)
+        assert a == b
+    err = {(r["sequence"], r["method"], r["noisy"]): r["mean_mm"] for r in split}
+    for k in range(2):  # noise on one side only changes the error, and differently from both sides
+        assert err[k, "rbf", "capture"] != err[k, "rbf", "none"]
+        assert err[k, "rbf", "labels"] != err[k, "rbf", "both"]
+    clean = run_noise_sources(seqs, specs, labels=6, noise_mm=0.0, seed=3)
+    assert len({round(r["mean_mm"], 12) for r in clean if r["method"] == "rbf" and r["sequence"] == 0}) == 1
