@@ -54,7 +54,8 @@ def test_auto_equals_soft_labels_of_the_chosen_weight():
     """The smoother is eq. 18 with soft labels: the chosen lambda's result equals TangentSolver with that beta."""
     V, F, h, T = _case()
     P = T[h] + np.random.default_rng(1).normal(0.0, 0.03, (h.size, 3))
-    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv").fit(V, F, h)
+    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv",
+                        prior="uniform").fit(V, F, h)
     Y = d.deform(P)
     assert d.power_ == 1.0
     k = np.clip(np.linalg.eigvalsh(d.solver_.schur_complement()), 0, None)
@@ -164,7 +165,7 @@ def test_ml_selection_smooths_noise_and_keeps_clean_markers_close():
 def test_gcv_smoother_in_eigen_coefficients_equals_the_label_basis():
     """deform maps the smoothed eigen-coefficients with U^T map; the same as smoothing the labels, then the map."""
     V, F, h, T = _case()
-    d = TangentDeformer(align="none").fit(V, F, h)
+    d = TangentDeformer(align="none", prior="uniform").fit(V, F, h)
     Z = T[h] - V[h] + np.random.default_rng(4).normal(0.0, 0.03, (h.size, 3))
     Zs, g = d.smoother_.smooth(Z)
     np.testing.assert_allclose(d.deform(T[h] + Z - (T[h] - V[h])), d.solver_.solve(Zs) + V, atol=1e-12)
