@@ -15,17 +15,20 @@ eigendecomposition per frame, ``M`` markers).
 The amplitude: ``a = (G r + eps mean(r))^gamma`` normalised to mean 1, with
 ``r`` the lengths of the displacements after the default GCV smoothing and
 ``G`` a row-normalised Gaussian of the markers' rest distances (width
-:data:`AMPLITUDE_WIDTH`). Everything here depends on the displacements only
-through their lengths, so a rigid motion of all markers (zero displacements
-after the alignment) still moves the face rigidly.
+:data:`AMPLITUDE_WIDTH` times the markers' RMS distance from their
+centroid). Everything here depends on the displacements only through
+their lengths, so a rigid motion of all markers (zero displacements after
+the alignment) still moves the face rigidly.
 """
 from __future__ import annotations
 
 import numpy as np
 
-#: Width of the Gaussian that spreads the markers' displacement lengths over their neighbours, in model units
-#: (cm on the ICT face): chosen on seed 0 of the realistic protocol; 1.5-3 gave the same error within 1 %.
-AMPLITUDE_WIDTH = 2.0
+#: Width of the Gaussian that spreads the markers' displacement lengths over their neighbours, relative to the
+#: markers' RMS distance from their centroid (so the prior does not depend on units): 0.27 is 2 cm on the ICT face
+#: (RMS radius 7.0-8.2 cm for 40-120 random markers), chosen on seed 0 of the realistic protocol, where 1.5-3 cm
+#: gave the same error within 1 %.
+AMPLITUDE_WIDTH = 0.27
 
 #: Exponent of the amplitude: 1.5 on seed 0 (1: 1 % worse at 0.5 mm noise, 2: 0.3 % worse).
 AMPLITUDE_POWER = 1.5
@@ -47,6 +50,7 @@ class AmplitudeSmoother:
     lambdas : (L,) float
         Candidate regularisations relative to the mean eigenvalue of ``Q``; 0 = exact interpolation.
     width, power, floor : float
+        ``width`` relative to the markers' RMS distance from their centroid.
         See :data:`AMPLITUDE_WIDTH`, :data:`AMPLITUDE_POWER`, :data:`AMPLITUDE_FLOOR`.
     """
 
@@ -55,7 +59,8 @@ class AmplitudeSmoother:
         self.K = np.array(K, dtype=np.float64)
         P = np.asarray(points, dtype=np.float64)
         D2 = ((P[:, None, :] - P[None, :, :]) ** 2).sum(axis=-1)
-        G = np.exp(-D2 / (2.0 * width * width))
+        w2 = (width * width) * max(float(((P - P.mean(axis=0)) ** 2).sum(axis=1).mean()), 1e-300)
+        G = np.exp(-D2 / (2.0 * w2))
         self.G = G / G.sum(axis=1, keepdims=True)
         self.lambdas = np.asarray(lambdas, dtype=np.float64)
         self.power, self.floor = float(power), float(floor)
