@@ -117,3 +117,21 @@ class AmplitudeSmoother:
         """:meth:`smooth_many` of one frame: ``y, f0 (M, 3)`` -> smoothed ``(M, 3)`` and the chosen ``lam``."""
         F, lam = self.smooth_many(y[None], f0[None], np.array([active]))
         return F[0], float(lam[0])
+
+    def candidates(self, y: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Every candidate's smoothed displacements ``(L, M, 3)`` for one frame ``y (M, 3)`` and amplitudes ``a (M,)``.
+
+        For studies (an oracle over ``lam``, or amplitudes from the truth); the
+        deformer uses :meth:`smooth`.
+        """
+        w = 1.0 / np.asarray(a, dtype=np.float64)
+        Q = w[:, None] * self.K * w[None, :]
+        q = Q.sum(axis=1)
+        if q.sum() > 0:
+            Q -= np.outer(q, q) / q.sum()
+        mu, V = np.linalg.eigh(Q)
+        mu = np.clip(mu, 0.0, None)
+        mu /= mu.mean() if mu.mean() > 0 else 1.0
+        z = V.T @ y
+        keep = 1.0 / (1.0 + self.lambdas[:, None] * mu[None, :])  # (L, M)
+        return np.einsum("ij,lj,jd->lid", V, keep, z)
