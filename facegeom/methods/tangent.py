@@ -638,7 +638,9 @@ class TangentDeformer(Params):
     ----------
     lambda_ : float or (T,) float
         With ``beta="auto"``: the relative regularisation chosen by the last
-        ``deform`` (per frame for ``deform_many``); 0 = exact interpolation.
+        ``deform`` (per frame for ``deform_many``); 0 = exact interpolation. With
+        ``prior="amplitude"`` it is the amplitude prior's weight (relative to
+        the mean eigenvalue of its energy).
     power_ : float or (T,) float
         With ``beta="auto"``: the spectral power chosen with it (1 with ``select="gcv"``).
     """
