@@ -65,6 +65,22 @@ class AmplitudeSmoother:
         self.lambdas = np.asarray(lambdas, dtype=np.float64)
         self.power, self.floor = float(power), float(floor)
 
+    def _penalty(self, w: np.ndarray) -> np.ndarray:
+        """``Q_c = W K W - q q^T / (1^T W K W 1)``, ``q = W K W 1``: the energy of ``A^-1 f`` with the constant free.
+
+        ``K 1 = 0``, so ``W K W 1 = W K (w - mean(w))``: computed from the
+        centred ``w``, or rounding in ``K 1`` would dominate when the amplitude
+        is nearly uniform.
+        """
+        Q = w[:, None] * self.K * w[None, :]
+        v = w - w.mean()
+        Kv = self.K @ v
+        qq = float(v @ Kv)
+        if qq > 0:
+            q = w * Kv
+            Q -= np.outer(q, q) / qq
+        return Q
+
     def amplitude(self, F0: np.ndarray) -> np.ndarray:
         """Per-marker amplitudes ``(T, M)`` (mean 1 per frame) from first smoothed displacements ``F0 (T, M, 3)``."""
         r = np.sqrt(np.einsum("tmi,tmi->tm", F0, F0))
@@ -91,12 +107,7 @@ class AmplitudeSmoother:
         w = 1.0 / self.amplitude(F0[idx])  # (t, M)
         lam = self.lambdas
         for j, i in enumerate(idx):  # one eigendecomposition per frame (a loop: numpy's stacked eigh is slower)
-            Q = w[j][:, None] * self.K * w[j][None, :]
-            q = Q.sum(axis=1)  # Q 1
-            qq = q.sum()
-            if qq > 0:
-                Q -= np.outer(q, q) / qq  # the constant is free: profiled out of the penalty
-            mu, V = np.linalg.eigh(Q)
+            mu, V = np.linalg.eigh(self._penalty(w[j]))
             mu = np.clip(mu, 0.0, None)
             scale = mu.mean()
             if not scale > 0:
@@ -124,12 +135,7 @@ class AmplitudeSmoother:
         For studies (an oracle over ``lam``, or amplitudes from the truth); the
         deformer uses :meth:`smooth`.
         """
-        w = 1.0 / np.asarray(a, dtype=np.float64)
-        Q = w[:, None] * self.K * w[None, :]
-        q = Q.sum(axis=1)
-        if q.sum() > 0:
-            Q -= np.outer(q, q) / q.sum()
-        mu, V = np.linalg.eigh(Q)
+        mu, V = np.linalg.eigh(self._penalty(1.0 / np.asarray(a, dtype=np.float64)))
         mu = np.clip(mu, 0.0, None)
         mu /= mu.mean() if mu.mean() > 0 else 1.0
         z = V.T @ y
