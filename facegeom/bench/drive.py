@@ -430,7 +430,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
                                 ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
                     rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
-                if d.amplitude_ is not None and s == smoothness[0]:  # the amplitude prior (the default), issue 19 §2
+                if s == smoothness[0]:  # the amplitude prior (the default), issue 19 §2
                     rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
                                 for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
@@ -441,15 +441,18 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
 
 def _amplitude_rows(d, Z, gcv, zz, z, Ztrue, face_err):
     """Study rows of the amplitude prior: its GCV choice (the default), an oracle weight, a true amplitude."""
-    amp = d.amplitude_
+    from facegeom.methods.tangent import AUTO_LAMBDAS
+    from facegeom.methods.tangent_prior import AmplitudeSmoother
+
+    amp = AmplitudeSmoother(d.solver_.schur_complement(), d.vertices_[d.handles_], AUTO_LAMBDAS)
     g = int(gcv._choose(zz)[0])
     f0 = d.smoother_.U @ (gcv._keep[g][:, None] * z)  # the uniform prior's GCV smoothing sets the amplitude
-    f, _ = amp.smooth(Z, f0, gcv.lambdas[g] > 0)
+    f = amp.smooth(Z, f0, gcv.score[0])[0]  # as the deformer: the lower GCV score of the two priors
     a_est = amp.amplitude(f0[None])[0]
     a_true = amp.amplitude(Ztrue[None])[0]  # the true displacements' lengths (an oracle amplitude)
     e_est = [face_err(d, c) for c in amp.candidates(Z, a_est)]
     e_true = [face_err(d, c) for c in amp.candidates(Z, a_true)]
-    f_true, _ = amp.smooth_many(Z[None], Ztrue[None])
+    f_true = amp.smooth_many(Z[None], Ztrue[None])[0]
     return [("amplitude prior, GCV (default)", face_err(d, f)),
             ("amplitude prior, oracle weight", min(e_est)),
             ("amplitude from the truth, GCV", face_err(d, f_true[0])),

@@ -525,7 +525,9 @@ class _AutoSmoother:
         S = self._lin @ zz  # (G, T)
         if self.criterion == "ml":
             S = self._n * np.log(np.maximum(S, 1e-300) / self._n) + self._const[:, None]
-        return np.argmin(S, axis=0)
+        g = np.argmin(S, axis=0)
+        self.score = S[g, np.arange(S.shape[1])]  # the chosen candidates' scores (GCV: comparable across priors)
+        return g
 
     def coefficients(self, y: np.ndarray) -> tuple[np.ndarray, int]:
         """The smoothed labels in the eigenbasis, ``diag(keep) U^T y`` for ``y (M, D)``, and the chosen candidate."""
@@ -623,7 +625,9 @@ class TangentDeformer(Params):
         (default, issue 19 §2): the same energy with a per-marker amplitude
         estimated from the markers (the lengths of the ``uniform``-smoothed
         displacements, spread over neighbouring markers), so still regions
-        are smoothed more than moving ones; its weight by GCV
+        are smoothed more than moving ones; its weight by GCV, and a frame
+        keeps the ``uniform`` result where that has the lower GCV score; with
+        ``select="gcv"`` only
         (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). 6 % better
         than ``uniform`` at 0.5 mm noise on the realistic protocol (held-out
         seeds), the same on clean markers.
@@ -730,7 +734,7 @@ class TangentDeformer(Params):
         self.solver_ = TangentSolver(B, H, None if auto else self.beta)
         self.smoother_ = _AutoSmoother(self.solver_.schur_complement(), self.select) if auto else None
         self.amplitude_ = None
-        if auto and self.prior == "amplitude":
+        if auto and self.prior == "amplitude" and self.select == "gcv":  # (``ml`` is a study option: uniform only)
             from facegeom.methods.tangent_prior import AmplitudeSmoother
 
             Ks = self.smoother_.U @ (self.smoother_.k[:, None] * self.smoother_.U.T)
@@ -768,8 +772,9 @@ class TangentDeformer(Params):
             c, g = self.smoother_.coefficients(Z)
             self.lambda_, self.power_ = float(self.smoother_.lambdas[g]), float(self.smoother_.powers[g])
             if self.amplitude_ is not None:  # the default smoothing sets the amplitude, the amplitude prior smooths
-                f, self.lambda_ = self.amplitude_.smooth(Z, self.smoother_.U @ c, self.lambda_ > 0)
-                c = self.smoother_.U.T @ f
+                f, lam, used = self.amplitude_.smooth(Z, self.smoother_.U @ c, self.smoother_.score[0])
+                if used:
+                    self.lambda_, c = lam, self.smoother_.U.T @ f
             if self._coef_map is not None:
                 Y = np.ascontiguousarray((c.T @ self._coef_map).T)
             else:
@@ -822,7 +827,8 @@ class TangentDeformer(Params):
             P, g = self.smoother_.coefficients_many(P)
             self.lambda_, self.power_ = self.smoother_.lambdas[g], self.smoother_.powers[g]
             if self.amplitude_ is not None:  # as in deform; per-frame work stays in marker space
-                F, self.lambda_ = self.amplitude_.smooth_many(P0, np.matmul(self.smoother_.U, P), self.lambda_ > 0)
+                F, lam, used = self.amplitude_.smooth_many(P0, np.matmul(self.smoother_.U, P), self.smoother_.score)
+                self.lambda_ = np.where(used, lam, self.lambda_)
                 P = np.matmul(self.smoother_.U.T, F)
             if self._coef_map is not None:
                 M = self._coef_map  # the labels stay eigen-coefficients: no (M, M) product back

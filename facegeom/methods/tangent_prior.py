@@ -7,8 +7,8 @@ marker's displacement is assumed equally large, so markers in still regions
 the displacements as ``f = c 1 + A g`` with ``g ~ N(0, K^+)``, ``A = diag(a)``
 a per-marker amplitude estimated from the markers themselves, ``c`` a free
 constant (the energy's null space) and white marker noise. The posterior mean
-is ``f = (I + lam Q)^-1 y`` with ``Q = A^-1 K A^-1`` after the constant is
-profiled out (a rank-one downdate); ``lam`` is chosen by generalised
+is ``f = (I + lam Q)^-1 y`` with ``Q = P^T A^-1 K A^-1 P`` (``P`` removes the
+free constant, see :meth:`AmplitudeSmoother._penalty`); ``lam`` is chosen by generalised
 cross-validation in the eigenbasis of ``Q`` (one ``(M, M)`` symmetric
 eigendecomposition per frame, ``M`` markers).
 
@@ -66,20 +66,23 @@ class AmplitudeSmoother:
         self.power, self.floor = float(power), float(floor)
 
     def _penalty(self, w: np.ndarray) -> np.ndarray:
-        """``Q_c = W K W - q q^T / (1^T W K W 1)``, ``q = W K W 1``: the energy of ``A^-1 f`` with the constant free.
+        """The prior's energy of the displacements ``f`` for weights ``w = 1 / a``: ``P^T W K W P``.
 
-        ``K 1 = 0``, so ``W K W 1 = W K (w - mean(w))``: computed from the
-        centred ``w``, or rounding in ``K 1`` would dominate when the amplitude
-        is nearly uniform.
+        ``f = c 1 + A g`` with ``g`` orthogonal to the constants (``K``'s null
+        space): ``g = W P f`` with ``P = I - 1 w^T / sum(w)`` (the constant
+        ``c = w^T f / sum(w)`` is free, and only it: the amplitude pattern ``a``
+        itself is penalised). ``W K W 1 = W K (w - mean(w))`` because
+        ``K 1 = 0``: computed from the centred ``w``, or rounding in ``K 1``
+        would dominate when the amplitude is nearly uniform.
         """
         Q = w[:, None] * self.K * w[None, :]
         v = w - w.mean()
         Kv = self.K @ v
-        qq = float(v @ Kv)
-        if qq > 0:
-            q = w * Kv
-            Q -= np.outer(q, q) / qq
-        return Q
+        q = w * Kv  # Q 1
+        s = w.sum()
+        u = w / s
+        # P^T Q P = Q - q u^T - u q^T + (1^T Q 1) u u^T
+        return Q - np.outer(q, u) - np.outer(u, q) + float(v @ Kv) * np.outer(u, u)
 
     def amplitude(self, F0: np.ndarray) -> np.ndarray:
         """Per-marker amplitudes ``(T, M)`` (mean 1 per frame) from first smoothed displacements ``F0 (T, M, 3)``."""
@@ -88,26 +91,25 @@ class AmplitudeSmoother:
         s = np.where(s > 0, s, 1.0) ** self.power
         return s / s.mean(axis=1, keepdims=True)
 
-    def smooth_many(self, Y: np.ndarray, F0: np.ndarray, active: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Smoothed displacements ``(T, M, 3)`` of raw ones ``Y (T, M, 3)`` and the chosen ``lam`` per frame.
+    def smooth_many(self, Y: np.ndarray, F0: np.ndarray, score0: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Smoothed displacements ``(T, M, 3)`` of raw ones ``Y (T, M, 3)``, the ``lam`` per frame, which were smoothed.
 
         ``F0`` are the same frames after the default smoothing (they set the
-        amplitude). ``active (T,) bool``: the frames to smooth; the others are
-        returned exactly (``lam = 0``) without an eigendecomposition — the
-        deformer passes the frames whose default choice was not exact
-        interpolation, so clean frames stay exact and cost nothing more.
+        amplitude). ``score0 (T,)``: the default smoothing's GCV score per frame
+        (``M ||(I - S) y||^2 / (M - tr S)^2``, comparable across priors); a frame
+        keeps ``F0`` (third output ``False``) where the amplitude prior's best
+        score is not lower — so clean markers the default interpolates exactly
+        stay exact unless this prior predicts them better.
         """
         T, m = Y.shape[:2]
-        out = np.array(Y, dtype=np.float64)
+        out = np.array(F0, dtype=np.float64)
         lam_out = np.zeros(T)
-        idx = np.arange(T) if active is None else np.flatnonzero(active)
-        if idx.size == 0:
-            return out, lam_out
-        w = 1.0 / self.amplitude(F0[idx])  # (t, M)
+        used = np.zeros(T, dtype=bool)
+        w = 1.0 / self.amplitude(F0)  # (T, M)
         lam = self.lambdas
-        for j, i in enumerate(idx):  # one eigendecomposition per frame (a loop: numpy's stacked eigh is slower)
-            mu, V = np.linalg.eigh(self._penalty(w[j]))
+        for i in range(T):  # one eigendecomposition per frame (a loop: numpy's stacked eigh is slower)
+            mu, V = np.linalg.eigh(self._penalty(w[i]))
             mu = np.clip(mu, 0.0, None)
             scale = mu.mean()
             if not scale > 0:
@@ -117,17 +119,18 @@ class AmplitudeSmoother:
             zz = np.einsum("mi,mi->m", z, z)
             # GCV(lam) = M ||(I - S) y||^2 / (M - tr S)^2 = M sum g^2 |z|^2 / (sum g)^2, g = mu / (1 + lam mu)
             g = mu[None, :] / (1.0 + lam[:, None] * mu[None, :])  # (L, M)
-            score = (g * g) @ zz / g.sum(axis=1) ** 2
+            score = m * ((g * g) @ zz) / g.sum(axis=1) ** 2
             best = int(np.argmin(score))
-            if lam[best] > 0:
-                out[i] = V @ (z / (1.0 + lam[best] * mu)[:, None])
-                lam_out[i] = lam[best]
-        return out, lam_out
+            if score0 is not None and not score[best] < score0[i]:
+                continue
+            out[i] = V @ (z / (1.0 + lam[best] * mu)[:, None])
+            lam_out[i], used[i] = lam[best], True
+        return out, lam_out, used
 
-    def smooth(self, y: np.ndarray, f0: np.ndarray, active: bool = True) -> tuple[np.ndarray, float]:
-        """:meth:`smooth_many` of one frame: ``y, f0 (M, 3)`` -> smoothed ``(M, 3)`` and the chosen ``lam``."""
-        F, lam = self.smooth_many(y[None], f0[None], np.array([active]))
-        return F[0], float(lam[0])
+    def smooth(self, y: np.ndarray, f0: np.ndarray, score0: float | None = None) -> tuple[np.ndarray, float, bool]:
+        """:meth:`smooth_many` of one frame: ``y, f0 (M, 3)`` -> smoothed ``(M, 3)``, ``lam``, whether smoothed."""
+        F, lam, used = self.smooth_many(y[None], f0[None], None if score0 is None else np.array([score0]))
+        return F[0], float(lam[0]), bool(used[0])
 
     def candidates(self, y: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Every candidate's smoothed displacements ``(L, M, 3)`` for one frame ``y (M, 3)`` and amplitudes ``a (M,)``.
