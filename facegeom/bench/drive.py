@@ -363,7 +363,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
     for any selection rule from the markers), ``joint gcv``: GCV over the
     weight and the smoothness values together, and ``joint oracle``: the best
     candidate over all smoothness values. For the first smoothness, the
-    amplitude prior (:mod:`facegeom.methods.tangent_prior`, the default): its
+    amplitude prior (:mod:`facegeom.methods.tangent_prior`, ``prior="amplitude"``): its
     GCV choice, the best of its weights chosen with the truth (``oracle
     weight``), and the same with the amplitude taken from the true
     displacements (``amplitude from the truth``: a bound for any amplitude
@@ -430,7 +430,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
                                 ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
                     rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
-                if s == smoothness[0]:  # the amplitude prior (the default), issue 19 §2
+                if s == smoothness[0]:  # the amplitude prior (prior="amplitude"), issue 19 §2
                     rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
                                 for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
@@ -440,7 +440,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
 
 
 def _amplitude_rows(d, Z, gcv, zz, z, Ztrue, face_err):
-    """Study rows of the amplitude prior: its GCV choice (the default), an oracle weight, a true amplitude."""
+    """Study rows of the amplitude prior: its GCV choice, an oracle weight, a true amplitude."""
     from facegeom.methods.tangent import AUTO_LAMBDAS
     from facegeom.methods.tangent_prior import AmplitudeSmoother
 
@@ -453,7 +453,7 @@ def _amplitude_rows(d, Z, gcv, zz, z, Ztrue, face_err):
     e_est = [face_err(d, c) for c in amp.candidates(Z, a_est)]
     e_true = [face_err(d, c) for c in amp.candidates(Z, a_true)]
     f_true = amp.smooth_many(Z[None], Ztrue[None])[0]
-    return [("amplitude prior, GCV (default)", face_err(d, f)),
+    return [("amplitude prior, GCV", face_err(d, f)),
             ("amplitude prior, oracle weight", min(e_est)),
             ("amplitude from the truth, GCV", face_err(d, f_true[0])),
             ("amplitude from the truth, oracle weight", min(e_true))]

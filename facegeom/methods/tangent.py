@@ -618,19 +618,21 @@ class TangentDeformer(Params):
         (:data:`AUTO_POWERS`). See :class:`_AutoSmoother`. ``ml`` was 1 % better
         than GCV at 0.5 mm noise on the tuning seed 0 of the realistic protocol
         but 1.5-3 % worse on the held-out seeds 1 and 2, so GCV stays the default.
-    prior : {"amplitude", "uniform"}
+    prior : {"uniform", "amplitude"}
         The prior of the markers' displacements with ``beta="auto"``.
-        ``uniform``: the labels' energy alone (every marker's displacement
-        equally large a priori; smoothed by ``select``). ``amplitude``
-        (default, issue 19 §2): the same energy with a per-marker amplitude
-        estimated from the markers (the lengths of the ``uniform``-smoothed
-        displacements, spread over neighbouring markers), so still regions
-        are smoothed more than moving ones; its weight by GCV, and a frame
-        keeps the ``uniform`` result where that has the lower GCV score; with
-        ``select="gcv"`` only
-        (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). 6 % better
-        than ``uniform`` at 0.5 mm noise on the realistic protocol (held-out
-        seeds), the same on clean markers.
+        ``uniform`` (default): the labels' energy alone (every marker's
+        displacement equally large a priori; smoothed by ``select``).
+        ``amplitude`` (issue 19 §2, with ``select="gcv"``): the same energy
+        with a per-marker amplitude estimated from the markers (the lengths of
+        the ``uniform``-smoothed displacements, spread over neighbouring
+        markers), so still regions are smoothed more than moving ones; its
+        weight by GCV, and a frame keeps the ``uniform`` result where that has
+        the lower GCV score
+        (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). On the
+        realistic protocol 5-7 % better than ``uniform`` at 0.5 mm noise, the
+        same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
+        +0.6-1.2 ms per deform and ~7x the ``deform_many`` time per frame, so
+        it is not the default (see the README).
 
     Defaults (``kring``, 1 ring, ``d=2``, displacement, robust alignment,
     smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see the README for how they were chosen
@@ -651,7 +653,7 @@ class TangentDeformer(Params):
 
     def __init__(self, neighbourhood: str = "kring", rings: int = 1, radius: float | None = None, d: int = 2,
                  beta: float | str | None = "auto", field: str = "displacement", align: str = "robust",
-                 smoothness: float = SMOOTHNESS_DEFAULT, select: str = "gcv", prior: str = "amplitude"):
+                 smoothness: float = SMOOTHNESS_DEFAULT, select: str = "gcv", prior: str = "uniform"):
         if neighbourhood not in ("kring", "geodesic"):
             raise InputError(f"neighbourhood must be 'kring' or 'geodesic', got {neighbourhood!r}")
         if not is_integer(rings) or rings < 1:

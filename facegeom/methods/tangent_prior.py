@@ -1,6 +1,6 @@
 """A marker prior with spatially varying amplitude for the self-tuned tangent deformer (issue 19 §2).
 
-The default ``beta="auto"`` smoother treats the markers' displacements as one
+The ``beta="auto"`` smoother (``prior="uniform"``, the default) treats the markers' displacements as one
 Gaussian field of prior covariance ``K^+`` (``K`` the labels' energy): every
 marker's displacement is assumed equally large, so markers in still regions
 (forehead, nose, temples) keep their noise. :class:`AmplitudeSmoother` models
