@@ -629,9 +629,9 @@ class TangentDeformer(Params):
         weight by GCV, and a frame keeps the ``uniform`` result where that has
         the lower GCV score
         (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). On the
-        realistic protocol 5-7 % better than ``uniform`` at 0.5 mm noise, the
+        realistic protocol 5-8 % better than ``uniform`` at 0.5 mm noise, the
         same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
-        +0.6-1.2 ms per deform and ~7x the ``deform_many`` time per frame, so
+        ~1.2 ms more per deform and ~7x the ``deform_many`` time per frame, so
         it is not the default (see the README).
 
     Defaults (``kring``, 1 ring, ``d=2``, displacement, robust alignment,
