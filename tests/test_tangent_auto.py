@@ -54,7 +54,8 @@ def test_auto_equals_soft_labels_of_the_chosen_weight():
     """The smoother is eq. 18 with soft labels: the chosen lambda's result equals TangentSolver with that beta."""
     V, F, h, T = _case()
     P = T[h] + np.random.default_rng(1).normal(0.0, 0.03, (h.size, 3))
-    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv").fit(V, F, h)
+    d = TangentDeformer(align="none", smoothness=0.0, d=3, field="position", select="gcv",
+                        prior="uniform").fit(V, F, h)
     Y = d.deform(P)
     assert d.power_ == 1.0
     k = np.clip(np.linalg.eigvalsh(d.solver_.schur_complement()), 0, None)
@@ -164,8 +165,88 @@ def test_ml_selection_smooths_noise_and_keeps_clean_markers_close():
 def test_gcv_smoother_in_eigen_coefficients_equals_the_label_basis():
     """deform maps the smoothed eigen-coefficients with U^T map; the same as smoothing the labels, then the map."""
     V, F, h, T = _case()
-    d = TangentDeformer(align="none").fit(V, F, h)
+    d = TangentDeformer(align="none", prior="uniform").fit(V, F, h)
     Z = T[h] - V[h] + np.random.default_rng(4).normal(0.0, 0.03, (h.size, 3))
     Zs, g = d.smoother_.smooth(Z)
     np.testing.assert_allclose(d.deform(T[h] + Z - (T[h] - V[h])), d.solver_.solve(Zs) + V, atol=1e-12)
     assert d.lambda_ == d.smoother_.lambdas[g] > 0
+
+
+# ---------------------------------------------------------------- the amplitude prior (issue 19 §2, an option)
+def _half_moving_case():
+    """The grid with a smooth bulge on one half and the other half still: displacements of very unequal size."""
+    V, F = grid_mesh(15, 15, bump=0.3)
+    h = np.random.default_rng(5).choice(len(V), 40, replace=False)
+    x = V[:, 0] / V[:, 0].max()
+    T = V.copy()
+    T[:, 2] += 0.4 * np.clip(x - 0.5, 0.0, None) ** 2 * 4.0 * np.sin(np.pi * V[:, 1] / V[:, 1].max())
+    return V, F, h, T, x
+
+
+def test_amplitude_prior_smooths_still_regions_more():
+    V, F, h, T, x = _half_moving_case()
+    amp = TangentDeformer(prior="amplitude").fit(V, F, h)
+    uni = TangentDeformer(prior="uniform").fit(V, F, h)
+    still = x < 0.4
+    e_amp, e_uni, s_amp, s_uni = [], [], [], []
+    for seed in range(8):
+        P = T[h] + np.random.default_rng(seed).normal(0.0, 0.02, (h.size, 3))
+        da, du = np.linalg.norm(amp.deform(P) - T, axis=1), np.linalg.norm(uni.deform(P) - T, axis=1)
+        assert amp.lambda_ > 0
+        e_amp.append(da.mean())
+        e_uni.append(du.mean())
+        s_amp.append(da[still].mean())
+        s_uni.append(du[still].mean())
+    assert np.mean(s_amp) < 0.9 * np.mean(s_uni)  # the still half keeps less of the noise
+    assert np.mean(e_amp) < np.mean(e_uni)
+
+
+def test_amplitude_smoother_is_the_posterior_mean_of_its_prior():
+    """The eigenbasis GCV path equals the direct solve (I + lam Q)^-1 y, Q the energy of A^-1 (f - c 1)."""
+    V, F, h, T, _ = _half_moving_case()
+    d = TangentDeformer(prior="amplitude", align="none").fit(V, F, h)
+    sm = d.amplitude_
+    y = T[h] - V[h] + np.random.default_rng(6).normal(0.0, 0.02, (h.size, 3))
+    f0 = d.smoother_.smooth(y)[0]
+    f, lam, used = sm.smooth(y, f0)
+    assert lam > 0 and used
+    w = 1.0 / sm.amplitude(f0[None])[0]
+    P = np.eye(h.size) - np.outer(np.ones(h.size), w) / w.sum()  # f = c 1 + A g, g orthogonal to constants
+    Q = P.T @ (w[:, None] * sm.K * w[None, :]) @ P
+    mu = np.clip(np.linalg.eigvalsh(Q), 0.0, None)
+    direct = np.linalg.solve(np.eye(h.size) + lam / mu.mean() * Q, y)
+    np.testing.assert_allclose(f, direct, atol=1e-10)
+    np.testing.assert_allclose((f - y).mean(axis=0), 0.0, atol=1e-10)  # no pull on the constant (the mean)
+    a = sm.amplitude(f0[None])[0]
+    assert abs(a.mean() - 1.0) < 1e-12 and (a > 0).all()
+
+
+def test_amplitude_deform_many_equals_deform_and_clean_frames_stay_exact():
+    V, F, h, T, _ = _half_moving_case()
+    d = TangentDeformer(prior="amplitude").fit(V, F, h)
+    assert d.amplitude_ is not None and TangentDeformer().fit(V, F, h).amplitude_ is None
+    rng = np.random.default_rng(7)
+    P = np.stack([T[h], T[h] + rng.normal(0.0, 0.02, (h.size, 3)), T[h] + rng.normal(0.0, 0.01, (h.size, 3))])
+    Y = d.deform_many(P)
+    lams = d.lambda_.copy()
+    assert lams[0] == 0.0 and lams[1] > 0
+    for i in range(3):
+        np.testing.assert_allclose(Y[i], d.deform(P[i]), atol=1e-12)
+        assert d.lambda_ == lams[i]
+    np.testing.assert_allclose(Y[0][h], T[h], atol=1e-12)  # clean markers: exact interpolation
+    with pytest.raises(InputError, match="prior"):
+        TangentDeformer(prior="student")
+
+
+@settings(max_examples=10, deadline=None)
+@given(rotvec=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+       shift=st.lists(st.floats(-5.0, 5.0), min_size=3, max_size=3))
+def test_amplitude_prior_is_equivariant_to_rigid_motions_of_noisy_markers(rotvec, shift):
+    """Moving noisy markers rigidly moves the driven face by the same motion (the prior sees only lengths)."""
+    V, F, h, T, _ = _half_moving_case()
+    d = TangentDeformer(prior="amplitude").fit(V, F, h)
+    P = T[h] + np.random.default_rng(8).normal(0.0, 0.02, (h.size, 3))
+    R = Rotation.from_rotvec(rotvec).as_matrix()
+    Y = d.deform(P)
+    assert d.lambda_ > 0
+    np.testing.assert_allclose(d.deform(P @ R.T + shift), Y @ R.T + shift, atol=1e-8)

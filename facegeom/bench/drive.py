@@ -362,7 +362,12 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
     of the best candidate chosen with the truth in hand (``oracle``, a bound
     for any selection rule from the markers), ``joint gcv``: GCV over the
     weight and the smoothness values together, and ``joint oracle``: the best
-    candidate over all smoothness values.
+    candidate over all smoothness values. For the first smoothness, the
+    amplitude prior (:mod:`facegeom.methods.tangent_prior`, ``prior="amplitude"``): its
+    GCV choice, the best of its weights chosen with the truth (``oracle
+    weight``), and the same with the amplitude taken from the true
+    displacements (``amplitude from the truth``: a bound for any amplitude
+    estimate from the markers).
 
     Parameters
     ----------
@@ -403,6 +408,13 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                          "mean_mm": face_errors_mm(bh.deform(P), T)["mean_mm"]})
             Rm, t = robust_kabsch(X[handles], P)
             Z = (P - t) @ Rm - X[handles]
+
+            def Ztrue_of(Rm, t):
+                return (T[handles] - t) @ Rm - X[handles]  # the true displacements in the same rest frame
+
+            def face_err(d, f, Rm=Rm, t=t):
+                return face_errors_mm(((d.smoother_.U.T @ f).T @ d._coef_map).T @ Rm.T + X @ Rm.T + t, T)["mean_mm"]
+
             joint = []
             for s, d, gcv in fitted:
                 sm = d.smoother_
@@ -418,10 +430,33 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
                                 ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
                     rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
+                if s == smoothness[0]:  # the amplitude prior (prior="amplitude"), issue 19 §2
+                    rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
+                                for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint oracle",
                          "mean_mm": min(j[2] for j in joint)})
     return rows
+
+
+def _amplitude_rows(d, Z, gcv, zz, z, Ztrue, face_err):
+    """Study rows of the amplitude prior: its GCV choice, an oracle weight, a true amplitude."""
+    from facegeom.methods.tangent import AUTO_LAMBDAS
+    from facegeom.methods.tangent_prior import AmplitudeSmoother
+
+    amp = AmplitudeSmoother(d.solver_.schur_complement(), d.vertices_[d.handles_], AUTO_LAMBDAS)
+    g = int(gcv._choose(zz)[0])
+    f0 = d.smoother_.U @ (gcv._keep[g][:, None] * z)  # the uniform prior's GCV smoothing sets the amplitude
+    f = amp.smooth(Z, f0, gcv.score[0])[0]  # as the deformer: the lower GCV score of the two priors
+    a_est = amp.amplitude(f0[None])[0]
+    a_true = amp.amplitude(Ztrue[None])[0]  # the true displacements' lengths (an oracle amplitude)
+    e_est = [face_err(d, c) for c in amp.candidates(Z, a_est)]
+    e_true = [face_err(d, c) for c in amp.candidates(Z, a_true)]
+    f_true = amp.smooth_many(Z[None], Ztrue[None])[0]
+    return [("amplitude prior, GCV", face_err(d, f)),
+            ("amplitude prior, oracle weight", min(e_est)),
+            ("amplitude from the truth, GCV", face_err(d, f_true[0])),
+            ("amplitude from the truth, oracle weight", min(e_true))]
 
 
 def summarize_selection_study(rows: list[dict]) -> tuple[list[str], list[list]]:

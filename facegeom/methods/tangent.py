@@ -577,6 +577,7 @@ class _AutoSmoother:
         k = np.clip(k, 0.0, None)
         m = k.size
         self.U = np.ascontiguousarray(U)
+        self.k = k  # the eigenvalues of K (clipped at 0)
         self.criterion = criterion
         lam = np.asarray(lambdas, dtype=np.float64)
         powers = AUTO_POWERS if criterion == "ml" else np.array([1.0])
@@ -609,7 +610,9 @@ class _AutoSmoother:
         S = self._lin @ zz  # (G, T)
         if self.criterion == "ml":
             S = self._n * np.log(np.maximum(S, 1e-300) / self._n) + self._const[:, None]
-        return np.argmin(S, axis=0)
+        g = np.argmin(S, axis=0)
+        self.score = S[g, np.arange(S.shape[1])]  # the chosen candidates' scores (GCV: comparable across priors)
+        return g
 
     def coefficients(self, y: np.ndarray) -> tuple[np.ndarray, int]:
         """The smoothed labels in the eigenbasis, ``diag(keep) U^T y`` for ``y (M, D)``, and the chosen candidate."""
@@ -700,6 +703,21 @@ class TangentDeformer(Params):
         (:data:`AUTO_POWERS`). See :class:`_AutoSmoother`. ``ml`` was 1 % better
         than GCV at 0.5 mm noise on the tuning seed 0 of the realistic protocol
         but 1.5-3 % worse on the held-out seeds 1 and 2, so GCV stays the default.
+    prior : {"uniform", "amplitude"}
+        The prior of the markers' displacements with ``beta="auto"``.
+        ``uniform`` (default): the labels' energy alone (every marker's
+        displacement equally large a priori; smoothed by ``select``).
+        ``amplitude`` (issue 19 §2, with ``select="gcv"``): the same energy
+        with a per-marker amplitude estimated from the markers (the lengths of
+        the ``uniform``-smoothed displacements, spread over neighbouring
+        markers), so still regions are smoothed more than moving ones; its
+        weight by GCV, and a frame keeps the ``uniform`` result where that has
+        the lower GCV score
+        (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). On the
+        realistic protocol 5-8 % better than ``uniform`` at 0.5 mm noise, the
+        same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
+        ~1.2 ms more per deform and ~7x the ``deform_many`` time per frame, so
+        it is not the default (see the README).
 
     Defaults (``kring``, 1 ring, ``d=2``, displacement, robust alignment,
     smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see the README for how they were chosen
@@ -711,14 +729,16 @@ class TangentDeformer(Params):
     ----------
     lambda_ : float or (T,) float
         With ``beta="auto"``: the relative regularisation chosen by the last
-        ``deform`` (per frame for ``deform_many``); 0 = exact interpolation.
+        ``deform`` (per frame for ``deform_many``); 0 = exact interpolation. With
+        ``prior="amplitude"`` it is the amplitude prior's weight (relative to
+        the mean eigenvalue of its energy).
     power_ : float or (T,) float
         With ``beta="auto"``: the spectral power chosen with it (1 with ``select="gcv"``).
     """
 
     def __init__(self, neighbourhood: str = "kring", rings: int = 1, radius: float | None = None, d: int = 2,
                  beta: float | str | None = "auto", field: str = "displacement", align: str = "robust",
-                 smoothness: float = SMOOTHNESS_DEFAULT, select: str = "gcv"):
+                 smoothness: float = SMOOTHNESS_DEFAULT, select: str = "gcv", prior: str = "uniform"):
         if neighbourhood not in ("kring", "geodesic"):
             raise InputError(f"neighbourhood must be 'kring' or 'geodesic', got {neighbourhood!r}")
         if not is_integer(rings) or rings < 1:
@@ -737,10 +757,13 @@ class TangentDeformer(Params):
             raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
         if select not in ("ml", "gcv"):
             raise InputError(f"select must be 'ml' or 'gcv', got {select!r}")
+        if prior not in ("amplitude", "uniform"):
+            raise InputError(f"prior must be 'amplitude' or 'uniform', got {prior!r}")
         self.neighbourhood, self.rings, self.radius = neighbourhood, int(rings), radius
         self.d, self.beta, self.field, self.align = int(d), beta, field, align
         self.smoothness = float(smoothness)
         self.select = select
+        self.prior = prior
         self.solver_ = None
 
     def __repr__(self) -> str:
@@ -797,6 +820,12 @@ class TangentDeformer(Params):
         auto = isinstance(self.beta, str)
         self.solver_ = TangentSolver(B, H, None if auto else self.beta)
         self.smoother_ = _AutoSmoother(self.solver_.schur_complement(), self.select) if auto else None
+        self.amplitude_ = None
+        if auto and self.prior == "amplitude" and self.select == "gcv":  # (``ml`` is a study option: uniform only)
+            from facegeom.methods.tangent_prior import AmplitudeSmoother
+
+            Ks = self.smoother_.U @ (self.smoother_.k[:, None] * self.smoother_.U.T)
+            self.amplitude_ = AmplitudeSmoother(Ks, V[H], AUTO_LAMBDAS)
         # with soft labels the map takes the smoothed eigen-coefficients directly: U^T map, (M, n)
         self._coef_map = None
         if auto and self.solver_.map_ is not None:
@@ -829,6 +858,10 @@ class TangentDeformer(Params):
         if self.smoother_ is not None:
             c, g = self.smoother_.coefficients(Z)
             self.lambda_, self.power_ = float(self.smoother_.lambdas[g]), float(self.smoother_.powers[g])
+            if self.amplitude_ is not None:  # the default smoothing sets the amplitude, the amplitude prior smooths
+                f, lam, used = self.amplitude_.smooth(Z, self.smoother_.U @ c, self.smoother_.score[0])
+                if used:
+                    self.lambda_, c = lam, self.smoother_.U.T @ f
             if self._coef_map is not None:
                 Y = np.ascontiguousarray((c.T @ self._coef_map).T)
             else:
@@ -877,8 +910,13 @@ class TangentDeformer(Params):
             P = P - X[H]
         M = self.solver_.map_
         if self.smoother_ is not None:
+            P0 = P
             P, g = self.smoother_.coefficients_many(P)
             self.lambda_, self.power_ = self.smoother_.lambdas[g], self.smoother_.powers[g]
+            if self.amplitude_ is not None:  # as in deform; per-frame work stays in marker space
+                F, lam, used = self.amplitude_.smooth_many(P0, np.matmul(self.smoother_.U, P), self.smoother_.score)
+                self.lambda_ = np.where(used, lam, self.lambda_)
+                P = np.matmul(self.smoother_.U.T, F)
             if self._coef_map is not None:
                 M = self._coef_map  # the labels stay eigen-coefficients: no (M, M) product back
             else:
