@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from facegeom.bench.common import progress_bar
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM, FACE_AREA
@@ -63,11 +64,7 @@ def run(model, seqs, retargeters: list[MethodSpec], deformer: MethodSpec, labels
     rows = []
     for spec in retargeters:  # load every plugin once, so that import time is not counted as retarget time
         spec.build("retargeters")
-    try:
-        from tqdm import tqdm
-        it = tqdm(list(enumerate(seqs)), desc="animate", unit="seq", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = enumerate(seqs)
+    it = progress_bar(list(enumerate(seqs)), "animate", progress, unit="seq")
     for si, s in it:
         lab = evenly_spread(s.n_frames, labels)
         truth = sq.character_faces(model, s)

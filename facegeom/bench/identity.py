@@ -52,6 +52,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
+from facegeom.bench.common import progress_bar
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.methods.identity import IdentityFit, IdentityFitter
@@ -169,12 +170,7 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
     tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
     peer = identity_peer("eos") if protocol == "landmarks" else None
     rows = []
-    items = people
-    try:
-        from tqdm import tqdm
-        items = tqdm(people, desc=f"identity {protocol}", unit="person", disable=not progress)
-    except ImportError:  # pragma: no cover
-        pass
+    items = progress_bar(people, f"identity {protocol}", progress, unit="person")
     for pi, p in enumerate(items):
         truths = [model.face(p.identity, w) for w in p.weights]
         extra = None

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from facegeom.bench.common import progress_bar
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.bench.retarget import build_sequences
 from facegeom.constants import CM_TO_MM
@@ -56,11 +57,7 @@ def run(seqs, specs: list[MethodSpec], levels=LEVELS_MM, labels: int = 10, seed:
         method raised :class:`~facegeom.errors.SolveError`) and ``time_ms``.
     """
     rows = []
-    try:
-        from tqdm import tqdm
-        it = tqdm(list(enumerate(seqs)), desc="noise", unit="seq", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = enumerate(seqs)
+    it = progress_bar(list(enumerate(seqs)), "noise", progress, unit="seq")
     for si, s in it:
         lab = evenly_spread(s.n_frames, labels)
         for kind_i, kind in enumerate(KINDS):

@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+from facegeom.bench.common import progress_bar
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import SolveError
@@ -104,11 +105,7 @@ def run(model, seqs, specs: list[MethodSpec], label_counts=LABEL_COUNTS, echo=pr
     """
     rows, frame_rows = [], []
     ref = REFERENCE_LABELS if REFERENCE_LABELS in label_counts else label_counts[len(label_counts) // 2]
-    try:
-        from tqdm import tqdm
-        it = tqdm(list(enumerate(seqs)), desc="retarget", unit="seq", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = enumerate(seqs)
+    it = progress_bar(list(enumerate(seqs)), "retarget", progress, unit="seq")
     for si, s in it:
         motion = s.mean_motion()
         for L in label_counts:
@@ -174,31 +171,41 @@ def run_realistic(seqs, specs: list[MethodSpec], label_counts=REALISTIC_LABELS, 
         :class:`~facegeom.errors.SolveError`) and ``time_ms``.
     """
     rows = []
-    try:
-        from tqdm import tqdm
-        it = tqdm(list(enumerate(seqs)), desc="retarget (realistic)", unit="seq", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = enumerate(seqs)
+    it = progress_bar(list(enumerate(seqs)), "retarget (realistic)", progress, unit="seq")
     for si, s in it:
         for L in label_counts:
-            rng = np.random.default_rng([int(seed), si, int(L), 1919])
-            lab = np.sort(rng.choice(s.n_frames, size=min(int(L), s.n_frames), replace=False))
-            src_noise = rng.normal(size=s.source.shape) * noise_mm / CM_TO_MM
-            lab_noise = rng.normal(size=s.target[lab].shape) * noise_mm / CM_TO_MM
+            lab, src_noise, lab_noise = _realistic_draw(s, si, L, noise_mm, seed)
             for level, X, Yh in ((0.0, s.source, s.target[lab]),
                                  (float(noise_mm), s.source + src_noise, s.target[lab] + lab_noise)):
                 for spec in specs:
-                    t = time.perf_counter()
-                    try:
-                        Y = spec.build("retargeters").fit(X, lab, Yh).transform()
-                    except SolveError:
-                        Y = np.full_like(s.target, np.nan)
-                    dt = time.perf_counter() - t
+                    mean_mm, time_ms = _score(spec, s, X, lab, Yh)
                     rows.append({"sequence": si, "name": s.name, "labels": int(lab.size), "noise_mm": level,
-                                 "method": spec.label,
-                                 "mean_mm": float(np.linalg.norm(Y - s.target, axis=2).mean() * CM_TO_MM),
-                                 "time_ms": dt * 1e3})
+                                 "method": spec.label, "mean_mm": mean_mm, "time_ms": time_ms})
     return rows
+
+
+def _realistic_draw(s, si: int, labels: int, noise_mm: float, seed: int):
+    """The realistic protocol's random labelled frames and noise of sequence ``si``.
+
+    One random stream per seed, sequence and label count: every method and noise source sees the same draw.
+    """
+    rng = np.random.default_rng([int(seed), si, int(labels), 1919])
+    lab = np.sort(rng.choice(s.n_frames, size=min(int(labels), s.n_frames), replace=False))
+    src_noise = rng.normal(size=s.source.shape) * noise_mm / CM_TO_MM
+    lab_noise = rng.normal(size=s.target[lab].shape) * noise_mm / CM_TO_MM
+    return lab, src_noise, lab_noise
+
+
+def _score(spec: MethodSpec, s, X, lab, Yh) -> tuple[float, float]:
+    """Retarget ``X`` with labels ``Yh`` at ``lab``: mean marker error against ``s.target`` (mm; NaN on
+    :class:`~facegeom.errors.SolveError`) and the time (ms)."""
+    t = time.perf_counter()
+    try:
+        Y = spec.build("retargeters").fit(X, lab, Yh).transform()
+    except SolveError:
+        Y = np.full_like(s.target, np.nan)
+    time_ms = (time.perf_counter() - t) * 1e3
+    return float(np.linalg.norm(Y - s.target, axis=2).mean() * CM_TO_MM), time_ms
 
 
 NOISE_SOURCES = ("none", "capture", "labels", "both")
@@ -237,28 +244,16 @@ def run_noise_sources(seqs, specs: list[MethodSpec], labels: int = REFERENCE_LAB
         raised :class:`~facegeom.errors.SolveError`) and ``time_ms``.
     """
     rows = []
-    try:
-        from tqdm import tqdm
-        it = tqdm(list(enumerate(seqs)), desc="retarget (noise sources)", unit="seq", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = enumerate(seqs)
+    it = progress_bar(list(enumerate(seqs)), "retarget (noise sources)", progress, unit="seq")
     for si, s in it:
-        rng = np.random.default_rng([int(seed), si, int(labels), 1919])  # the stream of run_realistic
-        lab = np.sort(rng.choice(s.n_frames, size=min(int(labels), s.n_frames), replace=False))
-        src_noise = rng.normal(size=s.source.shape) * noise_mm / CM_TO_MM
-        lab_noise = rng.normal(size=s.target[lab].shape) * noise_mm / CM_TO_MM
+        lab, src_noise, lab_noise = _realistic_draw(s, si, labels, noise_mm, seed)  # the stream of run_realistic
         for noisy in NOISE_SOURCES:
             X = s.source + src_noise if noisy in ("capture", "both") else s.source
             Yh = s.target[lab] + lab_noise if noisy in ("labels", "both") else s.target[lab]
             for spec in specs:
-                t = time.perf_counter()
-                try:
-                    Y = spec.build("retargeters").fit(X, lab, Yh).transform()
-                except SolveError:
-                    Y = np.full_like(s.target, np.nan)
-                rows.append({"sequence": si, "noisy": noisy, "method": spec.label,
-                             "mean_mm": float(np.linalg.norm(Y - s.target, axis=2).mean() * CM_TO_MM),
-                             "time_ms": (time.perf_counter() - t) * 1e3})
+                mean_mm, time_ms = _score(spec, s, X, lab, Yh)
+                rows.append({"sequence": si, "noisy": noisy, "method": spec.label, "mean_mm": mean_mm,
+                             "time_ms": time_ms})
     return rows
 
 
