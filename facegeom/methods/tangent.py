@@ -376,13 +376,7 @@ def kabsch_many(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None)
         # H_t = sum_i w_ti (P_i - mp_t)(Q_ti - mq_t)^T = (w_t P)^T Q_t - mp_t mq_t^T
         H = np.matmul(Pc.T[None] * w[:, None, :], Qc) - mp[:, :, None] * mq[:, None, :]
     mp, mq = mp + p0, mq + q0
-    U, _, Vt = np.linalg.svd(H)
-    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
-    s = np.sign(np.linalg.det(V @ Ut))
-    s[s == 0] = 1.0
-    V = V.copy()
-    V[:, :, 2] *= s[:, None]
-    R = V @ Ut
+    R = _rotations_svd(np.swapaxes(H, 1, 2))  # V diag(1, 1, s) U^T of H = U S V^T
     return R, mq - np.einsum("tij,tj->ti", R, mp)
 
 
