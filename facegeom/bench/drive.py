@@ -352,7 +352,7 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
 
 
 def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30.0, 100.0, 1e5),
-                        noise_mm=(0.0, 0.2, 0.5)) -> list[dict]:
+                        noise_mm=(0.0, 0.2, 0.5), layout_name: str | None = None) -> list[dict]:
     """How well does ``beta="auto"`` choose? Every candidate of the self-tuned tangent deformer, scored (issue 19).
 
     For every case, noise level and ``smoothness``, the deformer is fitted
@@ -361,8 +361,11 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
     give the face error of exact interpolation, of the GCV and REML choices,
     of the best candidate chosen with the truth in hand (``oracle``, a bound
     for any selection rule from the markers), ``joint gcv``: GCV over the
-    weight and the smoothness values together, and ``joint oracle``: the best
-    candidate over all smoothness values. For the first smoothness, the
+    weight and the smoothness values together, ``joint oracle``: the best
+    candidate over all smoothness values, and ``joint lomo``: the smoothness
+    whose exact interpolant best predicts each marker from the others
+    (leave-one-marker-out, closed form ``(K y)_i / K_ii`` with ``K`` the
+    labels' energy), then GCV's weight at it. For every smoothness, the
     amplitude prior (:mod:`facegeom.methods.tangent_prior`, ``prior="amplitude"``): its
     GCV choice, the best of its weights chosen with the truth (``oracle
     weight``), and the same with the amplitude taken from the true
@@ -379,6 +382,9 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
         Values of the biharmonic weight to score.
     noise_mm : sequence of float
         Marker-noise levels (mm per coordinate).
+    layout_name : str, optional
+        One marker layout for every case (e.g. ``"ict80"``, which follows the
+        face's features) instead of each case's random one.
 
     Returns
     -------
@@ -393,7 +399,8 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
     F = model.triangles
     rows = []
     for case in cases:
-        handles = layout(model, f"random{case.markers}", case.layout_seed)
+        handles = (layout(model, layout_name, case.layout_seed) if layout_name
+                   else layout(model, f"random{case.markers}", case.layout_seed))
         X = model.identity_neutral(case.identity)
         T = model.face(case.identity, case.expression)
         rng = np.random.default_rng(case.noise_seed)
@@ -402,7 +409,8 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
         fitted = []
         for s in smoothness:
             d = TangentDeformer(select="ml", smoothness=float(s)).fit(X, F, handles)
-            fitted.append((s, d, _AutoSmoother(d.solver_.schur_complement(), "gcv")))
+            K = d.solver_.schur_complement()
+            fitted.append((s, d, _AutoSmoother(K, "gcv"), K))
         for level, P in noisy:
             rows.append({"case": case.index, "noise_mm": level, "rule": "biharmonic",
                          "mean_mm": face_errors_mm(bh.deform(P), T)["mean_mm"]})
@@ -416,7 +424,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 return face_errors_mm(((d.smoother_.U.T @ f).T @ d._coef_map).T @ Rm.T + X @ Rm.T + t, T)["mean_mm"]
 
             joint = []
-            for s, d, gcv in fitted:
+            for s, d, gcv, K in fitted:
                 sm = d.smoother_
                 z = sm.U.T @ Z
                 zz = np.einsum("md,md->m", z, z)[:, None]
@@ -426,16 +434,19 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 g_gcv = int(gcv._choose(zz)[0])
                 g_ml = int(sm._choose(zz)[0])
                 S = gcv._lin @ zz
-                joint.append((float(S[g_gcv, 0]), float(err[one][g_gcv]), float(err.min())))
+                lomo = float((((K @ Z) / np.diag(K)[:, None]) ** 2).sum())  # leave-one-marker-out, exact interpolant
+                joint.append((float(S[g_gcv, 0]), float(err[one][g_gcv]), float(err.min()), lomo))
                 for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
                                 ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
                     rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
-                if s == smoothness[0]:  # the amplitude prior (prior="amplitude"), issue 19 §2
-                    rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
-                                for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
+                # the amplitude prior (prior="amplitude"), issue 19 §2, at every smoothness
+                rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
+                            for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint oracle",
                          "mean_mm": min(j[2] for j in joint)})
+            rows.append({"case": case.index, "noise_mm": level, "rule": "joint lomo",
+                         "mean_mm": min(joint, key=lambda j: j[3])[1]})
     return rows
 
 
@@ -545,7 +556,8 @@ if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | 
         from facegeom.model import locate_takes
 
         _seed, _count = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (0, 20)
+        _layout = sys.argv[4] if len(sys.argv) > 4 else None  # e.g. ict80: one layout for every case
         _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(locate_takes(None))]
-        _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes))
-        print(f"selection study: {_count} realistic cases, seed {_seed}")
+        _rows = run_selection_study(_model, realistic_driving_cases(_model, _count, _seed, _takes), layout_name=_layout)
+        print(f"selection study: {_count} realistic cases, seed {_seed}, layout {_layout or 'random per case'}")
         print(format_table(*summarize_selection_study(_rows)))

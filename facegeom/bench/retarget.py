@@ -265,6 +265,69 @@ def summarize_noise_sources(rows, specs) -> str:
     return format_table(header, table)
 
 
+MAP_STUDY_RIDGES = (1e-4, 1e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0, 3.0, 10.0, 1e6)
+"""Ridges of :func:`run_map_study`: the default's grid and a face-wide map only (``1e6``)."""
+
+
+def run_map_study(seqs, labels: int = REFERENCE_LABELS, noise_mm: float = REALISTIC_NOISE_MM, seed: int = 0,
+                  sources=("labels", "both"), progress=False) -> list[dict]:
+    """Which part of the default retargeter keeps the label noise, and what a per-marker affine map can reach.
+
+    On the realistic protocol's draw (:func:`run_realistic`, same stream), for
+    each noise source (:data:`NOISE_SOURCES`) the default tangent retargeter is
+    fitted, and on the actor's markers as it chose to smooth them the
+    per-marker affine map (:func:`~facegeom.methods.tangent_retarget.marker_affine_fit`)
+    is scored with: its leave-one-label-out ridge (the default), every fixed
+    ridge of :data:`MAP_STUDY_RIDGES` (the best one for all sequences, and the
+    best one per marker chosen with the truth: an oracle bound for any ridge
+    rule), the face-wide map alone, the labels' noise mean subtracted (the
+    offset noise no per-marker method can average away, removed by an
+    oracle) and the clean labels.
+
+    Returns
+    -------
+    list of dict
+        One row per sequence, noise source and rule: ``sequence``, ``noisy``,
+        ``rule``, ``mean_mm`` (mean marker error against the clean truth).
+    """
+    from facegeom.methods.tangent_retarget import TangentRetargeter, marker_affine_fit
+
+    rows = []
+    it = progress_bar(list(enumerate(seqs)), "retarget (map study)", progress, unit="seq")
+    for si, s in it:
+        lab, src_noise, lab_noise = _realistic_draw(s, si, labels, noise_mm, seed)  # the stream of run_realistic
+        for noisy in sources:
+            X = s.source + src_noise if noisy in ("capture", "both") else s.source
+            Yh = s.target[lab] + lab_noise if noisy in ("labels", "both") else s.target[lab]
+
+            def err(Y):
+                return np.linalg.norm(Y - s.target, axis=2).mean(axis=0) * CM_TO_MM  # per marker
+
+            r = TangentRetargeter().fit(X, lab, Yh)
+            S, _, (base, _) = r._choose_smoothing(X, lab, Yh)  # the actor's markers as the default smoothed them
+            aff = marker_affine_fit(S, lab, Yh, "auto")
+            fixed = np.stack([err(marker_affine_fit(S, lab, Yh, g)) for g in MAP_STUDY_RIDGES])  # (G, p)
+            found = {"default retargeter": err(r.result_), "its base map (affine + kernel)": err(base),
+                     "affine map, auto ridge": err(aff),
+                     **{f"affine map, ridge {g:g}": e for g, e in zip(MAP_STUDY_RIDGES, fixed)},
+                     "affine map, ridge per marker from the truth": fixed.min(axis=0),
+                     "affine map, clean labels": err(marker_affine_fit(S, lab, s.target[lab], "auto"))}
+            if noisy in ("labels", "both"):
+                found["affine map, labels' noise mean removed"] = err(aff - lab_noise.mean(axis=0)[None])
+            rows.extend({"sequence": si, "noisy": noisy, "rule": k, "mean_mm": float(v.mean())}
+                        for k, v in found.items())
+    return rows
+
+
+def summarize_map_study(rows) -> str:
+    """Mean marker error (mm) per rule and noise source of :func:`run_map_study`, as a Markdown table."""
+    sources = list(dict.fromkeys(r["noisy"] for r in rows))
+    rules = list(dict.fromkeys(r["rule"] for r in rows))
+    table = [[ru] + [_nanmean([r["mean_mm"] for r in rows if r["rule"] == ru and r["noisy"] == n]) for n in sources]
+             for ru in rules]
+    return format_table(["rule"] + [f"noise on {n}" for n in sources], table)
+
+
 def summarize_realistic(rows, specs) -> str:
     """The realistic protocol's table: mean marker error (mm) per method, label count and noise level.
 
@@ -421,3 +484,21 @@ def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed
         report.plot(lambda: plot(rows, frame_rows, specs, ref))
     report.done()
     return rows, table
+
+
+if __name__ == "__main__":  # python -m facegeom.bench.retarget study SEED [SEQUENCES]: issue 19 §3's map study
+    import sys
+
+    from facegeom.io import find_takes, ict_weights, read_take
+    from facegeom.model import load_face_model, locate_takes
+
+    if sys.argv[1:2] != ["study"]:
+        sys.exit("usage: python -m facegeom.bench.retarget study SEED [SEQUENCES]")
+    _seed = int(sys.argv[2]) if len(sys.argv) > 2 else 0
+    _count = int(sys.argv[3]) if len(sys.argv) > 3 else 20
+    _model = load_face_model(None)
+    _takes = [(f.stem, ict_weights(read_take(f), _model.expression_names)) for f in find_takes(locate_takes(None))]
+    _seqs = build_sequences(_model, _takes, count=_count, frames=100, seed=_seed)
+    print(f"map study: {_count} sequences of 100 frames, {REFERENCE_LABELS} random labels, "
+          f"{REALISTIC_NOISE_MM} mm noise, seed {_seed}")
+    print(summarize_map_study(run_map_study(_seqs, seed=_seed)))
