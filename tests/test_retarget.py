@@ -9,9 +9,12 @@ from hypothesis import strategies as st
 from facegeom import registry
 from facegeom.baselines.retargeters import CopyRetargeter, LaplacianRetargeter, RBFRetargeter
 from facegeom.errors import InputError, SolveError
+from facegeom.methods import tangent_retarget as tr
 from facegeom.methods.tangent_retarget import (
+    LABEL_NOISE_SAFETY,
     RIDGE_GRID,
     TangentRetargeter,
+    label_noise_estimate,
     lowrank_denoise,
     marker_affine_fit,
     marker_kernel_fit,
@@ -233,7 +236,8 @@ def test_degenerate_configuration_is_a_clear_error():
 
 def test_bad_parameters():
     for kw in ({"strategy": "x"}, {"window": 0}, {"d": 0}, {"beta": -1.0}, {"field": "x"}, {"smoothness": -1},
-               {"kernel": "yes"}, {"pool": 1}):
+               {"kernel": "yes"}, {"pool": 1}, {"label_noise": -0.1}, {"label_noise": "high"},
+               {"label_noise": float("nan")}):
         with pytest.raises(InputError):
             TangentRetargeter(**kw)
 
@@ -380,3 +384,80 @@ def test_select_is_checked_and_shared_helps_with_noisy_labels():
             Y = TangentRetargeter(select=sel).fit(S, lab, Yh).transform()
             errs[sel].append(np.linalg.norm(Y - Y_true))
     assert np.mean(errs["shared"]) < np.mean(errs["marker"]), errs
+
+
+def coherent_sequence(T=100, side=7, seed=0):
+    """Markers on a grid whose motion varies smoothly over the grid (as on a face), and a curved character."""
+    rng = np.random.default_rng(seed)
+    g = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2).astype(float)
+    rest = np.c_[g, 0.1 * np.sin(g[:, 0])]
+    t = np.linspace(0, 1, T)
+    curves = np.stack([np.sin(2 * np.pi * (f * t + ph)) for f, ph in rng.uniform(0.3, 1.5, (3, 2))], 1)  # (T, 3)
+    fields = [np.c_[np.sin(0.4 * rest[:, 0] + a), np.cos(0.3 * rest[:, 1] + b), 0.5 * np.sin(0.2 * rest.sum(1) + c)]
+              for a, b, c in rng.uniform(0, 2 * np.pi, (3, 3))]  # smooth motion fields over the grid
+    S = rest[None] + np.einsum("te,epi->tpi", curves, np.stack(fields))
+    return S, 1.2 * S + 0.15 * np.sin(S)
+
+
+def test_label_noise_estimate_sees_white_noise_not_smooth_error():
+    rng = np.random.default_rng(3)
+    P = rng.uniform(0, 10, (200, 3))
+    smooth = np.stack([np.sin(0.15 * P[:, 0] + k)[:, None] * np.array([0.5, -0.3, 0.2]) for k in range(10)])
+    assert label_noise_estimate(smooth, P) < 0.1 * np.sqrt((smooth ** 2).mean())
+    for sigma in (0.05, 0.2):
+        noisy = smooth + rng.normal(size=smooth.shape) * sigma
+        assert abs(label_noise_estimate(noisy, P) / sigma - 1) < 0.15
+    assert label_noise_estimate(smooth[:, :1], P[:1]) == 0.0
+
+
+def test_label_weight_reproduces_labels_only_when_the_residual_exceeds_the_noise(monkeypatch):
+    S, Y_true = coherent_sequence(seed=4)
+    lab = np.sort(np.random.default_rng(4).choice(100, 10, replace=False))
+    seen = {}
+    real = tr.loo_label_weight
+
+    def spy(B, labelled, r, grid=tr.BETA_GRID, zero_score=None, noise=None):
+        seen["args"] = (B, labelled, r, zero_score)
+        return real(B, labelled, r, grid, zero_score, noise)
+
+    monkeypatch.setattr(tr, "loo_label_weight", spy)
+    TangentRetargeter().fit(S, lab, Y_true[lab])
+    B, labelled, r, zero = seen["args"]
+    loo_beta, loo_scores = real(B, labelled, r, zero_score=zero)
+    top = max(tr.BETA_GRID) * B.diagonal().mean()
+    beta0, scores = real(B, labelled, r, zero_score=zero, noise=0.0)
+    assert beta0 == top and np.array_equal(scores[0], loo_scores)  # exact labels: reproduced
+    big = 10 * np.sqrt((r ** 2).mean())
+    assert real(B, labelled, r, zero_score=zero, noise=big)[0] == loo_beta  # noise above the residual: LOO's choice
+
+
+def test_known_exact_labels_are_reproduced():
+    S, Y_true = coherent_sequence(seed=1)
+    lab = np.sort(np.random.default_rng(1).choice(100, 10, replace=False))
+    r = TangentRetargeter(label_noise=0.0).fit(S, lab, Y_true[lab])
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    assert np.abs(r.result_[lab] - Y_true[lab]).max() < 1e-3 * motion
+    assert r.label_noise_ == 0.0 and r.beta_ > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_label_noise_auto_is_never_worse_than_leave_one_out_and_smooths_noisy_labels(seed):
+    """Clean labels: estimated noise ~0 and no worse than the leave-one-out rule; noisy: estimated within 30 % of
+    1.5 sigma, the labels smoothed (not copied), and no worse than the leave-one-out rule."""
+    rng = np.random.default_rng(seed)
+    S, Y_true = coherent_sequence(seed=seed)
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    lab = np.sort(rng.choice(100, 10, replace=False))
+
+    def err(r):
+        return np.linalg.norm(r.result_ - Y_true, axis=2).mean()
+
+    clean = TangentRetargeter().fit(S, lab, Y_true[lab])
+    assert clean.label_noise_ < 1e-2 * motion
+    assert err(clean) <= 1.001 * err(TangentRetargeter(label_noise=None).fit(S, lab, Y_true[lab]))
+    sigma = 0.03 * motion
+    Yh = Y_true[lab] + rng.normal(size=(10,) + Y_true.shape[1:]) * sigma
+    noisy = TangentRetargeter().fit(S, lab, Yh)
+    assert abs(noisy.label_noise_ / (LABEL_NOISE_SAFETY * sigma) - 1) < 0.3
+    assert np.linalg.norm(noisy.result_[lab] - Yh, axis=2).mean() > 0.5 * sigma  # the noise is not copied
+    assert err(noisy) <= 1.001 * err(TangentRetargeter(label_noise=None).fit(S, lab, Yh))

@@ -63,22 +63,35 @@ def reference_whittaker(S, lam="auto", grid=LAMBDA_GRID):
     return (U @ (h[:, None] * Z)).reshape(S.shape), float(lam)
 
 
-def reference_loo(B, labelled, residual, grid=BETA_GRID, zero_score=None):
-    """The former implementation: the dense (M, M) smoother from a dense inverse (quadratic or cubic in N)."""
+def reference_loo(B, labelled, residual, grid=BETA_GRID, zero_score=None, noise=None):
+    """The former implementation: the dense (M, M) smoother from a dense inverse (quadratic or cubic in N).
+
+    With ``noise``: also Stein's unbiased risk of the fitted labels from the same dense smoother, and the largest
+    candidate replaces the leave-one-out choice where its risk is lower.
+    """
     B = sp.csr_matrix(B)
     scale = B.diagonal().mean()
     scale = scale if scale > 0 else 1.0
     r = np.asarray(residual, dtype=np.float64).reshape(len(labelled), -1)
-    scores = np.empty(len(grid))
+    n = r.size  # labels x columns
+    s2 = 0.0 if noise is None else noise ** 2
+    scores, risk = np.empty(len(grid)), np.empty(len(grid))
     for k, g in enumerate(grid):
         if g == 0:
             scores[k] = float((r ** 2).sum()) if zero_score is None else float(zero_score)
+            risk[k] = float((r ** 2).sum()) - n * s2
             continue
         W = TangentSolver(B, labelled, g * scale, dense_map=True).map_
         S = W[:, labelled].T
         denom = np.maximum(1.0 - np.diag(S), 1e-9)
         scores[k] = float((((r - S @ r) / denom[:, None]) ** 2).sum())
-    return float(grid[int(np.argmin(scores))] * scale), scores
+        risk[k] = float(((r - S @ r) ** 2).sum()) + 2 * s2 * r.shape[1] * np.trace(S) - n * s2
+    best = int(np.argmin(scores))
+    if noise is None:
+        return float(grid[best] * scale), scores
+    if risk[int(np.argmax(grid))] < risk[best]:
+        best = int(np.argmax(grid))
+    return float(grid[best] * scale), np.stack([scores, risk])
 
 
 @pytest.mark.parametrize("n,b", [(1, 0), (1, 2), (2, 2), (5, 2), (40, 2), (33, 3), (20, 1), (25, 6)])
@@ -112,9 +125,9 @@ def test_loo_label_weight_matches_the_dense_reference(strategy, seed, monkeypatc
     lab = evenly_spread(80, 8)
     seen = {}
 
-    def spy(B, labelled, r, grid=BETA_GRID, zero_score=None):
+    def spy(B, labelled, r, grid=BETA_GRID, zero_score=None, noise=None):
         seen["args"] = (B, labelled, r, zero_score)
-        return loo_label_weight(B, labelled, r, grid, zero_score)
+        return loo_label_weight(B, labelled, r, grid, zero_score, noise)
 
     monkeypatch.setattr(tr, "loo_label_weight", spy)
     TangentRetargeter(strategy=strategy, field="position").fit(S, lab, character(S, lab, seed, 0.05))
@@ -124,6 +137,26 @@ def test_loo_label_weight_matches_the_dense_reference(strategy, seed, monkeypatc
     assert beta == beta_ref
     # near interpolation 1 - S_ii cancels: the last candidates agree to round-off divided by (1 - S_ii)^2
     assert np.allclose(scores, scores_ref, rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("strategy", ["frame", "marker"])
+@pytest.mark.parametrize("noise", [0.0, 0.004, 0.05])
+def test_risk_label_weight_matches_the_dense_reference(strategy, noise, monkeypatch):
+    S = smooth_sequence(T=80, p=5, seed=2, noise=0.02)
+    lab = evenly_spread(80, 8)
+    seen = {}
+
+    def spy(B, labelled, r, grid=BETA_GRID, zero_score=None, noise=None):
+        seen["args"] = (B, labelled, r)
+        return loo_label_weight(B, labelled, r, grid, zero_score, noise)
+
+    monkeypatch.setattr(tr, "loo_label_weight", spy)
+    TangentRetargeter(strategy=strategy, label_noise=noise).fit(S, lab, character(S, lab, 2, 0.02))
+    B, labelled, r = seen["args"]
+    beta, scores = loo_label_weight(B, labelled, r, noise=noise)
+    beta_ref, scores_ref = reference_loo(B, labelled, r, noise=noise)
+    assert beta == beta_ref
+    assert np.allclose(scores, scores_ref, rtol=1e-6, atol=1e-12 * max(float((r ** 2).sum()), 1e-300))
 
 
 @pytest.mark.parametrize("strategy", ["frame", "marker"])
