@@ -407,7 +407,16 @@ def test_label_noise_estimate_sees_white_noise_not_smooth_error():
     for sigma in (0.05, 0.2):
         noisy = smooth + rng.normal(size=smooth.shape) * sigma
         assert abs(label_noise_estimate(noisy, P) / sigma - 1) < 0.15
-    assert label_noise_estimate(smooth[:, :1], P[:1]) == 0.0
+    assert np.isnan(label_noise_estimate(smooth[:, :1], P[:1]))  # no neighbour: no estimate
+
+
+def test_one_marker_keeps_the_leave_one_out_rule():
+    S = smooth_sequence(T=40, p=1, seed=2)
+    lab = np.array([3, 11, 19, 27, 35])
+    Y = 1.3 * S[lab] + 0.02 * np.random.default_rng(2).normal(size=(5, 1, 3))
+    r = TangentRetargeter().fit(S, lab, Y)
+    assert r.label_noise_ is None
+    assert np.array_equal(r.result_, TangentRetargeter(label_noise=None).fit(S, lab, Y).result_)
 
 
 def test_label_weight_reproduces_labels_only_when_the_residual_exceeds_the_noise(monkeypatch):

@@ -216,14 +216,14 @@ def label_noise_estimate(residuals: np.ndarray, points: np.ndarray) -> float:
     the error. With ``d`` that difference, ``|d|^2 ~ 2 sigma^2 chi^2_3``, so
     ``sigma^2 = median |d|^2 / (2 x 2.366)`` (2.366: the median of ``chi^2_3``;
     the median resists markers whose map error is rough). Fewer than two
-    markers: 0.
+    markers: NaN (no neighbour, no estimate).
     """
     from scipy.spatial import cKDTree
 
     E = np.asarray(residuals, dtype=np.float64)
     P = np.asarray(points, dtype=np.float64)
     if P.shape[0] < 2 or E.size == 0:
-        return 0.0
+        return float("nan")
     nn = cKDTree(P).query(P, k=2)[1][:, 1]
     d2 = ((E - E[:, nn]) ** 2).sum(axis=2)
     return float(np.sqrt(np.median(d2) / (2.0 * CHI2_3_MEDIAN)))
@@ -629,6 +629,7 @@ class TangentRetargeter(Params):
             noise = self.label_noise
             if noise == "auto":  # estimated from the base map's held-out residuals (none without a base map)
                 noise = None if loo is None else LABEL_NOISE_SAFETY * label_noise_estimate(loo, Yh.mean(axis=0))
+                noise = noise if noise is not None and np.isfinite(noise) else None  # one marker: no estimate
             self.label_noise_ = noise
             beta, _ = loo_label_weight(B, labelled, r, zero_score=None if loo is None else float((loo ** 2).sum()),
                                        noise=noise)
