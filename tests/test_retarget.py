@@ -14,6 +14,7 @@ from facegeom.methods.tangent_retarget import (
     LABEL_NOISE_SAFETY,
     RIDGE_GRID,
     TangentRetargeter,
+    frame_kernel_fit,
     label_noise_estimate,
     lowrank_denoise,
     marker_affine_fit,
@@ -470,3 +471,50 @@ def test_label_noise_auto_is_never_worse_than_leave_one_out_and_smooths_noisy_la
     assert abs(noisy.label_noise_ / (LABEL_NOISE_SAFETY * sigma) - 1) < 0.3
     assert np.linalg.norm(noisy.result_[lab] - Yh, axis=2).mean() > 0.5 * sigma  # the noise is not copied
     assert err(noisy) <= 1.001 * err(TangentRetargeter(label_noise=None).fit(S, lab, Yh))
+
+
+def test_frame_kernel_learns_what_one_marker_cannot_see():
+    """Marker 0's residual depends on marker 1's motion only: its own position cannot explain it, the frame can."""
+    rng = np.random.default_rng(5)
+    T, L = 120, 25
+    t = np.linspace(0, 1, T)
+    S = np.zeros((T, 2, 3))
+    S[:, 0, 0] = np.sin(2 * np.pi * 1.3 * t)  # marker 0 moves along x
+    S[:, 1, 1] = np.cos(2 * np.pi * 0.7 * t + 0.4)  # marker 1 along y, independently
+    truth = np.zeros((T, 2, 3))
+    truth[:, 0, 2] = 0.3 * np.sin(2.0 * S[:, 1, 1])  # marker 0's residual: a function of marker 1
+    lab = np.sort(rng.choice(T, L, replace=False))
+    no_corr = np.zeros((L, 2, 3))
+    loo0 = truth[lab]  # the uncorrected map's held-out residuals: the residual itself
+    mk, mk_loo = marker_kernel_fit(S, lab, truth[lab], loo0)
+    fk, fk_loo = frame_kernel_fit(S, lab, truth[lab], loo0)
+    unlab = np.setdiff1d(np.arange(T), lab)
+    err_marker = np.abs(mk[unlab, 0, 2] - truth[unlab, 0, 2]).mean()
+    err_frame = np.abs(fk[unlab, 0, 2] - truth[unlab, 0, 2]).mean()
+    assert err_frame < 0.3 * err_marker, (err_frame, err_marker)
+    assert ((fk_loo ** 2).sum(axis=(0, 2)) <= (loo0 ** 2).sum(axis=(0, 2)) + 1e-15).all()
+    assert np.array_equal(frame_kernel_fit(S, lab[:2], truth[lab[:2]], no_corr[:2])[0], np.zeros((T, 2, 3)))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_frame_kernel_is_used_for_clean_labels_only(seed, monkeypatch):
+    rng = np.random.default_rng(seed)
+    S, Y_true = coherent_sequence(seed=seed)
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    lab = np.sort(rng.choice(100, 12, replace=False))
+    calls = []
+    real = tr.frame_kernel_fit
+
+    def spy(*args, **kw):
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(tr, "frame_kernel_fit", spy)
+    TangentRetargeter().fit(S, lab, Y_true[lab])
+    assert calls, "clean labels: the frame kernel is tried"
+    calls.clear()
+    Yh = Y_true[lab] + rng.normal(size=(12,) + Y_true.shape[1:]) * 0.03 * motion
+    TangentRetargeter().fit(S, lab, Yh)
+    TangentRetargeter(label_noise=None).fit(S, lab, Y_true[lab])
+    assert not calls, "noisy labels, or no noise model: never"
+
