@@ -686,6 +686,7 @@ class TangentRetargeter(Params):
             base = S
         elif self.field == "affine":
             base, loo = fitted if fitted is not None else self._base_map(S, lab, Yh)
+            base, loo = self._frame_correction(S, lab, Yh, base, loo)
         if base is not None:
             base = base.transpose(1, 0, 2).reshape(p * T, 3) if self.strategy == "marker" else base.reshape(T, 3 * p)
         if self.smoothness > 0 and D2.shape[0]:
@@ -725,13 +726,21 @@ class TangentRetargeter(Params):
         if self.kernel:
             corr, loo = marker_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select == "shared")
             base = base + corr
-            noise = self.label_noise
-            if noise == "auto":
-                noise = label_noise_estimate(loo, Yh.mean(axis=0))
-            if noise is not None and noise ** 2 < FRAME_KERNEL_MAX_NOISE * float((loo ** 2).mean()):
-                corr, loo = frame_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select == "shared")
-                base = base + corr
         return base, loo
+
+    def _frame_correction(self, S, lab, Yh, base, loo):
+        """The whole-frame kernel correction of the base map, for clean labels only (:data:`FRAME_KERNEL_MAX_NOISE`).
+
+        Applied once, on the source the labels chose: inside that choice its
+        flexible fit made smoothed sources look better than they were.
+        """
+        noise = self.label_noise
+        if noise == "auto":
+            noise = label_noise_estimate(loo, Yh.mean(axis=0))
+        if not self.kernel or noise is None or not noise ** 2 < FRAME_KERNEL_MAX_NOISE * float((loo ** 2).mean()):
+            return base, loo
+        corr, loo = frame_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select == "shared")
+        return base + corr, loo
 
     def _choose_smoothing(self, S, lab, Yh):
         """Source smoothing chosen by the labels: none, a tenth of the GCV weight, or the GCV weight.
