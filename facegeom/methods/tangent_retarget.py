@@ -558,8 +558,11 @@ class TangentRetargeter(Params):
         number: known (``0`` = exact labels, reproduced); ``None``: no noise
         model, ``beta`` by leave-one-label-out prediction alone (before issue
         19's fourth pass; it cannot see that clean labels are best reproduced,
-        and lost 5-10 % on clean data). Without an affine base map
-        (``field`` other than ``"affine"``) ``"auto"`` is ``None``.
+        and lost 5-10 % on clean data). Labels whose noise is small against
+        the base map's held-out error (:data:`FRAME_KERNEL_MAX_NOISE`) also get
+        the whole-frame kernel correction (:func:`frame_kernel_fit`; with
+        ``kernel=True``). Without an affine base map (``field`` other than
+        ``"affine"``) ``"auto"`` is ``None``.
 
     Attributes
     ----------
