@@ -154,10 +154,15 @@ def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model):
     summary = (out / "fit-summary.md").read_text()
     assert summary.index("Realistic: landmarks") < summary.index("The paper's protocol")
     mesh = list(csv.DictReader(open(out / "fit-realistic-meshes.csv")))
-    assert {x["identity"] for x in mesh} == {"generic", "fitted", "oracle"} and len(mesh) == 2 * 3
-    err = {(x["case"], x["identity"]): float(x["vertex_mm"]) for x in mesh}
+    # per case: sem-ls with each of the three rigs, and the identity fitter's own joint expression
+    assert {(x["identity"], x["method"]) for x in mesh} == {("generic", "sem-ls"), ("fitted", "sem-ls"),
+                                                          ("oracle", "sem-ls"), ("fitted", "identity (joint)")}
+    assert len(mesh) == 2 * 4
+    err = {(x["case"], x["identity"], x["method"]): float(x["vertex_mm"]) for x in mesh}
     for case in ("0", "1"):  # 0.5 mm noise on a partial scan: the true identity's rig fits far better than the generic
-        assert err[case, "oracle"] < 0.2 < 1.0 < err[case, "generic"]
-        assert err[case, "fitted"] < 0.5 * err[case, "generic"]
+        assert err[case, "oracle", "sem-ls"] < 0.2 < 1.0 < err[case, "generic", "sem-ls"]
+        assert err[case, "fitted", "sem-ls"] < 0.5 * err[case, "generic", "sem-ls"]
+        assert err[case, "fitted", "identity (joint)"] < 0.5 * err[case, "generic", "sem-ls"]
     lms = list(csv.DictReader(open(out / "fit-realistic-landmarks.csv")))
-    assert all(0 <= float(x["ne_eval"]) < 0.3 for x in lms) and len(lms) == 2 * 3
+    assert all(0 <= float(x["ne_eval"]) < 0.3 for x in lms) and len(lms) == 2 * 4
+    assert "identity (joint)" in summary

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -126,16 +127,36 @@ def _fit(spec, rig, target, region=None):
     return r, time.perf_counter() - t
 
 
+JOINT = "identity (joint)"
+"""Method name of the ``fitted`` mode's extra row: the identity fitter's own expression, fitted jointly with the
+identity and the pose (what ``facegeom fit --identity`` returns without ``--method``)."""
+
+_JOINT_SPEC = SimpleNamespace(label=JOINT)
+
+
 def _fits(model, case, target, specs, modes, identity_fitter, region=None):
-    """Yield ``(mode, rig, spec, result, seconds)`` for every identity mode and method that fits ``target``."""
-    fitted = identity_fitter(target) if (identity_fitter is not None and "fitted" in modes) else None
-    for mode, rig in _rigs(model, case, modes, fitted).items():
+    """Yield ``(mode, rig, spec, result, seconds)`` for every identity mode and method that fits ``target``.
+
+    ``identity_fitter`` returns the user's rig, or an
+    :class:`~facegeom.methods.identity.IdentityFit`: then its own joint
+    expression is one more row of the ``fitted`` mode (method :data:`JOINT`,
+    timed as the identity fit).
+    """
+    fitted, spent = None, float("nan")
+    if identity_fitter is not None and "fitted" in modes:
+        t = time.perf_counter()
+        fitted = identity_fitter(target)
+        spent = time.perf_counter() - t
+    rig_fitted = getattr(fitted, "rig", fitted)
+    for mode, rig in _rigs(model, case, modes, rig_fitted).items():
         for spec in specs:
             try:
                 r, dt = _fit(spec, rig, target, region)
             except FacegeomError:  # a method that does not fit this kind of target (eos: landmarks only)
                 continue
             yield mode, rig, spec, r, dt
+    if hasattr(fitted, "fit_result"):
+        yield "fitted", rig_fitted, _JOINT_SPEC, fitted.fit_result(0), spent
 
 
 FIT_LANDMARKS_40 = tuple(range(17)) + tuple(FIT_LANDMARKS_23)
@@ -152,7 +173,7 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
     specs : list of MethodSpec
     modes : sequence of str
         Identity modes (:data:`IDENTITY_MODES`); ``fitted`` needs ``identity_fitter``.
-    identity_fitter : callable(LandmarkTarget) -> BlendshapeRig, optional
+    identity_fitter : callable(LandmarkTarget) -> BlendshapeRig or IdentityFit, optional
         Fits the person's identity from the target itself.
     progress : bool
 
@@ -197,7 +218,7 @@ def coverage(model, case) -> np.ndarray:
 def run_meshes(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, progress=True):
     """Fit every case's true face plus 0.5 mm noise, observed on a partial region (weights 0 elsewhere).
 
-    ``identity_fitter``: callable(MeshTarget) -> BlendshapeRig for the ``fitted`` mode.
+    ``identity_fitter``: callable(MeshTarget) -> BlendshapeRig or IdentityFit for the ``fitted`` mode.
     Returns rows as :func:`run_landmarks` (without ``ne_eval``), plus ``seen`` (observed fraction of the face area).
     """
     rng = np.random.default_rng(7320)
@@ -216,7 +237,7 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
                progress=True):
     """Fit ``points`` noisy surface samples (0.5 mm) of the observed part of every case's face.
 
-    ``identity_fitter``: callable(PointCloudTarget) -> BlendshapeRig for the ``fitted`` mode.
+    ``identity_fitter``: callable(PointCloudTarget) -> BlendshapeRig or IdentityFit for the ``fitted`` mode.
     Fitters with a ``region`` parameter match the face area. Rows as :func:`run_meshes`,
     plus ``identity_ms`` (the identity fit's time, ``fitted`` rows; else NaN).
     """
@@ -228,9 +249,9 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
 
     def timed(target):
         t = time.perf_counter()
-        rig = identity_fitter(target)
+        fitted = identity_fitter(target)
         spent["s"] = time.perf_counter() - t
-        return rig
+        return fitted
 
     for ci, c in enumerate(progress_bar(cases, "realistic clouds", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
@@ -250,13 +271,15 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
 def identity_fitters(model) -> dict:
     """The ``fitted`` identity mode: :class:`~facegeom.methods.identity.IdentityFitter` (defaults) per target kind.
 
-    Each returns the user-specific rig fitted from the target itself (identity,
-    expression and pose jointly; the expression methods then fit that rig).
+    Each returns the :class:`~facegeom.methods.identity.IdentityFit` of the
+    target itself (identity, expression and pose jointly): the expression
+    methods then fit its user-specific rig, and its own expression is the
+    :data:`JOINT` row.
     """
     from facegeom.methods.identity import IdentityFitter
 
     def fit(target):
-        return IdentityFitter().fit(model, [target]).rig
+        return IdentityFitter().fit(model, [target])
 
     return {"landmarks": fit, "meshes": fit, "clouds": fit}
 
@@ -282,7 +305,7 @@ def summarize(results: dict, specs) -> str:
     The first column of each block is the identity the rig was built with; within a
     mode the best vertex error is the one to beat.
     """
-    labels = [s.label for s in specs]
+    labels = [s.label for s in specs] + [JOINT]  # the joint row shows only where an identity fitter gave it
     parts = []
     for ex in ("landmarks", "meshes", "clouds"):
         rows = results.get(ex)
@@ -322,7 +345,7 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
         Cases (the clouds use the first ``cloud_cases``).
     seed : int
     report : facegeom.bench.report.Report
-    identity_fitters : dict kind -> callable(target) -> BlendshapeRig, optional
+    identity_fitters : dict kind -> callable(target) -> BlendshapeRig or IdentityFit, optional
         Identity fitters per experiment (``landmarks``, ``meshes``, ``clouds``)
         for the ``fitted`` identity mode.
     echo, progress
