@@ -574,10 +574,11 @@ class TangentRetargeter(Params):
         The noise the weight was chosen with (after the safety factor), or
         ``None`` (leave-one-label-out).
 
-    The three ``"auto"`` defaults are what makes the method degrade gracefully
+    The ``"auto"`` defaults are what makes the method degrade gracefully
     with noisy labels and noisy source markers (``facegeom bench noise``); on
-    noise-free synthetic data the exact configuration (``beta=None, ridge=1e-4,
-    source_smoothing=0``) is slightly more accurate.
+    noise-free data the exact configuration (``beta=None, ridge=1e-4,
+    source_smoothing=0``) is about as accurate (within 4 % either way on the
+    clean runs of ``facegeom bench retarget``, seed 0, 10 and 20 labels).
     """
 
     def __init__(self, strategy: str = "frame", window: int = 3, d: int = 3, beta: float | str | None = "auto",
