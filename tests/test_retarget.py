@@ -371,7 +371,7 @@ def test_shared_selection_is_one_candidate_and_never_beats_the_per_marker_choice
 
 
 def test_select_is_checked_and_shared_helps_with_noisy_labels():
-    """select must be 'shared' or 'marker'; on noisy labels the shared choice is not worse on held-out frames."""
+    """select must be 'auto', 'shared' or 'marker'; with noisy labels the shared choice is not worse on new frames."""
     with pytest.raises(InputError, match="select"):
         TangentRetargeter(select="per-marker")
     rng = np.random.default_rng(7)
@@ -453,7 +453,7 @@ def test_known_exact_labels_are_reproduced():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_label_noise_auto_is_never_worse_than_leave_one_out_and_smooths_noisy_labels(seed):
     """Clean labels: estimated noise ~0 and no worse than the leave-one-out rule; noisy: estimated within 30 % of
-    1.5 sigma, the labels smoothed (not copied), and no worse than the leave-one-out rule."""
+    1.5 sigma, the labels smoothed (not copied), and no worse than the leave-one-out rule (same selection rule)."""
     rng = np.random.default_rng(seed)
     S, Y_true = coherent_sequence(seed=seed)
     motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
@@ -462,15 +462,15 @@ def test_label_noise_auto_is_never_worse_than_leave_one_out_and_smooths_noisy_la
     def err(r):
         return np.linalg.norm(r.result_ - Y_true, axis=2).mean()
 
-    clean = TangentRetargeter().fit(S, lab, Y_true[lab])
+    clean = TangentRetargeter(select="marker").fit(S, lab, Y_true[lab])
     assert clean.label_noise_ < 1e-2 * motion
-    assert err(clean) <= 1.001 * err(TangentRetargeter(label_noise=None).fit(S, lab, Y_true[lab]))
+    assert err(clean) <= 1.001 * err(TangentRetargeter(label_noise=None, select="marker").fit(S, lab, Y_true[lab]))
     sigma = 0.03 * motion
     Yh = Y_true[lab] + rng.normal(size=(10,) + Y_true.shape[1:]) * sigma
-    noisy = TangentRetargeter().fit(S, lab, Yh)
+    noisy = TangentRetargeter(select="marker").fit(S, lab, Yh)
     assert abs(noisy.label_noise_ / (LABEL_NOISE_SAFETY * sigma) - 1) < 0.3
     assert np.linalg.norm(noisy.result_[lab] - Yh, axis=2).mean() > 0.5 * sigma  # the noise is not copied
-    assert err(noisy) <= 1.001 * err(TangentRetargeter(label_noise=None).fit(S, lab, Yh))
+    assert err(noisy) <= 1.001 * err(TangentRetargeter(label_noise=None, select="marker").fit(S, lab, Yh))
 
 
 def test_frame_kernel_learns_what_one_marker_cannot_see():
@@ -517,4 +517,18 @@ def test_frame_kernel_is_used_for_clean_labels_only(seed, monkeypatch):
     TangentRetargeter().fit(S, lab, Yh)
     TangentRetargeter(label_noise=None).fit(S, lab, Y_true[lab])
     assert not calls, "noisy labels, or no noise model: never"
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_select_auto_is_per_marker_for_clean_labels_and_shared_for_noisy_ones(seed):
+    rng = np.random.default_rng(seed)
+    S, Y_true = coherent_sequence(seed=seed)
+    motion = np.linalg.norm(Y_true - Y_true.mean(axis=0), axis=2).mean()
+    lab = np.sort(rng.choice(100, 10, replace=False))
+    Yh = Y_true[lab] + rng.normal(size=(10,) + Y_true.shape[1:]) * 0.03 * motion
+    for labels, rule in ((Y_true[lab], "marker"), (Yh, "shared")):
+        auto = TangentRetargeter().fit(S, lab, labels)
+        assert auto.select_ == rule
+        assert np.array_equal(auto.result_, TangentRetargeter(select=rule).fit(S, lab, labels).result_)
+    assert TangentRetargeter(label_noise=None).fit(S, lab, Yh).select_ == "marker"  # no noise model: as before
 

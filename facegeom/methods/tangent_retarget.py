@@ -412,12 +412,13 @@ def marker_kernel_fit(S, lab, residual, loo_base, widths=KERNEL_WIDTHS, ridges=K
     return out, best_loo.transpose(1, 0, 2)
 
 
-#: The whole-frame kernel correction (:func:`frame_kernel_fit`) is added only when the labels' noise variance is
-#: below this fraction of the base map's held-out residual energy (the residual is then mostly the map's error, which
-#: a kernel of the whole frame can learn; noise it would partly fit). On the realistic protocol (seed 0) clean
-#: sequences measure 0.00-0.03 and those with 0.2 mm noise 0.9-1.07; with 0.1 every noisy fit of seeds 0 and 3 stays
-#: as without the correction, 0.3 already let some through (1.3 % worse at 10 noisy labels).
-FRAME_KERNEL_MAX_NOISE = 0.1
+#: Labels count as clean when their noise variance is below this fraction of the base map's held-out residual
+#: energy (the residual is then mostly the map's error). Clean labels get the whole-frame kernel correction
+#: (:func:`frame_kernel_fit`, which noise would partly fit) and, with ``select="auto"``, the per-marker choice of
+#: the maps' ridges and kernels; other labels the shared choice. On the realistic protocol (seed 0) clean sequences
+#: measure 0.00-0.03 and those with 0.2 mm noise 0.9-1.07; with 0.1 every noisy fit of seeds 0 and 3 stayed without
+#: the whole-frame correction, 0.3 already let some through (1.3 % worse at 10 noisy labels).
+CLEAN_LABELS_MAX_NOISE = 0.1
 
 
 def frame_kernel_fit(S, lab, residual, loo_base, widths=KERNEL_WIDTHS, ridges=KERNEL_RIDGES, shared: bool = False):
@@ -540,15 +541,19 @@ class TangentRetargeter(Params):
         the face-wide one; the prior and ridge are chosen per marker by
         leave-one-label-out error. Off by default: on ``facegeom bench
         retarget`` it did not beat the face-wide prior consistently.
-    select : {"shared", "marker"}
-        How the ``"auto"`` ridge of the affine maps and the kernel correction's
-        width and ridge are chosen by leave-one-label-out error: one candidate
+    select : {"auto", "shared", "marker"}
+        How the ``"auto"`` ridge of the affine maps and the kernel corrections'
+        widths and ridges are chosen by leave-one-label-out error: one candidate
         for all markers by the summed error (``"shared"``), or one per marker
-        (``"marker"``, default). A per-marker choice among many candidates from
-        few noisy labels partly fits each marker's own label noise, so
-        ``"shared"`` is 1-6 % better with 0.2 mm noise at 10 labels and
-        11-19 % at 5 (``facegeom bench retarget``, seeds 0-3), but it loses
-        clean accuracy (up to 25 % with evenly spread labels), so it is off.
+        (``"marker"``). A per-marker choice among many candidates from few
+        noisy labels partly fits each marker's own label noise, so
+        ``"shared"`` is better with noise (0.2 mm: 1-6 % at 10 labels, 11-19 %
+        at 5; ``facegeom bench retarget``, seeds 0-3) but loses clean accuracy
+        (up to 25 % with evenly spread labels). ``"auto"`` (default): the
+        per-marker choice for labels that look clean
+        (:data:`CLEAN_LABELS_MAX_NOISE`, judged on a per-marker fit to the
+        capture as given), the shared one otherwise; with ``label_noise=None``
+        always per marker.
     label_noise : "auto", float or None
         The labels' noise (standard deviation per coordinate, the data's units)
         that ``beta="auto"`` weighs the labels by (Stein's unbiased risk, see
@@ -559,7 +564,7 @@ class TangentRetargeter(Params):
         model, ``beta`` by leave-one-label-out prediction alone (before issue
         19's fourth pass; it cannot see that clean labels are best reproduced,
         and lost 5-10 % on clean data). Labels whose noise is small against
-        the base map's held-out error (:data:`FRAME_KERNEL_MAX_NOISE`) also get
+        the base map's held-out error (:data:`CLEAN_LABELS_MAX_NOISE`) also get
         the whole-frame kernel correction (:func:`frame_kernel_fit`; with
         ``kernel=True``). Without an affine base map (``field`` other than
         ``"affine"``) ``"auto"`` is ``None``.
@@ -573,6 +578,8 @@ class TangentRetargeter(Params):
     label_noise_ : float or None
         The noise the weight was chosen with (after the safety factor), or
         ``None`` (leave-one-label-out).
+    select_ : str
+        The selection rule used (``"marker"`` or ``"shared"``).
 
     The ``"auto"`` defaults are what makes the method degrade gracefully
     with noisy labels and noisy source markers (``facegeom bench noise``); on
@@ -584,7 +591,7 @@ class TangentRetargeter(Params):
     def __init__(self, strategy: str = "frame", window: int = 3, d: int = 3, beta: float | str | None = "auto",
                  field: str = "affine", smoothness: float = 0.1, rank_tol: float = 1e-6,
                  ridge: float | str = "auto", source_smoothing: float | str = "auto", kernel: bool = True,
-                 pool: bool = False, select: str = "marker", label_noise: float | str | None = "auto"):
+                 pool: bool = False, select: str = "auto", label_noise: float | str | None = "auto"):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
         if not is_integer(window) or window < 1:
@@ -614,8 +621,8 @@ class TangentRetargeter(Params):
         if not isinstance(pool, (bool, np.bool_)):
             raise InputError(f"pool must be true or false, got {pool!r}")
         self.pool = bool(pool)
-        if select not in ("shared", "marker"):
-            raise InputError(f"select must be 'shared' or 'marker', got {select!r}")
+        if select not in ("auto", "shared", "marker"):
+            raise InputError(f"select must be 'auto', 'shared' or 'marker', got {select!r}")
         self.select = select
         if label_noise is not None and label_noise != "auto" and (
                 isinstance(label_noise, str) or not is_finite_number(label_noise) or label_noise < 0):
@@ -665,6 +672,12 @@ class TangentRetargeter(Params):
         """
         S, lab, Yh = check_retarget_inputs(source, labelled_frames, target_labels)
         T, p, _ = S.shape
+        self.select_ = self.select
+        if self.select == "auto":  # per marker for clean labels, shared for noisy ones: judged on the capture as given
+            self.select_ = "marker"
+            if self.field == "affine" and self.label_noise is not None:
+                if not self._labels_clean(self._base_map(S, lab, Yh, shared=False)[1], Yh):
+                    self.select_ = "shared"
         self.source_smoothing_ = 0.0
         fitted = None
         if self.source_smoothing == "auto" and self.field == "affine":
@@ -723,28 +736,36 @@ class TangentRetargeter(Params):
         self.result_ = np.ascontiguousarray(Y)
         return self
 
-    def _base_map(self, S, lab, Yh):
-        """The per-marker base map (affine, plus the kernel correction when asked) and its leave-one-out residuals."""
+    def _base_map(self, S, lab, Yh, shared: bool | None = None):
+        """The per-marker base map (affine, plus the kernel correction when asked) and its leave-one-out residuals.
+
+        ``shared``: the selection rule (default: the one :meth:`fit` chose, ``select_``).
+        """
+        shared = getattr(self, "select_", self.select) == "shared" if shared is None else shared
         base, loo = marker_affine_fit(S, lab, Yh, self.ridge, return_loo=True,
-                                      pool=POOL_SIZES if self.pool else (), shared=self.select == "shared")
+                                      pool=POOL_SIZES if self.pool else (), shared=shared)
         if self.kernel:
-            corr, loo = marker_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select == "shared")
+            corr, loo = marker_kernel_fit(S, lab, Yh - base[lab], loo, shared=shared)
             base = base + corr
         return base, loo
 
     def _frame_correction(self, S, lab, Yh, base, loo):
-        """The whole-frame kernel correction of the base map, for clean labels only (:data:`FRAME_KERNEL_MAX_NOISE`).
+        """The whole-frame kernel correction of the base map, for clean labels only (:data:`CLEAN_LABELS_MAX_NOISE`).
 
         Applied once, on the source the labels chose: inside that choice its
         flexible fit made smoothed sources look better than they were.
         """
+        if not self.kernel or not self._labels_clean(loo, Yh):
+            return base, loo
+        corr, loo = frame_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select_ == "shared")
+        return base + corr, loo
+
+    def _labels_clean(self, loo, Yh) -> bool:
+        """Whether the labels' noise (``label_noise``, or estimated) is small against the held-out residuals ``loo``."""
         noise = self.label_noise
         if noise == "auto":
             noise = label_noise_estimate(loo, Yh.mean(axis=0))
-        if not self.kernel or noise is None or not noise ** 2 < FRAME_KERNEL_MAX_NOISE * float((loo ** 2).mean()):
-            return base, loo
-        corr, loo = frame_kernel_fit(S, lab, Yh - base[lab], loo, shared=self.select == "shared")
-        return base + corr, loo
+        return noise is not None and bool(noise ** 2 < CLEAN_LABELS_MAX_NOISE * float((loo ** 2).mean()))
 
     def _choose_smoothing(self, S, lab, Yh):
         """Source smoothing chosen by the labels: none, a tenth of the GCV weight, or the GCV weight.
