@@ -47,6 +47,7 @@ LAYERS: dict[str, int] = {
     "facegeom.geometry": 2,
     "facegeom.linalg": 2,
     "facegeom.metrics": 2,
+    "facegeom.registration": 2,
     "facegeom.model": 3,
     "facegeom.methods": 4,
     "facegeom.baselines": 4,

@@ -1,11 +1,9 @@
 """Identity fitting from partial, noisy point clouds (facegeom.methods.identity, issue 18 §1(d))."""
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from facegeom.constants import FACE_AREA
-from facegeom.methods.identity import IdentityFitter, _trim
+from facegeom.methods.identity import IdentityFitter
 from facegeom.model import PointCloudTarget
 
 
@@ -90,39 +88,6 @@ def test_scan_side_does_not_matter(face_model, scan):
     assert max(errs) < 0.85 * generic
 
 
-@settings(max_examples=40, deadline=None)
-@given(d=st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=8, max_size=60), k=st.integers(-8, 8))
-def test_trim_keeps_the_median_and_is_scale_free(d, k):
-    """Property: at least half the pairs are kept, the nearest always, and a change of unit changes nothing.
-
-    (Scaled by a power of two, so the scaling is exact in floating point; a
-    zero spread has an absolute floor, so it is left out of the unit check.)
-    """
-    d = np.asarray(d)
-    keep = _trim(d)
-    assert keep.sum() >= (d.size + 1) // 2
-    assert keep[np.argmin(d)]
-    if np.median(np.abs(d - np.median(d))) > 0:
-        assert np.array_equal(_trim(d * 2.0 ** k), keep)
-
-
-@settings(max_examples=30, deadline=None)
-@given(n=st.integers(8, 200), far=st.floats(50.0, 1e6), seed=st.integers(0, 2**16))
-def test_trim_drops_a_far_outlier(n, far, seed):
-    """Property: one distance far beyond a noisy bulk is dropped, the bulk's median kept."""
-    rng = np.random.default_rng(seed)
-    d = np.abs(rng.normal(1.0, 0.1, n))
-    d[0] = far
-    keep = _trim(d)
-    assert not keep[0]
-    assert keep[np.argsort(d)[n // 2]]
-
-
-def test_trim_few_pairs_keeps_all():
-    """Too few pairs for a spread: nothing is dropped."""
-    assert _trim(np.array([0.1, 5.0, 100.0])).all()
-
-
 def test_partial_scan_off_the_model_frame(face_model, scan):
     """A partial scan turned by 10 degrees and moved by 6 mm: the rigid alignment first keeps the identity good.
 
@@ -140,3 +105,26 @@ def test_partial_scan_off_the_model_frame(face_model, scan):
     truth = face_model.face(a)
     assert face_mm(fit.rig.neutral, truth) < 0.8 * face_mm(face_model.face(), truth)
     assert np.degrees(np.arccos(np.clip((np.trace(fit.rotations[0].T @ R) - 1) / 2, -1, 1))) < 4.0
+
+
+def test_partial_scan_in_any_orientation(face_model, scan):
+    """A partial scan turned by 150 degrees and moved by 40 cm: the global rigid search finds the pose.
+
+    (The former local ICP from the model frame lost turns of 20 degrees and
+    more; the fit then explained the turn with the identity.) This case (an
+    open jaw, a fifth hidden) is hard: the neutral ends 3.5 mm from the
+    person's, 3.0 when the scan is given in the model's frame, 1.8 turned by
+    10 degrees, 2.6 by 40; the generic neutral is 3.7 mm away. The fit's
+    outcome depends on its start, and the test asks what holds from any.
+    """
+    from scipy.spatial.transform import Rotation
+
+    a, w, V, _ = scan
+    P = partial_scan(face_model, V, np.random.default_rng(6), strip=0.2)
+    R = Rotation.from_euler("xyz", [150.0, -30.0, 60.0], degrees=True).as_matrix()
+    T = np.array([40.0, -12.0, 25.0])
+    fit = IdentityFitter().fit(face_model, PointCloudTarget(P @ R.T + T))
+    truth = face_model.face(a)
+    assert np.degrees(np.arccos(np.clip((np.trace(fit.rotations[0].T @ R) - 1) / 2, -1, 1))) < 4.0
+    assert face_mm(fit.rig.neutral, truth) < face_mm(face_model.face(), truth)
+    assert face_mm(fit.posed_vertices(), V @ R.T + T) < face_mm(face_model.face(), V)

@@ -22,17 +22,41 @@ TARGET_HELP = ("What the TARGETS are: meshes in correspondence with the model, l
                "point clouds (auto: .csv = landmarks, a mesh with the model's vertex count = mesh, else points).")
 
 
-def read_targets(paths, model, kind="auto", focal=None, cx=None, cy=None):
-    """Read every target file for ``model`` (as ``facegeom fit`` reads one) -> ``(kinds, targets)``."""
+SCALE_HELP = ("Meshes and point clouds: the factor into the model's units (cm), or auto: the power of ten that "
+              "makes the scan face-sized (a scan in mm gets 0.1).")
+
+
+def read_targets(paths, model, kind="auto", focal=None, cx=None, cy=None, scale="auto"):
+    """Read every target file for ``model`` (as ``facegeom fit`` reads one) -> ``(kinds, targets)``.
+
+    Says on the terminal when a scan was rescaled into the model's units.
+    """
     from facegeom.model import BlendshapeRig, read_fit_target
 
     rig = BlendshapeRig.from_face_model(model)
-    kinds, targets = [], []
+    kinds, targets, notes = [], [], []
     for p in paths:
-        k, t = read_fit_target(Path(p), rig, kind, focal, cx, cy)
+        k, t = read_fit_target(Path(p), rig, kind, focal, cx, cy, scale, notes)
         kinds.append(k)
         targets.append(t)
+    for line in notes:
+        click.echo(line)
     return kinds, targets
+
+
+def parse_scale(value: str):
+    """``--scale``: ``auto`` or a positive number."""
+    from facegeom.errors import InputError
+
+    if value == "auto":
+        return value
+    try:
+        f = float(value)
+    except ValueError:
+        f = float("nan")
+    if not (f > 0 and f < float("inf")):
+        raise InputError(f"--scale must be auto or a positive number, got {value!r}")
+    return f
 
 
 def write_rig(rig, path) -> Path:
@@ -95,6 +119,7 @@ def write_coefficients(path, fit, names, files) -> Path:
 @click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
 @click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
 @click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("--scale", default="auto", show_default=True, help=SCALE_HELP)
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
               help="Identity fitter parameter, repeatable (e.g. -p noise_px=2 -p n_identities=50).")
 @click.option("--coefficients", type=click.Path(dir_okay=False), default=None,
@@ -102,7 +127,7 @@ def write_coefficients(path, fit, names, files) -> Path:
 @click.option("--with-expressions", is_flag=True,
               help="The targets are not neutral: fit an expression per target too (default: neutral frames).")
 @click.pass_obj
-def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coefficients, with_expressions):
+def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, scale, params, coefficients, with_expressions):
     """Fit one identity to TARGETS (neutral frames of one person) and write the user-specific rig.
 
     Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
@@ -115,7 +140,7 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coe
     if coefficients and Path(coefficients).suffix.lower() != ".json":
         raise InputError("the coefficients file must be .json", coefficients)
     model = obj.face_model()
-    kinds, tgs = read_targets(targets, model, kind, focal, cx, cy)
+    kinds, tgs = read_targets(targets, model, kind, focal, cx, cy, parse_scale(scale))
     fitter = IdentityFitter(**{"expressions": with_expressions, **parse_params(params)})
     fit = fitter.fit(model, tgs)
     write_rig(fit.rig, output)
@@ -129,7 +154,8 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, params, coe
         click.echo(f"  {Path(f).name:<24} {k:<9} rms {rms:.3g} {'px' if k == 'landmarks' else 'mm'}")
 
 
-def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, method, method_params, explicit_method):
+def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, method, method_params, explicit_method,
+                        scale="auto"):
     """``facegeom fit --identity``: identity + expression for one target.
 
     Returns ``(outcome, rig, label)``: a :class:`~facegeom.pipelines.single.FitOutcome`
@@ -140,19 +166,26 @@ def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, metho
 
     from facegeom import registry
     from facegeom.methods.identity import IdentityFitter
+    from facegeom.model import PointCloudTarget
     from facegeom.pipelines.single import FitOutcome
+    from facegeom.registration import RigidAlignment
 
     model = obj.face_model()
-    (k,), (tg,) = read_targets([target], model, kind, focal, cx, cy)
+    (k,), (tg,) = read_targets([target], model, kind, focal, cx, cy, scale)
     fitter = IdentityFitter(**parse_params(params))
     t = time.perf_counter()
     fit = fitter.fit(model, tg)
     rig = fit.rig
+    pose = fit.cameras[0]
+    if k != "landmarks":  # model -> scan
+        pose = RigidAlignment(fit.rotations[0], fit.translations[0])
     if explicit_method:
         m = registry.create("fitters", method, **method_params)
+        if k == "points":  # the refit sees the scan in the model's frame, where the identity fit posed it
+            tg = PointCloudTarget((tg.points - pose.t) @ pose.R, None if tg.normals is None else tg.normals @ pose.R)
         r = m.fit(rig, tg)
-        cam = r.info.get("camera")
+        cam = r.info.get("camera") if k == "landmarks" else pose
         out = FitOutcome(k, r.weights, cam, r.vertices, time.perf_counter() - t)
         return out, rig, f"identity+{method}"
-    out = FitOutcome(k, fit.weights[0], fit.cameras[0], fit.vertices(0), time.perf_counter() - t)
+    out = FitOutcome(k, fit.weights[0], pose, fit.vertices(0), time.perf_counter() - t)
     return out, rig, "identity"

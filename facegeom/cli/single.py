@@ -139,12 +139,17 @@ def retarget(source, labels, output, method, params, fill_gaps):
               help="With --identity: identity fitter parameter, repeatable (e.g. --id-param noise_px=2).")
 @click.option("--rig-out", type=click.Path(), default=None,
               help="With --identity: write the user-specific rig (.npz or a new OBJ folder).")
+@click.option("--scale", default="auto", show_default=True,
+              help="Meshes and point clouds: the factor into the rig's units, or auto: the power of ten that makes "
+                   "the scan the size of the rig's face (a scan in mm for the ICT rig in cm gets 0.1).")
 @click.pass_context
-def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out, identity, id_params, rig_out):
+def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out, identity, id_params, rig_out,
+        scale):
     """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
     import numpy as np
 
     from facegeom import registry
+    from facegeom.cli.identity import parse_scale
     from facegeom.io import all_or_nothing, check_outputs, write_mesh
     from facegeom.model import load_rig
     from facegeom.pipelines.single import fit_file, write_fit
@@ -152,6 +157,7 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh
     obj: Context = ctx.obj
     check_outputs([target, rig_path], [output, mesh_out, rig_out])
     tp = Path(target)
+    scale = parse_scale(scale)
     if identity or rig_out or id_params:
         from facegeom.cli.identity import fit_identity_target, write_rig
         from facegeom.errors import InputError
@@ -162,12 +168,15 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh
             raise InputError("--identity fits the rig from the face model: drop --rig")
         explicit = ctx.get_parameter_source("method") != click.core.ParameterSource.DEFAULT
         r, rig, method = fit_identity_target(obj, tp, kind, focal, cx, cy, id_params, method, parse_params(params),
-                                             explicit)
+                                             explicit, scale)
         if rig_out:
             write_rig(rig, rig_out)
     else:
         rig = load_rig(rig_path, obj.face_model)
-        r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy)
+        r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy,
+                     scale)
+        for line in r.notes:
+            click.echo(line)
     active = r.active
     with all_or_nothing([output] + ([mesh_out] if mesh_out else [])) as tmps:  # the weights and the mesh, or neither
         write_fit(tmps[0], rig.names, r, method, str(tp), time_s=r.seconds)

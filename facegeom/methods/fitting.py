@@ -28,7 +28,11 @@ from facegeom.model import (
     estimate_poses,
 )
 
-__all__ = ["check_fit_inputs", "fit_with_pose", "fit_with_poses", "result"]
+__all__ = ["align_scan", "check_fit_inputs", "fit_with_pose", "fit_with_poses", "result"]
+
+#: A scan is off the rig's frame when the rig face's median closest-point distance to it exceeds this fraction
+#: of the face's RMS radius (ICT: 5 mm of 58.6 mm; in-frame scans of random people lie 2.2-2.6 mm away).
+OFF_FRAME = 0.085
 
 TARGETS = (MeshTarget, LandmarkTarget, PointCloudTarget)
 
@@ -81,6 +85,32 @@ def fit_with_poses(rig: BlendshapeRig, ids: np.ndarray, points2d: np.ndarray, in
         w = solve(R, t)
         R, t = estimate_poses(base[None] + np.tensordot(w, deltas, 1), points2d, *intrinsics, R0=R, t0=t)
     return solve(R, t), R, t
+
+
+def align_scan(rig: BlendshapeRig, target: PointCloudTarget):
+    """A scan in the rig's frame -> ``(target, alignment or None)``.
+
+    When the rig's face (:func:`~facegeom.model.face_template`) lies farther
+    from the scan than ``OFF_FRAME`` of its size (median closest-point
+    distance), the scan is off the frame (exported by another tool: turned,
+    moved): the face is posed on it by a global rigid search
+    (:func:`~facegeom.registration.align_rigid`) and the scan is brought back,
+    ``R^T (p - t)``; the alignment (``x -> R x + t``, rig -> scan) is returned
+    with it. Otherwise the target is returned as it is with None. The scan
+    must be in the rig's units (:func:`~facegeom.model.scan_scale`).
+    """
+    from scipy.spatial import cKDTree
+
+    from facegeom.model import face_template
+    from facegeom.registration import align_rigid
+
+    F = face_template(rig)
+    size = float(np.sqrt(((F - F.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    if np.median(cKDTree(target.points).query(F)[0]) <= OFF_FRAME * size:
+        return target, None
+    found = align_rigid(F, target.points)
+    normals = None if target.normals is None else target.normals @ found.R
+    return PointCloudTarget((target.points - found.t) @ found.R, normals), found
 
 
 def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, minimum: int = 6) -> np.ndarray:

@@ -191,6 +191,7 @@ from facegeom.model import (
     PointCloudTarget,
     estimate_pose,
 )
+from facegeom.registration import align_rigid, kabsch, trim_outliers
 
 __all__ = ["IdentityFit", "IdentityFitter", "expression_statistics", "fit_identity"]
 
@@ -203,8 +204,6 @@ DOF_SCALE_MAX = 16.0  # identity_scale="dof": the largest factor (the GCV grid's
 STATS_FLOOR = 1e-3  # expression_statistics: variance added to every weight (a std of ~0.03)
 NOISE_FLOOR = 0.5  # estimate_noise: the landmark sigma re-estimated is at least this fraction of noise_px
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
-CLOUD_TRIM_MADS = 3.0  # point clouds: pairs farther than median + this many (scaled) MADs are dropped
-CLOUD_RIGID_ROUNDS = 50  # point clouds off the model frame: rigid ICP rounds at most before the shape rounds
 CLOUD_ALIGN_MM = 5.0  # point clouds: a median closest-point distance of the mean face above this is off the frame
 CLOUD_SIGMA_DECAY = 0.9  # point clouds: sigma's factor per round, from CLOUD_SIGMA0_MM down to noise_mm
 
@@ -285,18 +284,6 @@ class IdentityFit:
         """Per target ``{"kind", "R", "t"}`` as lists (for JSON)."""
         return [{"kind": k, "R": R.tolist(), "t": t.tolist()}
                 for k, R, t in zip(self.kinds, self.rotations, self.translations)]
-
-
-def _kabsch(X, Y, w=None):
-    """Rotation ``R`` and ``t`` minimising ``sum_j w_j |R X_j + t - Y_j|^2`` (``X, Y (m, 3)``)."""
-    w = np.ones(len(X)) if w is None else w
-    s = w.sum()
-    cx, cy = (w @ X) / s, (w @ Y) / s
-    C = ((X - cx) * w[:, None]).T @ (Y - cy)
-    U, _, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return R, cy - R @ cx
 
 
 def _box_qp(H, g, n_free):
@@ -616,15 +603,6 @@ def _skew(y):
     return S
 
 
-def _trim(d):
-    """Inliers among distances ``d``: at most the median plus ``CLOUD_TRIM_MADS`` scaled MADs (all if too few)."""
-    if d.size < 8:
-        return np.ones(d.size, dtype=bool)
-    med = float(np.median(d))
-    mad = 1.4826 * float(np.median(np.abs(d - med)))
-    return d <= med + CLOUD_TRIM_MADS * max(mad, 1e-12)
-
-
 class _State:
     """Per-fit bookkeeping: the targets' linear systems, poses and correspondences.
 
@@ -729,39 +707,35 @@ class _State:
                         self._rigid_icp(x, k)
                     self._match(x, k)
                 elif self.f.rigid:
-                    self.R[k], self.t[k] = _kabsch(self._face3d(x, k), self._data3d(k), self.sub[k][3])
+                    self.R[k], self.t[k] = kabsch(self._face3d(x, k), self._data3d(k), self.sub[k][3])
 
     def _rigid_icp(self, x, k):
-        """Cloud ``k`` off the model frame: first the pose of the face at ``x`` alone, by trimmed rigid ICP.
+        """Cloud ``k`` off the model frame: first the pose of the face at ``x`` alone, by a global rigid search.
 
         Only when the face's median closest-point distance to the scan exceeds
         ``CLOUD_ALIGN_MM`` (the mean face lies 2.2-2.6 mm from in-frame scans of
         random people; 6 mm for one turned by 10 degrees and moved by 6 mm):
         the shape rounds then explained the pose with the identity (a 15 %-strip
-        scan turned by 10 degrees: neutral 6.4 mm from the person's; with this
-        step 2.2, in the frame 2.3). In the frame it is skipped: aligning the
-        mean face rigidly first made the bench's in-frame scans worse (seed 0,
-        sem-ls on the fitted rig 1.85 -> 2.60 mm), since the mean face's best
-        pose is not the person's. At most ``CLOUD_RIGID_ROUNDS`` rounds (Kabsch on
-        the kept pairs of both directions, :func:`_trim`), until the pairs no
-        longer change. Turns of 20 degrees and more stay out of reach.
+        scan turned by 10 degrees: neutral 6.4 mm from the person's; with a
+        rigid step first 2.2, in the frame 2.3). In the frame it is skipped:
+        aligning the mean face rigidly first made the bench's in-frame scans
+        worse (seed 0, sem-ls on the fitted rig 1.85 -> 2.60 mm), since the mean
+        face's best pose is not the person's. The search
+        (:func:`~facegeom.registration.align_rigid`: trimmed ICP from 60
+        rotations) finds scans in any orientation; the former local ICP from
+        the model frame lost turns of 20 degrees and more. Tried and not kept:
+        the search on the face's stable half only (the vertices the
+        expressions move least, as the first landmark pose): the forehead and
+        cheeks alone do not pin the pose (8 partial scans in random
+        orientations, sparse expressions: median pose error 25 degrees against
+        1.3 with the whole face area).
         """
         tg = self.targets[k]
         F0 = self._face3d(x, k)
-        Q = tg.points[self.samples[k]]
-        prev = None
         if np.median(self.trees[k].query(F0 @ self.R[k].T + self.t[k])[0]) * CM_TO_MM <= CLOUD_ALIGN_MM:
             return
-        for _ in range(CLOUD_RIGID_ROUNDS):
-            F = F0 @ self.R[k].T + self.t[k]
-            d, j = self.trees[k].query(F)
-            v = _trim(d)
-            d2, i = cKDTree(F).query(Q)
-            ok = _trim(d2)
-            if prev is not None and np.array_equal(j, prev[0]) and np.array_equal(i, prev[1]):
-                break
-            prev = (j, i)
-            self.R[k], self.t[k] = _kabsch(np.r_[F0[v], F0[i[ok]]], np.r_[tg.points[j[v]], Q[ok]])
+        found = align_rigid(F0, tg.points)
+        self.R[k], self.t[k] = found.R, found.t
 
     def _match(self, x, k):
         """Trimmed symmetric closest points of cloud ``k``, folded into one weighted target per region vertex.
@@ -773,7 +747,7 @@ class _State:
         quadratic as a mesh target at ``(v_j p_j + s c_j Ybar_j) / (v_j + s c_j)``
         with weight ``v_j + s c_j``. The second direction keeps the face from
         shrinking onto part of the scan. Pairs of either direction whose
-        distance is an outlier (:func:`_trim`) are dropped: on a partial scan
+        distance is an outlier (:func:`~facegeom.registration.trim_outliers`) are dropped: on a partial scan
         (a side hidden, the scan cropped) the unseen part of the face was
         pulled onto the scan's edge, which turned and shifted the face, and the
         identity followed it (see :meth:`anneal`). Also keeps ``spread[k]``, the
@@ -782,11 +756,11 @@ class _State:
         tg = self.targets[k]
         F = self._face3d(x, k) @ self.R[k].T + self.t[k]
         dist, j = self.trees[k].query(F)
-        v = _trim(dist).astype(np.float64)
+        v = trim_outliers(dist).astype(np.float64)
         sub = self.samples[k]
         Q = tg.points[sub]
         d2, i = cKDTree(F).query(Q)
-        ok = _trim(d2)
+        ok = trim_outliers(d2)
         m = F.shape[0]
         c = np.bincount(i[ok], minlength=m).astype(np.float64)
         S = np.zeros((m, 3))

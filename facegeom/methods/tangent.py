@@ -36,6 +36,7 @@ from facegeom.interfaces import (
     is_integer,
 )
 from facegeom.linalg import SPDSolver, factorize_spd
+from facegeom.registration import kabsch
 
 __all__ = [
     "as_neighbourhoods",
@@ -343,21 +344,6 @@ class TangentSolver:
 
 
 # --------------------------------------------------------------------------- face driving
-
-
-def kabsch(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation ``R`` and translation ``t`` minimising ``sum w_i ||R P_i + t - Q_i||^2`` (no reflection; ``w`` = 1)."""
-    if weights is None:
-        mp, mq = P.mean(axis=0), Q.mean(axis=0)
-        H = (P - mp).T @ (Q - mq)
-    else:
-        w = weights / weights.sum()
-        mp, mq = w @ P, w @ Q
-        H = (P - mp).T @ ((Q - mq) * w[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    s = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, s]) @ U.T
-    return R, mq - R @ mp
 
 
 def kabsch_many(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

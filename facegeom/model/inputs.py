@@ -10,10 +10,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
+
 from facegeom.errors import InputError
 from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud
 
-__all__ = ['load_rig', 'read_fit_target']
+__all__ = ['face_template', 'load_rig', 'read_fit_target', 'scan_scale']
 
 
 def load_rig(rig_path=None, face_model=None):
@@ -30,12 +32,19 @@ def load_rig(rig_path=None, face_model=None):
     return BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
 
 
-def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None, cx=None, cy=None):
+def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None, cx=None, cy=None,
+                    scale="auto", notes: list | None = None):
     """Read a fitting target for ``rig`` as ``facegeom fit`` does -> ``(kind, target)``.
 
     ``kind`` ``auto``: ``.csv`` = landmarks (``vertex_id,u,v``), a mesh file with
     the rig's vertex count = mesh, anything else = a point cloud. Landmarks need
     the camera intrinsics ``focal, cx, cy`` (pixels).
+
+    ``scale``: meshes and point clouds are multiplied by it into the rig's
+    units; ``"auto"`` (default) = the power of ten that makes the scan the
+    size of the rig's face (:func:`scan_scale`: a scan in mm for a rig in cm
+    gets 0.1; one in the rig's units 1). A line saying what was done is
+    appended to ``notes`` (a list) when the factor is not 1.
     """
     from facegeom.io import MESH_FORMATS, read_mesh
     from facegeom.model.camera import PinholeCamera
@@ -67,7 +76,40 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         if V.shape[0] != rig.n_vertices:
             raise InputError(f"the mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}; use kind='points' "
                              f"for a scan without correspondence", tp)
-        tgt = MeshTarget(V)
+        tgt = MeshTarget(V * _factor(V, rig, scale, tp, notes))
     else:
-        tgt = PointCloudTarget(read_point_cloud(tp))
+        P = read_point_cloud(tp)
+        tgt = PointCloudTarget(P * _factor(P, rig, scale, tp, notes))
     return kind, tgt
+
+
+def face_template(rig) -> np.ndarray:
+    """The rig's face vertices ``(m, 3)``: the face area of ICT-topology rigs, every vertex of other rigs."""
+    from facegeom.constants import FACE_AREA, ICT_VERTICES
+
+    return rig.neutral[:FACE_AREA] if rig.n_vertices == ICT_VERTICES else rig.neutral
+
+
+def scan_scale(points, rig) -> float:
+    """The power of ten that brings ``points (N, 3)`` to the size of the rig's face (:func:`face_template`)."""
+    from facegeom.registration import units_factor
+
+    return units_factor(points, face_template(rig))
+
+
+def _factor(X, rig, scale, path, notes) -> float:
+    if isinstance(scale, str):
+        if scale != "auto":
+            raise InputError(f"scale must be 'auto' or a positive number, got {scale!r}")
+        try:
+            f = scan_scale(X, rig)
+        except InputError as exc:
+            raise InputError(str(exc), path) from None
+        if f != 1.0 and notes is not None:
+            notes.append(f"{Path(path).name}: scaled by {f:g} into the rig's units (its size was {1 / f:g}x the "
+                         f"rig face's)")
+        return f
+    f = float(scale)
+    if not (f > 0 and f < float("inf")):
+        raise InputError(f"scale must be a positive finite number, got {scale!r}")
+    return f

@@ -7,12 +7,15 @@ inputs have been read (a bad input is reported before a bad parameter).
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from facegeom.io import MarkerSequence, read_retarget_inputs, write_marker_sequence, write_weights
+from facegeom.methods.fitting import align_scan
 from facegeom.model import read_fit_target
 
 __all__ = ["FitOutcome", "fit_file", "write_fit", "Retargeted", "retarget_files", "write_retargeted"]
@@ -35,6 +38,9 @@ class FitOutcome:
         The fitted face (None when fitted by a vectorised batch fit).
     seconds : float
         Time of the fit itself (not the reading).
+    notes : list of str
+        What was done to the input before the fit (a scan rescaled into the
+        rig's units, brought into its frame).
     """
 
     kind: str
@@ -42,6 +48,7 @@ class FitOutcome:
     camera: object | None = None
     vertices: np.ndarray | None = None
     seconds: float = 0.0
+    notes: list = dataclasses.field(default_factory=list)
 
     @property
     def active(self) -> np.ndarray:
@@ -49,7 +56,7 @@ class FitOutcome:
         return np.flatnonzero(np.abs(self.weights) > 1e-6)
 
 
-def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None) -> FitOutcome:
+def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None, scale="auto") -> FitOutcome:
     """Read the target at ``path`` and fit the rig's coefficients to it.
 
     Parameters
@@ -65,19 +72,32 @@ def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None
         ``auto``, ``mesh``, ``landmarks`` or ``points``.
     focal, cx, cy : float, optional
         Camera intrinsics in pixels (landmark targets).
+    scale : "auto" or float
+        Meshes and point clouds: the factor into the rig's units ("auto": the
+        power of ten that makes the scan face-sized; see
+        :func:`facegeom.model.read_fit_target`).
 
     Returns
     -------
     FitOutcome
-        Weights ``(B,)``, vertices ``(n, 3)``, the camera of a landmark fit.
+        Weights ``(B,)``, vertices ``(n, 3)``, the camera of a landmark fit or
+        the rigid alignment (rig -> scan) of a scan that was off the rig's
+        frame (:func:`facegeom.methods.fitting.align_scan`).
     """
-    kind, target = read_fit_target(path, rig, kind, focal, cx, cy)
+    notes: list[str] = []
+    kind, target = read_fit_target(path, rig, kind, focal, cx, cy, scale, notes)
     method = fitter()
     t = time.perf_counter()
+    pose = None
+    if kind == "points":
+        target, pose = align_scan(rig, target)
+        if pose is not None:
+            notes.append(f"{Path(path).name}: off the rig's frame; aligned by a global rigid search "
+                         f"(turned {pose.angle_deg:.0f} degrees, moved {np.linalg.norm(pose.t):.3g} rig units)")
     r = method.fit(rig, target)
     dt = time.perf_counter() - t
     cam = r.info.get("camera") if isinstance(r.info, dict) else None
-    return FitOutcome(kind, r.weights, cam, r.vertices, dt)
+    return FitOutcome(kind, r.weights, cam if pose is None else pose, r.vertices, dt, notes)
 
 
 def write_fit(path, names: list[str], outcome: FitOutcome, method: str, target: str,

@@ -1,0 +1,210 @@
+"""Rigid registration of a template surface to a scan in any frame and units.
+
+A scan exported by another tool comes in its own frame (turned, moved) and
+units (mm, cm, m). The fitters need it in the rig's frame, and local ICP only
+finds a pose within ~30-45 degrees of its start, so:
+
+- :func:`units_factor` -- the power of ten that makes the scan the size of the
+  template (units differ by powers of ten; a person's face differs from the
+  template by ~10 %, a partial or a whole-head scan by less than 3x, so the
+  rounding to a power of ten is safe where a continuous scale would not be);
+- :func:`align_rigid` -- a global search: trimmed ICP from the 60 rotations of
+  the icosahedral group (every rotation lies within 44 degrees of one of
+  them, inside the ICP's basin, measured below), a few rounds each on
+  sub-samples, then the best starts refined; the pose with the smallest
+  trimmed template -> scan distance wins;
+- :func:`icp_rigid` -- trimmed symmetric ICP (template -> closest scan point and
+  scan -> closest template point; pairs farther than the median plus
+  ``TRIM_MADS`` scaled MADs dropped, :func:`trim_outliers`), the local step;
+- :func:`kabsch` -- the weighted least-squares rigid motion between paired points.
+
+Measured on partial face scans (a side strip of 0-25 % hidden, 10,000 points,
+0.5 mm noise) of random ICT identities under uniform random rotations: the mean
+face's local ICP ends within 1-6 degrees of the person's pose (the rest is the
+identity's difference) from turns of up to 30 degrees and fails on about half
+of the turns of 45 degrees or more; the global search ends within 2-6 degrees
+for 16 of 16 random rotations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from facegeom.errors import InputError
+
+__all__ = ["RigidAlignment", "align_rigid", "icp_rigid", "kabsch", "trim_outliers", "units_factor"]
+
+TRIM_MADS = 3.0  # pairs farther than median + this many scaled MADs are outliers
+COARSE_TEMPLATE = 250  # global search: template points per start
+COARSE_SCAN = 300  # global search: scan points of the scan -> template direction per start
+COARSE_TREE = 4000  # global search: scan points searched per start
+COARSE_ROUNDS = 6  # global search: ICP rounds per start
+REFINE_STARTS = 3  # global search: the best starts refined
+REFINE_TEMPLATE = 1200  # refinement: template points
+REFINE_SCAN = 2000  # refinement: scan points of the scan -> template direction
+REFINE_ROUNDS = 40  # refinement: ICP rounds at most
+KEEP_FRACTION = 0.75  # the score: mean of the smallest 75 % of template -> scan distances
+UNIT_POWERS = tuple(range(-6, 7))  # units_factor: 1e-6 ... 1e6
+
+
+def kabsch(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``R`` and translation ``t`` minimising ``sum w_i ||R P_i + t - Q_i||^2`` (no reflection; ``w`` = 1)."""
+    if weights is None:
+        mp, mq = P.mean(axis=0), Q.mean(axis=0)
+        H = (P - mp).T @ (Q - mq)
+    else:
+        w = weights / weights.sum()
+        mp, mq = w @ P, w @ Q
+        H = (P - mp).T @ ((Q - mq) * w[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    s = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, s]) @ U.T
+    return R, mq - R @ mp
+
+
+def trim_outliers(d: np.ndarray, mads: float = TRIM_MADS) -> np.ndarray:
+    """Inliers among distances ``d (m,)``: at most the median plus ``mads`` scaled MADs (all if fewer than 8)."""
+    if d.size < 8:
+        return np.ones(d.size, dtype=bool)
+    med = float(np.median(d))
+    mad = 1.4826 * float(np.median(np.abs(d - med)))
+    return d <= med + mads * max(mad, 1e-12)
+
+
+def _every(X: np.ndarray, count: int) -> np.ndarray:
+    """About ``count`` rows of ``X`` at an even stride (all of them if fewer)."""
+    return X[::max(1, len(X) // max(1, count))]
+
+
+def _score(tree: cKDTree, F: np.ndarray) -> float:
+    d, _ = tree.query(F)
+    k = max(1, int(KEEP_FRACTION * d.size))
+    return float(np.partition(d, k - 1)[:k].mean())
+
+
+def icp_rigid(template: np.ndarray, points: np.ndarray, R=None, t=None, rounds: int = REFINE_ROUNDS,
+              tree: cKDTree | None = None, scan_sample: np.ndarray | None = None,
+              tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray, int]:
+    """Trimmed symmetric rigid ICP of ``template (m,3)`` onto ``points (N,3)`` from ``R, t`` -> ``(R, t, rounds run)``.
+
+    Each round pairs every template point with its closest scan point and
+    every point of ``scan_sample`` (default: all points) with its closest
+    template point, drops the outlying pairs of each direction
+    (:func:`trim_outliers`: the template's parts the scan does not show, the
+    scan's parts beyond the template) and solves :func:`kabsch` on the rest.
+    Stops when the motion changes by less than ``tol`` (rotation entries;
+    translation relative to the template's size) or after ``rounds``.
+    """
+    R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64)
+    t = np.zeros(3) if t is None else np.asarray(t, dtype=np.float64)
+    tree = cKDTree(points) if tree is None else tree
+    Q = points if scan_sample is None else scan_sample
+    size = max(float(np.ptp(template, axis=0).max()), 1e-300)
+    r = 0
+    for r in range(1, rounds + 1):
+        F = template @ R.T + t
+        d, j = tree.query(F)
+        v = trim_outliers(d)
+        d2, i = cKDTree(F).query(Q)
+        ok = trim_outliers(d2)
+        R1, t1 = kabsch(np.r_[template[v], template[i[ok]]], np.r_[points[j[v]], Q[ok]])
+        step = max(float(np.abs(R1 - R).max()), float(np.abs(t1 - t).max()) / size)
+        R, t = R1, t1
+        if step < tol:
+            break
+    return R, t, r
+
+
+@dataclass(frozen=True)
+class RigidAlignment:
+    """A template posed on a scan: ``x -> R x + t`` maps the template's frame to the scan's.
+
+    Attributes
+    ----------
+    R : ndarray, shape (3, 3)
+    t : ndarray, shape (3,)
+    score : float
+        Mean of the smallest 75 % of template -> scan distances at the pose (scan units).
+    runner_up : float
+        The same score of the best pose found from another start that differs
+        from ``R`` by more than 20 degrees (inf if none): a score close to
+        ``score`` means the scan alone hardly tells the two poses apart.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    score: float = float("nan")
+    runner_up: float = float("inf")
+
+    @property
+    def angle_deg(self) -> float:
+        """The rotation's angle, degrees."""
+        return float(np.degrees(Rotation.from_matrix(self.R).magnitude()))
+
+
+def align_rigid(template, points) -> RigidAlignment:
+    """Pose ``template (m,3)`` on the scan ``points (N,3)`` from any start: a global trimmed-ICP search.
+
+    ICP from the 60 rotations of the icosahedral group about the centroids
+    (``COARSE_ROUNDS`` rounds on sub-samples each), then the
+    ``REFINE_STARTS`` best refined on larger sub-samples; the smallest
+    trimmed distance wins. Both must be in the same units (see
+    :func:`units_factor`). About 0.5 s for a 10,000-point scan.
+
+    Raises
+    ------
+    InputError
+        Fewer than 3 template or scan points, or non-finite coordinates.
+    """
+    F0 = np.asarray(template, dtype=np.float64)
+    P = np.asarray(points, dtype=np.float64)
+    for name, X in (("template", F0), ("scan", P)):
+        if X.ndim != 2 or X.shape[1] != 3 or X.shape[0] < 3:
+            raise InputError(f"{name} must have shape (m, 3) with m >= 3, got {X.shape}")
+        if not np.isfinite(X).all():
+            raise InputError(f"{name} has NaN or inf coordinates")
+    Fc, Pc = _every(F0, COARSE_TEMPLATE), _every(P, COARSE_TREE)
+    tree_c, Qc = cKDTree(Pc), _every(P, COARSE_SCAN)
+    cf, cp = Fc.mean(axis=0), P.mean(axis=0)
+    starts = []
+    for G in Rotation.create_group("I").as_matrix():
+        R, t, _ = icp_rigid(Fc, Pc, G, cp - G @ cf, COARSE_ROUNDS, tree_c, Qc)
+        starts.append((_score(tree_c, Fc @ R.T + t), R, t))
+    starts.sort(key=lambda s: s[0])
+    tree = cKDTree(P)
+    Ff, Qf = _every(F0, REFINE_TEMPLATE), _every(P, REFINE_SCAN)
+    refined = []
+    for _, R, t in starts[:REFINE_STARTS]:
+        R, t, _ = icp_rigid(Ff, P, R, t, REFINE_ROUNDS, tree, Qf, tol=1e-5)
+        refined.append((_score(tree, Ff @ R.T + t), R, t))
+    refined.sort(key=lambda s: s[0])
+    best = refined[0]
+    others = [s for s, R, _ in refined[1:] + starts[REFINE_STARTS:]
+              if Rotation.from_matrix(R.T @ best[1]).magnitude() > np.radians(20.0)]
+    return RigidAlignment(best[1], best[2], best[0], min(others, default=float("inf")))
+
+
+def units_factor(points, template) -> float:
+    """The power of ten that brings the scan ``points (N,3)`` to the size of ``template (m,3)``.
+
+    Size = the root mean square distance from the centroid. Units differ by
+    powers of ten (mm / cm / m) while real faces, partial scans and whole-head
+    scans differ from a face template by less than a factor of ~3
+    (log10 3 < 0.5), so the ratio is rounded to the nearest power of ten.
+    Returns 1.0 when the scan is already in the template's units.
+
+    Raises
+    ------
+    InputError
+        A scan or template without extent (all points equal).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    F = np.asarray(template, dtype=np.float64)
+    sp, sf = (float(np.sqrt(((X - X.mean(axis=0)) ** 2).sum(axis=1).mean())) for X in (P, F))
+    if not (sp > 0 and sf > 0 and np.isfinite(sp) and np.isfinite(sf)):
+        raise InputError("the scan has no extent (all its points coincide): its units cannot be told")
+    k = int(np.clip(np.round(np.log10(sf / sp)), UNIT_POWERS[0], UNIT_POWERS[-1]))
+    return float(10.0 ** k)
