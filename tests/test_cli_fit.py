@@ -51,6 +51,50 @@ def test_fit_point_cloud_covering_part_of_the_rig(target):
     assert abs(float(rows["jawOpen"]) - 0.6) < 0.05 and abs(float(rows["mouthSmile_L"]) - 0.4) < 0.05
 
 
+def test_fit_scan_in_millimetres_turned_and_moved(target):
+    """A scan exported by another tool (mm, upside down, 40 cm away): rescaled, aligned, fitted as in the frame."""
+    from scipy.spatial.transform import Rotation
+
+    d, rig, w, V, cam = target
+    R = Rotation.from_euler("xyz", [170.0, 35.0, -50.0], degrees=True).as_matrix()
+    t = np.array([400.0, -120.0, 250.0])  # mm
+    np.save(d / "scan_mm.npy", V[:6706] * 10.0 @ R.T + t)
+    r = run("fit", str(d / "scan_mm.npy"), "-o", str(d / "wmm.json"))
+    assert r.returncode == 0, r.stderr
+    assert "scaled by 0.1" in r.stdout and "off the rig's frame" in r.stdout
+    out = json.load(open(d / "wmm.json"))
+    assert abs(out["weights"]["jawOpen"] - 0.6) < 0.05 and abs(out["weights"]["mouthSmile_L"] - 0.4) < 0.05
+    Rf = np.array(out["pose"]["R"])  # rig -> scan, in the rig's units
+    assert np.degrees(Rotation.from_matrix(Rf.T @ R).magnitude()) < 1.0
+    assert np.allclose(out["pose"]["t"], t / 10.0, atol=0.1)
+    r = run("fit", str(d / "scan_mm.npy"), "-o", str(d / "wmm2.json"), "--scale", "0.1")
+    assert r.returncode == 0 and "scaled by" not in r.stdout and "off the rig's frame" in r.stdout
+    r = run("fit", str(d / "scan_mm.npy"), "-o", str(d / "wmm3.json"), "--scale", "-2")
+    assert r.returncode != 0 and "--scale must be auto or a positive number" in r.stderr
+    assert "Traceback" not in r.stderr and not (d / "wmm3.json").exists()
+
+
+def test_identity_from_a_scan_in_millimetres(target, face_model):
+    """`facegeom identity` on a turned scan in mm: the pose written is the scan's, in the model's units."""
+    from scipy.spatial.transform import Rotation
+
+    d, rig, w, V, cam = target
+    rng = np.random.default_rng(4)
+    a = face_model.random_identity(rng)
+    N = face_model.face(a)[:6706]
+    R = Rotation.from_euler("xyz", [20.0, 120.0, 0.0], degrees=True).as_matrix()
+    np.save(d / "neutral_mm.npy", (N + rng.normal(size=N.shape) * 0.05) * 10.0 @ R.T + [0.0, 0.0, 600.0])
+    r = run("identity", str(d / "neutral_mm.npy"), "-o", str(d / "anna.npz"), "--coefficients", str(d / "anna.json"))
+    assert r.returncode == 0, r.stderr
+    assert "scaled by 0.1" in r.stdout
+    fitted = BlendshapeRig.from_npz(d / "anna.npz").neutral[:6706]
+    err = np.linalg.norm(fitted - face_model.face(a)[:6706], axis=1).mean()
+    generic = np.linalg.norm(face_model.face()[:6706] - face_model.face(a)[:6706], axis=1).mean()
+    assert err < 0.5 * generic
+    pose = json.load(open(d / "anna.json"))["targets"][0]
+    assert np.degrees(Rotation.from_matrix(np.array(pose["R"]).T @ R).magnitude()) < 3.0
+
+
 def test_fit_landmarks_with_camera(target):
     d, rig, w, V, cam = target
     r = run("fit", str(d / "lm.csv"), "--focal", str(cam.focal), "--cx", str(cam.cx), "--cy", str(cam.cy),

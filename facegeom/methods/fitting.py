@@ -28,7 +28,7 @@ from facegeom.model import (
     estimate_poses,
 )
 
-__all__ = ["align_scan", "check_fit_inputs", "fit_with_pose", "fit_with_poses", "result"]
+__all__ = ["align_scan", "check_fit_inputs", "fit_scan", "fit_with_pose", "fit_with_poses", "result"]
 
 #: A scan is off the rig's frame when the rig face's median closest-point distance to it exceeds this fraction
 #: of the face's RMS radius (ICT: 5 mm of 58.6 mm; in-frame scans of random people lie 2.2-2.6 mm away).
@@ -111,6 +111,36 @@ def align_scan(rig: BlendshapeRig, target: PointCloudTarget):
     found = align_rigid(F, target.points)
     normals = None if target.normals is None else target.normals @ found.R
     return PointCloudTarget((target.points - found.t) @ found.R, normals), found
+
+
+def fit_scan(rig: BlendshapeRig, target: PointCloudTarget, fitter, alternations: int = 3):
+    """Fit a scan that may be off the rig's frame -> ``(FitResult, alignment or None)``.
+
+    In the frame (:func:`align_scan` returns None) it is ``fitter.fit(rig,
+    target)``. Off the frame, the neutral's pose from the global search is
+    biased by the expression (an open jaw tilts it: a rig face with jawOpen
+    0.6, upside down in mm, fitted 0.43 after the search alone), so pose and
+    expression alternate as for landmarks (:func:`fit_with_pose`):
+    ``alternations`` rounds of (expression in the current frame, the fitted
+    face's pose refined by local ICP), then a final expression fit.
+    """
+    from facegeom.model import face_template
+    from facegeom.registration import RigidAlignment, icp_rigid
+
+    inside, pose = align_scan(rig, target)
+    r = fitter.fit(rig, inside)
+    if pose is None:
+        return r, None
+    P = target.points
+    Q = P[::max(1, len(P) // 2000)]
+    for _ in range(alternations):
+        F = face_template(rig, r.vertices)
+        R, t, _ = icp_rigid(F[::max(1, len(F) // 1500)], P, pose.R, pose.t, rounds=30, scan_sample=Q, tol=1e-5)
+        pose = RigidAlignment(R, t)
+        normals = None if target.normals is None else target.normals @ R
+        inside = PointCloudTarget((P - t) @ R, normals)
+        r = fitter.fit(rig, inside)
+    return r, pose
 
 
 def stable_rows(rig: BlendshapeRig, ids: np.ndarray, fraction: float = 0.5, minimum: int = 6) -> np.ndarray:

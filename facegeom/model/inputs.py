@@ -83,11 +83,15 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     return kind, tgt
 
 
-def face_template(rig) -> np.ndarray:
-    """The rig's face vertices ``(m, 3)``: the face area of ICT-topology rigs, every vertex of other rigs."""
+def face_template(rig, vertices=None) -> np.ndarray:
+    """The rig's face vertices ``(m, 3)``: the face area of ICT-topology rigs, every vertex of other rigs.
+
+    ``vertices (n, 3)``: the same rows of a face of the rig (default: its neutral).
+    """
     from facegeom.constants import FACE_AREA, ICT_VERTICES
 
-    return rig.neutral[:FACE_AREA] if rig.n_vertices == ICT_VERTICES else rig.neutral
+    V = rig.neutral if vertices is None else vertices
+    return V[:FACE_AREA] if rig.n_vertices == ICT_VERTICES else V
 
 
 def scan_scale(points, rig) -> float:
