@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from facegeom.bench.identity import partial_scan as bench_partial_scan
 from facegeom.constants import FACE_AREA
 from facegeom.methods.identity import IdentityFitter
 from facegeom.model import PointCloudTarget
@@ -14,19 +15,7 @@ def face_mm(A, B):
 
 def partial_scan(model, V, rng, points=10000, strip=0.25, side=1, noise_cm=0.05):
     """Points sampled by area on the face area of ``V`` minus a side strip of ``strip`` of its width, plus noise."""
-    tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
-    X = model.neutral[:FACE_AREA, 0]
-    lo, hi = float(X.min()), float(X.max())
-    cut = strip * (hi - lo)
-    seen = (X < hi - cut) if side > 0 else (X > lo + cut)
-    tris = tris[seen[tris].all(axis=1)]
-    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
-    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    f = rng.choice(len(tris), points, p=area / area.sum())
-    u = rng.random((points, 2))
-    u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
-    P = a[f] + u[:, :1] * (b[f] - a[f]) + u[:, 1:] * (c[f] - a[f])
-    return P + rng.normal(size=P.shape) * noise_cm
+    return bench_partial_scan(model, V, rng, points, strip, side, noise_cm)
 
 
 @pytest.fixture(scope="module")

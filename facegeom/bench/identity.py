@@ -35,7 +35,17 @@ Protocols:
   errors per frame;
 - ``mesh``: the face in correspondence with 0.5 mm Gaussian noise per coordinate,
   under a random rigid motion;
-- ``cloud``: 30,000 points sampled by area on the face area, 0.5 mm noise.
+- ``cloud``: 30,000 points sampled by area on the face area, 0.5 mm noise;
+- ``partial``: a scan as a scanner sees one side: 10,000 points on the face
+  area minus a side strip (left or right) of U(0, 25) % of its width, 0.5 mm
+  noise, in the model's frame and units;
+- ``scan``: the same people and the same scans (the ``partial`` draws) as
+  another tool exports them: in millimetres, turned by a uniformly random
+  rotation and moved by N(0, 50 cm) per axis; read as ``facegeom fit`` /
+  ``facegeom identity`` read a file (the units by
+  :func:`~facegeom.registration.units_factor`), the pose found by the
+  fitter's global search (:func:`~facegeom.registration.align_rigid`).
+  ``scan`` against ``partial`` is what not knowing the frame and units costs.
 
 Metrics: mean 3-D vertex error over the face area in mm, in the model frame
 (``vertex mm``) and after the best rigid alignment of the fitted face to the
@@ -67,8 +77,11 @@ from facegeom.model import (
     look_at_camera,
     random_sparse_expression,
 )
+from facegeom.registration import units_factor
 
-PROTOCOLS = ("landmarks", "neutral", "frames", "mesh", "cloud")
+PROTOCOLS = ("landmarks", "neutral", "frames", "mesh", "cloud", "partial", "scan")
+SCAN_POINTS = 10000  # partial / scan: points per scan
+SCAN_HIDDEN = 0.25  # partial / scan: the hidden side strip's width is U(0, this) of the face area's
 CONDITIONS = ("generic", "identity", "oracle", "eos")
 
 __all__ = ["CONDITIONS", "PROTOCOLS", "identity_peer", "main", "make_people", "run", "summarize"]
@@ -163,7 +176,9 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
     ``jaw``: landmark protocols fit the 17 jaw-contour landmarks too (40 in all), else the 23 of ``bench fit``.
     """
     params = dict(params or {})
-    rng = np.random.default_rng([int(seed), 77, PROTOCOLS.index(protocol)])
+    same = "partial" if protocol == "scan" else protocol  # scan: the partial protocol's scans, then moved
+    rng = np.random.default_rng([int(seed), 77, PROTOCOLS.index(same)])
+    rng_frame = np.random.default_rng([int(seed), 78])
     lm = model.landmarks
     fit_lm = (tuple(range(17)) if jaw else ()) + FIT_LANDMARKS_23
     fit_ids, eval_ids, eye_ids = lm[list(fit_lm)], lm[list(EVAL_LANDMARKS_26)], lm[list(INNER_EYE_CORNERS)]
@@ -204,6 +219,16 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
                 R = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
                 targets.append(MeshTarget((T + rng.normal(size=T.shape) * noise_mm / CM_TO_MM) @ R.T
                                           + rng.normal(size=3) * 5))
+        elif protocol in ("partial", "scan"):
+            targets = []
+            for T in truths:
+                P = partial_scan(model, T, rng, SCAN_POINTS, rng.uniform(0.0, SCAN_HIDDEN), rng.choice([-1, 1]),
+                                 noise_mm / CM_TO_MM)
+                if protocol == "scan":
+                    R = Rotation.random(random_state=rng_frame.integers(1 << 31)).as_matrix()
+                    P = (P @ R.T + rng_frame.normal(size=3) * 50.0) * CM_TO_MM  # mm, turned, moved
+                    P = P * units_factor(P, model.face()[:FACE_AREA])  # as the file readers do
+                targets.append(PointCloudTarget(P))
         else:
             targets = []
             for T in truths:
@@ -230,6 +255,27 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
             r = peer.fit(model, targets)
             rows += _rows(protocol, pi, p, "eos", r, time.perf_counter() - t, truths_l, model, extra)
     return rows
+
+
+def partial_scan(model, V, rng, points, hidden, side, noise):
+    """Points sampled by area on the face area of ``V (n, 3)`` minus a side strip, plus noise -> ``(points, 3)``.
+
+    The strip is ``hidden`` of the face area's width (of the generic face),
+    on the right (``side`` 1) or the left (-1); ``noise`` in model units.
+    """
+    tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
+    X = model.neutral[:FACE_AREA, 0]
+    lo, hi = float(X.min()), float(X.max())
+    cut = hidden * (hi - lo)
+    seen = (X < hi - cut) if side > 0 else (X > lo + cut)
+    tris = tris[seen[tris].all(axis=1)]
+    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
+    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    f = rng.choice(len(tris), points, p=area / area.sum())
+    u = rng.random((points, 2))
+    u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
+    P = a[f] + u[:, :1] * (b[f] - a[f]) + u[:, 1:] * (c[f] - a[f])
+    return P + rng.normal(size=P.shape) * noise
 
 
 def _two_step(model, cond, true_identity, neutrals, targets, kw):
@@ -286,8 +332,9 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     report = Report(out, "identity", echo)
     rows = []
     for proto in protocols:
-        n = cloud_count if proto == "cloud" else count
-        people = make_people(model, n, seed + PROTOCOLS.index(proto), dense_weights,
+        n = cloud_count if proto in ("cloud", "partial", "scan") else count
+        same = "partial" if proto == "scan" else proto  # the same people for partial and scan
+        people = make_people(model, n, seed + PROTOCOLS.index(same), dense_weights,
                              frames if proto in ("frames", "neutral") else 1)
         rows += run(model, proto, people, params, seed=seed, progress=progress)
     report.csv(rows)
@@ -295,7 +342,8 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     dense = "dense = frames of the real takes" if dense_weights is not None else "no takes: sparse only"
     note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw used, "
             f"focal known, pose unknown (yaw +-30 deg), 1 px; neutral / frames: {frames} images per person; mesh / cloud: "
-            f"0.5 mm noise; {machine_note()}")
+            f"0.5 mm noise; partial / scan: {SCAN_POINTS} points, a side strip of U(0, {SCAN_HIDDEN:g}) hidden, "
+            f"0.5 mm; scan: in mm, random rotation, moved; {machine_note()}")
     report.summary(table, note)
     report.done()
     return rows, table

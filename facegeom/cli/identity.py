@@ -150,8 +150,9 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, scale, para
     click.echo(f"identity from {len(tgs)} target(s) ({', '.join(sorted(set(kinds)))}) in "
                f"{fit.info['time_s'] * 1e3:.1f} ms, {fit.info['rounds']} rounds; |a| = {np.linalg.norm(a):.2f} "
                f"over {a.size} modes -> {output}")
-    for f, k, rms in zip(targets, kinds, fit.info["rms"]):
-        click.echo(f"  {Path(f).name:<24} {k:<9} rms {rms:.3g} {'px' if k == 'landmarks' else 'mm'}")
+    for f, k, rms, found in zip(targets, kinds, fit.info["rms"], fit.info["searched"]):
+        where = "; off the model's frame: posed by a global rigid search" if found else ""
+        click.echo(f"  {Path(f).name:<24} {k:<9} rms {rms:.3g} {'px' if k == 'landmarks' else 'mm'}{where}")
 
 
 def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, method, method_params, explicit_method,
