@@ -54,15 +54,19 @@ def test_partial_scan_hidden_side_follows_the_identity(face_model, scan, scan_fi
     """The unseen strip is extrapolated by the identity, not dragged onto the scan's edge.
 
     (Before the trimmed ICP: 36 mm on the hidden strip against 4.0 for the
-    generic face; now about 4.2 against a seen part of about 2.8.)
+    generic face; with one annealing pass 4.2 against a seen part of 2.8;
+    with three passes 3.1 against 1.2. The test asked for the hidden strip
+    within 1.25x the generic face's error and 2x the seen part's; the seen
+    part now fits far better than the identity can extrapolate, so the
+    second bound is replaced by the stricter first one at 1.0x.)
     """
     a, w, V, _ = scan
     X = face_model.neutral[:FACE_AREA, 0]
     hidden = X >= X.max() - 0.25 * (X.max() - X.min())
     err = np.linalg.norm(scan_fit.posed_vertices()[:FACE_AREA] - V[:FACE_AREA], axis=1) * 10
     generic = np.linalg.norm(face_model.face()[:FACE_AREA] - V[:FACE_AREA], axis=1) * 10
-    assert err[hidden].mean() < 1.25 * generic[hidden].mean()
-    assert err[hidden].mean() < 2.0 * err[~hidden].mean()
+    assert err[hidden].mean() < generic[hidden].mean()
+    assert err[~hidden].mean() < 0.5 * generic[~hidden].mean()
 
 
 def test_scan_side_does_not_matter(face_model, scan):
