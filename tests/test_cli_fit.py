@@ -74,6 +74,25 @@ def test_fit_scan_in_millimetres_turned_and_moved(target):
     assert "Traceback" not in r.stderr and not (d / "wmm3.json").exists()
 
 
+def test_fit_mesh_exported_z_up_in_millimetres(target):
+    """A mesh in correspondence from another tool (mm, Z-up, moved): rescaled, aligned, the same weights."""
+    from scipy.spatial.transform import Rotation
+
+    from facegeom.io import read_mesh
+
+    d, rig, w, V, cam = target
+    R = Rotation.from_euler("x", 90.0, degrees=True).as_matrix()
+    write_mesh(d / "zup_mm.obj", V * 10.0 @ R.T + [10.0, 250.0, -40.0], rig.triangles)
+    r = run("fit", str(d / "zup_mm.obj"), "-o", str(d / "wz.json"), "--mesh-out", str(d / "zup_fit.obj"))
+    assert r.returncode == 0, r.stderr
+    assert "scaled by 0.1" in r.stdout and "robust Kabsch" not in r.stdout and "off the rig's frame" in r.stdout
+    out = json.load(open(d / "wz.json"))
+    assert abs(out["weights"]["jawOpen"] - 0.6) < 0.01 and abs(out["weights"]["mouthSmile_L"] - 0.4) < 0.01
+    assert np.degrees(Rotation.from_matrix(np.array(out["pose"]["R"]).T @ R).magnitude()) < 0.1
+    fitted, _ = read_mesh(d / "zup_fit.obj")  # in the rig's frame and units
+    assert np.abs(fitted - V).max() < 0.05
+
+
 def test_identity_from_a_scan_in_millimetres(target, face_model):
     """`facegeom identity` on a turned scan in mm: the pose written is the scan's, in the model's units."""
     from scipy.spatial.transform import Rotation

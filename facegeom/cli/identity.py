@@ -166,8 +166,8 @@ def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, metho
     import time
 
     from facegeom import registry
+    from facegeom.methods.fitting import to_rig_frame
     from facegeom.methods.identity import IdentityFitter
-    from facegeom.model import PointCloudTarget
     from facegeom.pipelines.single import FitOutcome
     from facegeom.registration import RigidAlignment
 
@@ -182,8 +182,8 @@ def fit_identity_target(obj: Context, target, kind, focal, cx, cy, params, metho
         pose = RigidAlignment(fit.rotations[0], fit.translations[0])
     if explicit_method:
         m = registry.create("fitters", method, **method_params)
-        if k == "points":  # the refit sees the scan in the model's frame, where the identity fit posed it
-            tg = PointCloudTarget((tg.points - pose.t) @ pose.R, None if tg.normals is None else tg.normals @ pose.R)
+        if k != "landmarks":  # the refit sees the mesh or scan in the model's frame, where the identity fit posed it
+            tg = to_rig_frame(tg, pose)
         r = m.fit(rig, tg)
         cam = r.info.get("camera") if k == "landmarks" else pose
         out = FitOutcome(k, r.weights, cam, r.vertices, time.perf_counter() - t)

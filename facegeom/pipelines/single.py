@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.io import MarkerSequence, read_retarget_inputs, write_marker_sequence, write_weights
-from facegeom.methods.fitting import fit_scan
+from facegeom.methods.fitting import fit_aligned
 from facegeom.model import read_fit_target
 
 __all__ = ["FitOutcome", "fit_file", "write_fit", "Retargeted", "retarget_files", "write_retargeted"]
@@ -89,12 +89,13 @@ def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None
     method = fitter()
     t = time.perf_counter()
     pose = None
-    if kind == "points":
-        r, pose = fit_scan(rig, target, method)
+    if kind in ("points", "mesh"):
+        r, pose = fit_aligned(rig, target, method)
         if pose is not None:
-            notes.append(f"{Path(path).name}: off the rig's frame; aligned by a global rigid search, then pose and "
-                         f"expression alternately (turned {pose.angle_deg:.0f} degrees, moved "
-                         f"{np.linalg.norm(pose.t):.3g} rig units)")
+            how = "a global rigid search" if kind == "points" else "Kabsch on its least-moving vertices"
+            notes.append(f"{Path(path).name}: off the rig's frame; aligned by {how}, then pose and expression "
+                         f"alternately (turned {pose.angle_deg:.0f} degrees, moved {np.linalg.norm(pose.t):.3g} "
+                         f"rig units)")
     else:
         r = method.fit(rig, target)
     dt = time.perf_counter() - t
