@@ -26,6 +26,7 @@ __all__ = [
     "mean_edge_length",
     "cotangent_laplacian",
     "mass_matrix",
+    "boundary_band",
 ]
 
 
@@ -274,3 +275,23 @@ def mass_matrix(V, F, kind: str = "voronoi") -> sp.csr_matrix:
     if kind not in types:
         raise InputError(f"kind must be one of {sorted(types)}, got {kind!r}")
     return igl.massmatrix(V, F, types[kind]).tocsr()
+
+
+def boundary_band(V, F, width: float) -> np.ndarray:
+    """Vertices within ``width`` of the mesh's boundary along its edges -> bool ``(#V,)``.
+
+    The boundary edges come from libigl's ``boundary_facets``; the distance is
+    the shortest edge path to a boundary vertex (Dijkstra from all of them at
+    once, cut at ``width``). A closed mesh has no band (all False); vertices in
+    no triangle are not in it.
+    """
+    V, F = as_vertices(V), as_faces(F, V.shape[0])
+    if not (width >= 0 and np.isfinite(width)):
+        raise InputError(f"width must be a non-negative number, got {width!r}")
+    n = V.shape[0]
+    out = igl.boundary_facets(F)
+    E = out[0] if isinstance(out, tuple) else out
+    if E.size == 0:
+        return np.zeros(n, dtype=bool)
+    d = csgraph.dijkstra(_edge_graph(V, F), indices=np.unique(E), min_only=True, limit=width)
+    return np.isfinite(d)

@@ -111,3 +111,22 @@ def test_laplacian_and_mass(grid):
     np.testing.assert_allclose((Lf @ Vf[:, 0])[interior], 0, atol=1e-10)
     with pytest.raises(InputError):
         g.mass_matrix(V, F, kind="nope")
+
+
+def test_boundary_band_on_a_grid():
+    """On a flat grid the edge-path distance to the border is the distance to the nearest side (axis steps)."""
+    V, F = grid_mesh(11, 11)  # spacing 0.1
+    for width, rows in ((0.0, 0), (0.1, 1), (0.25, 2)):
+        band = g.boundary_band(V, F, width)
+        d = np.minimum.reduce([V[:, 0], 1 - V[:, 0], V[:, 1], 1 - V[:, 1]])
+        assert np.array_equal(band, d <= 0.1 * rows + 1e-9)
+
+
+def test_boundary_band_closed_mesh_and_bad_width():
+    """A closed surface (a tetrahedron) has no border; a negative or NaN width is a clear error."""
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    assert not g.boundary_band(V, F, 10.0).any()
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match="width"):
+            g.boundary_band(V, F, bad)

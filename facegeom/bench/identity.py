@@ -45,7 +45,11 @@ Protocols:
   ``facegeom identity`` read a file (the units by
   :func:`~facegeom.registration.units_factor`), the pose found by the
   fitter's global search (:func:`~facegeom.registration.align_rigid`).
-  ``scan`` against ``partial`` is what not knowing the frame and units costs.
+  ``scan`` against ``partial`` is what not knowing the frame and units costs;
+- ``head``: a head scan as scanners deliver them: 30,000 points over the whole
+  skin of the model's face geometry (face, ears, neck, the scalp it has; about
+  half of the points are off the face area the fitter uses), 0.5 mm noise, in
+  millimetres, in any orientation, moved.
 
 Metrics: mean 3-D vertex error over the face area in mm, in the model frame
 (``vertex mm``) and after the best rigid alignment of the fitted face to the
@@ -62,7 +66,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
-from facegeom.bench.common import progress_bar
+from facegeom.bench.common import progress_bar, sample_surface
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.methods.identity import IdentityFit, IdentityFitter
@@ -79,7 +83,7 @@ from facegeom.model import (
 )
 from facegeom.registration import units_factor
 
-PROTOCOLS = ("landmarks", "neutral", "frames", "mesh", "cloud", "partial", "scan")
+PROTOCOLS = ("landmarks", "neutral", "frames", "mesh", "cloud", "partial", "scan", "head")
 SCAN_POINTS = 10000  # partial / scan: points per scan
 SCAN_HIDDEN = 0.25  # partial / scan: the hidden side strip's width is U(0, this) of the face area's
 CONDITIONS = ("generic", "identity", "oracle", "eos")
@@ -219,12 +223,16 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
                 R = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
                 targets.append(MeshTarget((T + rng.normal(size=T.shape) * noise_mm / CM_TO_MM) @ R.T
                                           + rng.normal(size=3) * 5))
-        elif protocol in ("partial", "scan"):
+        elif protocol in ("partial", "scan", "head"):
             targets = []
             for T in truths:
-                P = partial_scan(model, T, rng, SCAN_POINTS, rng.uniform(0.0, SCAN_HIDDEN), rng.choice([-1, 1]),
-                                 noise_mm / CM_TO_MM)
-                if protocol == "scan":
+                if protocol == "head":
+                    P = sample_surface(T, model.triangles, points, rng)
+                    P = P + rng.normal(size=P.shape) * noise_mm / CM_TO_MM
+                else:
+                    P = partial_scan(model, T, rng, SCAN_POINTS, rng.uniform(0.0, SCAN_HIDDEN), rng.choice([-1, 1]),
+                                     noise_mm / CM_TO_MM)
+                if protocol in ("scan", "head"):
                     R = Rotation.random(random_state=rng_frame.integers(1 << 31)).as_matrix()
                     P = (P @ R.T + rng_frame.normal(size=3) * 50.0) * CM_TO_MM  # mm, turned, moved
                     P = P * units_factor(P, model.face()[:FACE_AREA])  # as the file readers do
@@ -232,12 +240,7 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
         else:
             targets = []
             for T in truths:
-                a, b, c = T[tris[:, 0]], T[tris[:, 1]], T[tris[:, 2]]
-                area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-                f = rng.choice(len(tris), points, p=area / area.sum())
-                u = rng.random((points, 2))
-                u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
-                P = a[f] + u[:, :1] * (b[f] - a[f]) + u[:, 1:] * (c[f] - a[f])
+                P = sample_surface(T, tris, points, rng)
                 targets.append(PointCloudTarget(P + rng.normal(size=P.shape) * noise_mm / CM_TO_MM))
         if protocol == "landmarks":
             targets, truths_l = targets[:1], truths[:1]
@@ -268,13 +271,7 @@ def partial_scan(model, V, rng, points, hidden, side, noise):
     lo, hi = float(X.min()), float(X.max())
     cut = hidden * (hi - lo)
     seen = (X < hi - cut) if side > 0 else (X > lo + cut)
-    tris = tris[seen[tris].all(axis=1)]
-    a, b, c = V[tris[:, 0]], V[tris[:, 1]], V[tris[:, 2]]
-    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    f = rng.choice(len(tris), points, p=area / area.sum())
-    u = rng.random((points, 2))
-    u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
-    P = a[f] + u[:, :1] * (b[f] - a[f]) + u[:, 1:] * (c[f] - a[f])
+    P = sample_surface(V, tris[seen[tris].all(axis=1)], points, rng)
     return P + rng.normal(size=P.shape) * noise
 
 
@@ -332,7 +329,7 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     report = Report(out, "identity", echo)
     rows = []
     for proto in protocols:
-        n = cloud_count if proto in ("cloud", "partial", "scan") else count
+        n = cloud_count if proto in ("cloud", "partial", "scan", "head") else count
         same = "partial" if proto == "scan" else proto  # the same people for partial and scan
         people = make_people(model, n, seed + PROTOCOLS.index(same), dense_weights,
                              frames if proto in ("frames", "neutral") else 1)
@@ -343,7 +340,8 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
     note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw used, "
             f"focal known, pose unknown (yaw +-30 deg), 1 px; neutral / frames: {frames} images per person; mesh / cloud: "
             f"0.5 mm noise; partial / scan: {SCAN_POINTS} points, a side strip of U(0, {SCAN_HIDDEN:g}) hidden, "
-            f"0.5 mm; scan: in mm, random rotation, moved; {machine_note()}")
+            f"0.5 mm; scan: in mm, random rotation, moved; head: 30,000 points on the whole face geometry, in mm, random "
+            f"rotation, moved; {machine_note()}")
     report.summary(table, note)
     report.done()
     return rows, table

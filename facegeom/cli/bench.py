@@ -251,11 +251,12 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
 
 @bench.command("identity")
 @click.option("--cases", default=20, show_default=True, type=click.IntRange(1, 10000), help="People per protocol.")
-@click.option("--cloud-cases", default=4, show_default=True, type=click.IntRange(1, 10000), help="People for the cloud, partial and scan protocols.")
+@click.option("--cloud-cases", default=4, show_default=True, type=click.IntRange(1, 10000),
+              help="People for the cloud, partial, scan and head protocols.")
 @click.option("--frames", default=5, show_default=True, type=click.IntRange(2, 100), help="Images per person (frames).")
 @click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--protocols", default="landmarks,neutral,frames,mesh,cloud,partial,scan", show_default=True,
-              help="Comma-separated subset of landmarks, neutral, frames, mesh, cloud, partial, scan.")
+@click.option("--protocols", default="landmarks,neutral,frames,mesh,cloud,partial,scan,head", show_default=True,
+              help="Comma-separated subset of landmarks, neutral, frames, mesh, cloud, partial, scan, head.")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Identity fitter parameter.")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
               help="Folder of takes for the dense expressions (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
