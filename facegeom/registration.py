@@ -93,7 +93,7 @@ def _score(tree: cKDTree, F: np.ndarray) -> float:
 
 def icp_rigid(template: np.ndarray, points: np.ndarray, R=None, t=None, rounds: int = REFINE_ROUNDS,
               tree: cKDTree | None = None, scan_sample: np.ndarray | None = None,
-              tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray, int]:
+              tol: float = 1e-6, both: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
     """Trimmed symmetric rigid ICP of ``template (m,3)`` onto ``points (N,3)`` from ``R, t`` -> ``(R, t, rounds run)``.
 
     Each round pairs every template point with its closest scan point and
@@ -101,6 +101,9 @@ def icp_rigid(template: np.ndarray, points: np.ndarray, R=None, t=None, rounds: 
     template point, drops the outlying pairs of each direction
     (:func:`trim_outliers`: the template's parts the scan does not show, the
     scan's parts beyond the template) and solves :func:`kabsch` on the rest.
+    ``both=False``: the template -> scan pairs only (a scan that shows much
+    more than the template, a head for a face, would outvote the trimming of
+    the other direction; measured in :func:`facegeom.methods.fitting.fit_aligned`).
     Stops when the motion changes by less than ``tol`` (rotation entries;
     translation relative to the template's size) or after ``rounds``.
     """
@@ -114,9 +117,12 @@ def icp_rigid(template: np.ndarray, points: np.ndarray, R=None, t=None, rounds: 
         F = template @ R.T + t
         d, j = tree.query(F)
         v = trim_outliers(d)
-        d2, i = cKDTree(F).query(Q)
-        ok = trim_outliers(d2)
-        R1, t1 = kabsch(np.r_[template[v], template[i[ok]]], np.r_[points[j[v]], Q[ok]])
+        if both:
+            d2, i = cKDTree(F).query(Q)
+            ok = trim_outliers(d2)
+            R1, t1 = kabsch(np.r_[template[v], template[i[ok]]], np.r_[points[j[v]], Q[ok]])
+        else:
+            R1, t1 = kabsch(template[v], points[j[v]])
         step = max(float(np.abs(R1 - R).max()), float(np.abs(t1 - t).max()) / size)
         R, t = R1, t1
         if step < tol:
