@@ -215,8 +215,19 @@ def units_factor(points, template) -> float:
     """
     P = np.asarray(points, dtype=np.float64)
     F = np.asarray(template, dtype=np.float64)
-    sp, sf = (float(np.sqrt(((X - X.mean(axis=0)) ** 2).sum(axis=1).mean())) for X in (P, F))
-    if not (sp > 0 and sf > 0 and np.isfinite(sp) and np.isfinite(sf)):
+    if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] == 0 or not np.isfinite(P).all():
+        raise InputError(f"the scan must be finite points of shape (N, 3), got {P.shape}")
+
+    def log_size(X):
+        m = float(np.abs(X).max()) if X.size else 0.0
+        if not (m > 0 and np.isfinite(m)):
+            return float("-inf")
+        Y = X / m  # no overflow in the squares, whatever the coordinates
+        r = float(np.sqrt(((Y - Y.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        return np.log10(r) + np.log10(m) if r > 0 else float("-inf")
+
+    lp, lf = log_size(P), log_size(F)
+    if not (np.isfinite(lp) and np.isfinite(lf)):
         raise InputError("the scan has no extent (all its points coincide): its units cannot be told")
-    k = int(np.clip(np.round(np.log10(sf / sp)), UNIT_POWERS[0], UNIT_POWERS[-1]))
+    k = int(np.clip(np.round(lf - lp), UNIT_POWERS[0], UNIT_POWERS[-1]))
     return float(10.0 ** k)

@@ -140,3 +140,32 @@ def test_units_factor_undoes_a_power_of_ten(face, k, seed, size):
 def test_units_factor_needs_an_extent(face):
     with pytest.raises(InputError, match="no extent"):
         units_factor(np.ones((10, 3)), face)
+
+
+@settings(max_examples=60, deadline=None)
+@given(P=st.lists(st.tuples(*[st.floats(-1e300, 1e300, allow_nan=False, allow_infinity=False)] * 3),
+                  min_size=1, max_size=12))
+def test_hostile_scans_give_a_factor_or_an_input_error(face, P):
+    """Fuzz: any finite points (coincident, collinear, near overflow) -> a power of ten or InputError."""
+    P = np.asarray(P, dtype=np.float64)
+    try:
+        f = units_factor(P, face[::50])
+    except InputError:
+        return
+    assert f > 0 and np.isfinite(f) and np.log10(f) == round(np.log10(f))
+
+
+@settings(max_examples=15, deadline=None)
+@given(n=st.integers(3, 40), seed=st.integers(0, 2**16), kind=st.sampled_from(["coincident", "line", "huge", "tiny"]))
+def test_degenerate_scans_align_without_crashing(face, n, seed, kind):
+    """Fuzz: degenerate scans give a finite rotation and translation (or InputError), never a crash or NaN."""
+    rng = np.random.default_rng(seed)
+    P = {"coincident": np.ones((n, 3)), "line": np.outer(rng.random(n), [1.0, 2.0, 3.0]),
+         "huge": rng.normal(size=(n, 3)) * 1e150, "tiny": rng.normal(size=(n, 3)) * 1e-150}[kind]
+    with np.errstate(all="raise"):  # no silent overflow or invalid operations either
+        try:
+            found = align_rigid(face[::40], P)
+        except InputError:
+            return
+    assert np.isfinite(found.R).all() and np.isfinite(found.t).all()
+    assert np.allclose(found.R @ found.R.T, np.eye(3), atol=1e-9)
