@@ -468,7 +468,8 @@ def plot(results, specs, fitted, weights):
 
 
 def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
-         take=None, echo=print, progress=True, plot_it=True, takes=None, realistic_count=0, identity_fitters=None):
+         take=None, echo=print, progress=True, plot_it=True, takes=None, realistic_count=0, identity_fitters=None,
+         cloud_frame="model"):
     """Run the selected fitting experiments and write their report.
 
     Fitters whose plugin cannot be built (an optional peer such as eos) are
@@ -515,6 +516,9 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     identity_fitters : dict, optional
         Identity fitters per experiment for the realistic protocol's ``fitted`` mode
         (default: :func:`facegeom.bench.fit_realistic.identity_fitters`; ``{}``: no fitted mode).
+    cloud_frame : "model" or "any"
+        The realistic clouds in the model's frame and units, or as another tool
+        exports them (:func:`facegeom.bench.fit_realistic.run_clouds`).
 
     Returns
     -------
@@ -536,7 +540,8 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
         if identity_fitters is None:
             identity_fitters = fit_realistic.identity_fitters(model)
         _, realistic_table = fit_realistic.main(model, specs, experiments, takes, realistic_count, seed, report,
-                                                identity_fitters, cloud_cases, min(points, 10000), echo, progress)
+                                                identity_fitters, cloud_cases, min(points, 10000), echo, progress,
+                                                cloud_frame)
     cases = fitting_cases(model, count, seed)
     results, fitted, tw = {}, None, None
     if "landmarks" in experiments:

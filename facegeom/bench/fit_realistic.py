@@ -36,12 +36,14 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
 from facegeom.bench.common import available_specs, face_area_triangles, progress_bar, projector, sample_surface
 from facegeom.bench.report import format_table
-from facegeom.constants import FACE_AREA
-from facegeom.errors import FacegeomError
+from facegeom.constants import CM_TO_MM, FACE_AREA
+from facegeom.errors import FacegeomError, InputError
+from facegeom.methods.fitting import fit_aligned, to_rig_frame
 from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -53,6 +55,7 @@ from facegeom.model import (
     PointCloudTarget,
     look_at_camera,
 )
+from facegeom.registration import RigidAlignment, units_factor
 
 __all__ = ["RealisticCase", "realistic_cases", "identity_fitters", "FIT_LANDMARKS_40", "run_landmarks", "run_meshes",
            "run_clouds", "summarize", "IDENTITY_MODES"]
@@ -118,12 +121,12 @@ def _row(rig, r, case, index, V_true, method, mode, dt, **extra):
             "n_active": int((np.abs(r.weights) > 1e-3).sum()), "corr": corr.corr, **extra}
 
 
-def _fit(spec, rig, target, region=None):
+def _fit(spec, rig, target, region=None, aligned=False):
     m = spec.build("fitters")
     if region is not None and "region" in m.param_names():
         m.set_params(region=region)
     t = time.perf_counter()
-    r = m.fit(rig, target)
+    r = fit_aligned(rig, target, m)[0] if aligned else m.fit(rig, target)
     return r, time.perf_counter() - t
 
 
@@ -134,13 +137,14 @@ identity and the pose (what ``facegeom fit --identity`` returns without ``--meth
 _JOINT_SPEC = SimpleNamespace(label=JOINT)
 
 
-def _fits(model, case, target, specs, modes, identity_fitter, region=None):
+def _fits(model, case, target, specs, modes, identity_fitter, region=None, off_frame=False):
     """Yield ``(mode, rig, spec, result, seconds)`` for every identity mode and method that fits ``target``.
 
     ``identity_fitter`` returns the user's rig, or an
     :class:`~facegeom.methods.identity.IdentityFit`: then its own joint
     expression is one more row of the ``fitted`` mode (method :data:`JOINT`,
-    timed as the identity fit).
+    timed as the identity fit). ``off_frame``: the target is in another frame
+    (see :func:`run_clouds`).
     """
     fitted, spent = None, float("nan")
     if identity_fitter is not None and "fitted" in modes:
@@ -151,7 +155,13 @@ def _fits(model, case, target, specs, modes, identity_fitter, region=None):
     for mode, rig in _rigs(model, case, modes, rig_fitted).items():
         for spec in specs:
             try:
-                r, dt = _fit(spec, rig, target, region)
+                if not off_frame:
+                    r, dt = _fit(spec, rig, target, region)
+                elif mode == "fitted" and hasattr(fitted, "rotations"):
+                    pose = RigidAlignment(fitted.rotations[0], fitted.translations[0])
+                    r, dt = _fit(spec, rig, to_rig_frame(target, pose), region)
+                else:
+                    r, dt = _fit(spec, rig, target, region, aligned=True)
             except FacegeomError:  # a method that does not fit this kind of target (eos: landmarks only)
                 continue
             yield mode, rig, spec, r, dt
@@ -234,13 +244,25 @@ def run_meshes(model, cases, specs, modes=("generic", "oracle"), identity_fitter
 
 
 def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, points=10000,
-               progress=True):
+               progress=True, frame="model"):
     """Fit ``points`` noisy surface samples (0.5 mm) of the observed part of every case's face.
 
     ``identity_fitter``: callable(PointCloudTarget) -> BlendshapeRig or IdentityFit for the ``fitted`` mode.
     Fitters with a ``region`` parameter match the face area. Rows as :func:`run_meshes`,
     plus ``identity_ms`` (the identity fit's time, ``fitted`` rows; else NaN).
+
+    ``frame``: ``model`` -- the scan in the model's frame and units; ``any`` --
+    as another tool exports it: in mm, turned by a uniformly random rotation,
+    moved by N(0, 50 cm) per axis, then read as ``facegeom fit`` reads a file
+    (units by :func:`~facegeom.registration.units_factor`); the generic and
+    true rigs are fitted by :func:`~facegeom.methods.fitting.fit_aligned` (global
+    search, pose and expression alternately, as ``facegeom fit``), the fitted
+    rig on the scan brought into the model's frame by the identity fit's pose
+    (as ``facegeom fit --identity -m METHOD``). Errors in the model's frame.
     """
+    if frame not in ("model", "any"):
+        raise InputError(f"frame must be 'model' or 'any', got {frame!r}")
+    rng_frame = np.random.default_rng(7322)
     rng = np.random.default_rng(7321)
     tris = face_area_triangles(model)
     region = np.arange(FACE_AREA)
@@ -259,12 +281,17 @@ def run_clouds(model, cases, specs, modes=("generic", "oracle"), identity_fitter
         seen = coverage(model, c)
         vis = tris[seen[tris].all(axis=1)]
         P = sample_surface(V, vis, points, rng) + rng.normal(size=(points, 3)) * MESH_NOISE_CM
+        if frame == "any":
+            R = Rotation.random(random_state=rng_frame.integers(1 << 31)).as_matrix()
+            P = (P @ R.T + rng_frame.normal(size=3) * 50.0) * CM_TO_MM
+            P = P * units_factor(P, model.face()[:FACE_AREA])
         target = PointCloudTarget(P)
         spent.clear()
         for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes,
-                                            None if identity_fitter is None else timed, region):
+                                            None if identity_fitter is None else timed, region, frame == "any"):
             rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, seen=float(seen[:FACE_AREA].mean()),
-                             identity_ms=spent.get("s", np.nan) * 1e3 if mode == "fitted" else np.nan))
+                             identity_ms=spent.get("s", np.nan) * 1e3 if mode == "fitted" else np.nan,
+                             cloud_frame=frame))
     return rows
 
 
@@ -325,12 +352,14 @@ def summarize(results: dict, specs) -> str:
                          _stat(rows, mode, m, "corr"), _stat(rows, mode, m, "time_ms", np.median)]
                 table.append(line)
         n = len({r["case"] for r in rows})
-        parts.append(f"{TITLES[ex]}, {n} cases\n\n" + format_table(header, table))
+        where = ("; in mm, any orientation, moved: fitted as `facegeom fit` fits a file"
+                 if any(r.get("cloud_frame") == "any" for r in rows) else "")
+        parts.append(f"{TITLES[ex]}{where}, {n} cases\n\n" + format_table(header, table))
     return "\n\n".join(parts)
 
 
 def main(model, specs, experiments, takes, count, seed, report, identity_fitters=None, cloud_cases=3,
-         points=10000, echo=print, progress=True):
+         points=10000, echo=print, progress=True, cloud_frame="model"):
     """Run the realistic experiments among ``experiments`` and write their CSVs into ``report``.
 
     Parameters
@@ -350,6 +379,8 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
         for the ``fitted`` identity mode.
     echo, progress
         Messages and progress bars.
+    cloud_frame : "model" or "any"
+        See :func:`run_clouds`.
 
     Returns
     -------
@@ -373,6 +404,6 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
         report.csv(results["meshes"], "realistic-meshes")
     if "clouds" in experiments:
         results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, modes("clouds"), fitters.get("clouds"),
-                                       points, progress)
+                                       points, progress, cloud_frame)
         report.csv(results["clouds"], "realistic-clouds")
     return results, summarize(results, specs)

@@ -196,6 +196,9 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.option("--cloud-cases", default=5, show_default=True, type=click.IntRange(1), help="Targets for point clouds.")
 @click.option("--samplings", default=10, show_default=True, type=click.IntRange(1), help="Samplings per cloud target.")
 @click.option("--points", default=30000, show_default=True, type=click.IntRange(100), help="Points per cloud.")
+@click.option("--cloud-frame", type=click.Choice(["model", "any"]), default="model", show_default=True,
+              help="Realistic clouds in the model's frame and units, or as other tools export scans (mm, any "
+                   "orientation, moved; fitted as `facegeom fit` fits them).")
 @click.option("--take", "take_path", type=click.Path(), default=None,
               help="Take for the temporal experiment (default: the first found via --takes / $FACEGEOM_TAKES).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
@@ -208,8 +211,8 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, take_path,
-              takes_path, start, frames, realistic_cases, out, no_plot, quiet):
+def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, cloud_frame,
+              take_path, takes_path, start, frames, realistic_cases, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
     from facegeom.errors import DataNotFoundError, InputError
@@ -245,7 +248,8 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
         else:
             click.echo("no takes found: skipping the temporal experiment", err=True)
     bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
-            progress=not quiet, plot_it=not no_plot, takes=takes, realistic_count=realistic_cases)
+            progress=not quiet, plot_it=not no_plot, takes=takes, realistic_count=realistic_cases,
+            cloud_frame=cloud_frame)
 
 
 
