@@ -65,18 +65,12 @@ def kabsch(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None) -> t
     return R, mq - R @ mp
 
 
-def trim_outliers(d: np.ndarray, mads: float = TRIM_MADS, reference: np.ndarray | None = None) -> np.ndarray:
-    """Inliers among distances ``d (m,)``: at most the median plus ``mads`` scaled MADs (all if fewer than 8).
-
-    ``reference`` (bool ``(m,)``): take the median and MAD from these pairs
-    only (when there are at least 8), e.g. the pairs known to lie inside the
-    overlap, so that a majority of outliers does not set the threshold.
-    """
+def trim_outliers(d: np.ndarray, mads: float = TRIM_MADS) -> np.ndarray:
+    """Inliers among distances ``d (m,)``: at most the median plus ``mads`` scaled MADs (all if fewer than 8)."""
     if d.size < 8:
         return np.ones(d.size, dtype=bool)
-    base = d if reference is None or int(np.count_nonzero(reference)) < 8 else d[reference]
-    med = float(np.median(base))
-    mad = 1.4826 * float(np.median(np.abs(base - med)))
+    med = float(np.median(d))
+    mad = 1.4826 * float(np.median(np.abs(d - med)))
     return d <= med + mads * max(mad, 1e-12)
 
 
