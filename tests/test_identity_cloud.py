@@ -147,3 +147,15 @@ def test_head_scan_in_millimetres_any_orientation(face_model):
     assert fit.info["searched"] == [True]
     assert face_mm(fit.rig.neutral, V) < 0.5 * face_mm(face_model.face(), V)
     assert np.degrees(np.arccos(np.clip((np.trace(fit.rotations[0].T @ R) - 1) / 2, -1, 1))) < 3.0
+
+
+def test_weighted_gram_equals_the_direct_product():
+    """The syrk Gram of the cloud rounds equals A^T diag(w) A, with and without zero weights."""
+    from facegeom.methods.identity import _weighted_gram
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(60, 7))
+    for w in (rng.random(20) + 0.1, np.where(rng.random(20) < 0.3, 0.0, rng.random(20))):
+        G = _weighted_gram(A, w)
+        assert np.allclose(G, A.T @ (A * np.repeat(w, 3)[:, None]), rtol=1e-12, atol=1e-12)
+        assert np.array_equal(G, G.T)
