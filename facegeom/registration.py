@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
 
-__all__ = ["RigidAlignment", "align_rigid", "icp_rigid", "kabsch", "trim_outliers", "units_factor"]
+__all__ = ["RigidAlignment", "align_rigid", "icp_rigid", "kabsch", "rms_radius", "trim_outliers", "units_factor"]
 
 TRIM_MADS = 3.0  # pairs farther than median + this many scaled MADs are outliers
 COARSE_TEMPLATE = 250  # global search: template points per start
@@ -72,6 +72,11 @@ def trim_outliers(d: np.ndarray, mads: float = TRIM_MADS) -> np.ndarray:
     med = float(np.median(d))
     mad = 1.4826 * float(np.median(np.abs(d - med)))
     return d <= med + mads * max(mad, 1e-12)
+
+
+def rms_radius(X: np.ndarray) -> float:
+    """Root mean square distance of the points ``X (m, 3)`` from their centroid: a surface's size."""
+    return float(np.sqrt(((X - X.mean(axis=0)) ** 2).sum(axis=1).mean()))
 
 
 def _every(X: np.ndarray, count: int) -> np.ndarray:
@@ -216,8 +221,7 @@ def units_factor(points, template) -> float:
         m = float(np.abs(X).max()) if X.size else 0.0
         if not (m > 0 and np.isfinite(m)):
             return float("-inf")
-        Y = X / m  # no overflow in the squares, whatever the coordinates
-        r = float(np.sqrt(((Y - Y.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        r = rms_radius(X / m)  # no overflow in the squares, whatever the coordinates
         return np.log10(r) + np.log10(m) if r > 0 else float("-inf")
 
     lp, lf = log_size(P), log_size(F)

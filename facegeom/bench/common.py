@@ -55,6 +55,20 @@ def projector(r, cam):
     return cam.project
 
 
+def side_strip_seen(model, hidden: float, side: int) -> np.ndarray:
+    """``(n,)`` bool: the face area minus a side strip of ``hidden`` of its width (of the generic face).
+
+    The strip is on the right (``side`` > 0, largest x) or the left; vertices
+    off the face area are not seen. What a partial scan observes.
+    """
+    X = model.neutral[:FACE_AREA, 0]
+    lo, hi = float(X.min()), float(X.max())
+    cut = hidden * (hi - lo)
+    seen = np.zeros(model.n_vertices, dtype=bool)
+    seen[:FACE_AREA] = (X < hi - cut) if side > 0 else (X > lo + cut)
+    return seen
+
+
 def face_area_triangles(model) -> np.ndarray:
     """The triangles of the face area: those whose three vertices lie in ``[0, FACE_AREA)``.
 

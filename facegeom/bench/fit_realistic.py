@@ -39,7 +39,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
-from facegeom.bench.common import available_specs, face_area_triangles, progress_bar, projector, sample_surface
+from facegeom.bench.common import (
+    available_specs,
+    face_area_triangles,
+    progress_bar,
+    projector,
+    sample_surface,
+    side_strip_seen,
+)
 from facegeom.bench.report import format_table
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
@@ -217,12 +224,7 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
 
 def coverage(model, case) -> np.ndarray:
     """``(n,)`` bool: the vertices a partial scan of ``case`` observes (face area minus a side strip)."""
-    X = model.neutral[:FACE_AREA, 0]
-    lo, hi = float(X.min()), float(X.max())
-    cut = case.strip * (hi - lo)
-    seen = np.zeros(model.n_vertices, dtype=bool)
-    seen[:FACE_AREA] = (X < hi - cut) if case.side > 0 else (X > lo + cut)
-    return seen
+    return side_strip_seen(model, case.strip, case.side)
 
 
 def run_meshes(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, progress=True):

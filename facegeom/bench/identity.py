@@ -66,7 +66,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
-from facegeom.bench.common import progress_bar, sample_surface
+from facegeom.bench.common import face_area_triangles, progress_bar, sample_surface, side_strip_seen
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.methods.identity import IdentityFit, IdentityFitter
@@ -266,12 +266,8 @@ def partial_scan(model, V, rng, points, hidden, side, noise):
     The strip is ``hidden`` of the face area's width (of the generic face),
     on the right (``side`` 1) or the left (-1); ``noise`` in model units.
     """
-    tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
-    X = model.neutral[:FACE_AREA, 0]
-    lo, hi = float(X.min()), float(X.max())
-    cut = hidden * (hi - lo)
-    seen = (X < hi - cut) if side > 0 else (X > lo + cut)
-    P = sample_surface(V, tris[seen[tris].all(axis=1)], points, rng)
+    tris = face_area_triangles(model)
+    P = sample_surface(V, tris[side_strip_seen(model, hidden, side)[tris].all(axis=1)], points, rng)
     return P + rng.normal(size=P.shape) * noise
 
 

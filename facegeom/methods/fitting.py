@@ -105,10 +105,10 @@ def align_scan(rig: BlendshapeRig, target: PointCloudTarget):
     from scipy.spatial import cKDTree
 
     from facegeom.model import face_template
-    from facegeom.registration import align_rigid
+    from facegeom.registration import align_rigid, rms_radius
 
     F = face_template(rig)
-    size = float(np.sqrt(((F - F.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    size = rms_radius(F)
     if np.median(cKDTree(target.points).query(F)[0]) <= OFF_FRAME * size:
         return target, None
     found = align_rigid(F, target.points)
@@ -129,10 +129,9 @@ def fit_aligned(rig: BlendshapeRig, target, fitter, alternations: int | None = N
     milliseconds; 3 for scans). The alternation converges linearly (the
     expression takes up part of a tilt), so the start matters: a mesh starts
     from Kabsch on the quarter of the face the expressions move least
-    (:func:`mesh_off_frame`). The pose of a scan comes from the global search,
-    then local ICP (:func:`~facegeom.registration.icp_rigid`); of a mesh in
-    correspondence from robust Kabsch on the face's vertices (the ones an
-    expression moves weigh less), then Kabsch of the fitted face.
+    (:func:`mesh_off_frame`), then Kabsch of the fitted face; a scan from the
+    global search (:func:`align_scan`), then local ICP of the fitted face
+    (:func:`~facegeom.registration.icp_rigid`).
     """
     from facegeom.model import face_template
     from facegeom.registration import RigidAlignment, icp_rigid, kabsch
@@ -152,9 +151,6 @@ def fit_aligned(rig: BlendshapeRig, target, fitter, alternations: int | None = N
     r = fitter.fit(rig, inside)
     if pose is None:
         return r, None
-    if isinstance(target, PointCloudTarget):
-        P = target.points
-        Q = P[::max(1, len(P) // 2000)]
     if alternations is None:
         alternations = 30 if isinstance(target, MeshTarget) else 3
     size = float(np.ptp(face_template(rig), axis=0).max())
@@ -162,9 +158,9 @@ def fit_aligned(rig: BlendshapeRig, target, fitter, alternations: int | None = N
         F = face_template(rig, r.vertices)
         if isinstance(target, MeshTarget):
             R, t = kabsch(F, face_template(rig, target.vertices),
-                          None if target.weights is None else face_template(rig, target.weights[:, None])[:, 0])
+                          None if target.weights is None else face_template(rig, target.weights))
         else:
-            R, t, _ = icp_rigid(F[::max(1, len(F) // 1500)], P, pose.R, pose.t, rounds=30, scan_sample=Q, tol=1e-5,
+            R, t, _ = icp_rigid(F[::max(1, len(F) // 1500)], target.points, pose.R, pose.t, rounds=30, tol=1e-5,
                                 both=False)
         step = max(float(np.abs(R - pose.R).max()), float(np.abs(t - pose.t).max()) / size)
         pose = RigidAlignment(R, t)
@@ -194,14 +190,14 @@ def mesh_off_frame(rig: BlendshapeRig, target: MeshTarget):
     from the truth, against 1.5-4.3 with every vertex).
     """
     from facegeom.model import face_template
-    from facegeom.registration import RigidAlignment, kabsch
+    from facegeom.registration import RigidAlignment, kabsch, rms_radius
 
     F, T = face_template(rig), face_template(rig, target.vertices)
-    size = float(np.sqrt(((F - F.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    size = rms_radius(F)
     before = float(np.median(np.linalg.norm(T - F, axis=1)))
     if before <= OFF_FRAME * size:
         return None
-    reach = face_template(rig, np.linalg.norm(rig.deltas, axis=2).max(axis=0)[:, None])[:, 0]
+    reach = face_template(rig, np.linalg.norm(rig.deltas, axis=2).max(axis=0))
     stable = reach <= np.quantile(reach, STABLE_QUARTER)
     R, t = kabsch(F[stable], T[stable])
     after = float(np.median(np.linalg.norm(F @ R.T + t - T, axis=1)))

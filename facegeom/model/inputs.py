@@ -86,7 +86,8 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
 def face_template(rig, vertices=None) -> np.ndarray:
     """The rig's face vertices ``(m, 3)``: the face area of ICT-topology rigs, every vertex of other rigs.
 
-    ``vertices (n, 3)``: the same rows of a face of the rig (default: its neutral).
+    ``vertices (n, ...)``: the same rows of any per-vertex array of the rig
+    (a face, weights; default: its neutral).
     """
     from facegeom.constants import FACE_AREA, ICT_VERTICES
 
