@@ -65,7 +65,7 @@ from facegeom.model import (
 from facegeom.registration import RigidAlignment, units_factor
 
 __all__ = ["RealisticCase", "realistic_cases", "identity_fitters", "FIT_LANDMARKS_40", "run_landmarks", "run_meshes",
-           "run_clouds", "summarize", "IDENTITY_MODES"]
+           "run_clouds", "summarize", "IDENTITY_MODES", "pooled_reduction"]
 
 IDENTITY_MODES = ("generic", "fitted", "oracle")
 MESH_NOISE_CM = 0.05  # 0.5 mm
@@ -409,3 +409,70 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
                                        points, progress, cloud_frame)
         report.csv(results["clouds"], "realistic-clouds")
     return results, summarize(results, specs)
+
+
+def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed: int = 0) -> dict:
+    """How far below the generic neutral a method's 3-D error is, per run and pooled over runs (issue 18's target).
+
+    Each run (one ``bench fit`` seed) gives the per-case ``vertex_mm`` of the
+    ``generic`` mode's first method and of ``method`` in the ``fitted`` mode
+    (the rows of ``fit-realistic-landmarks.csv``). Per run and pooled: the
+    ratio of the mean errors minus 1 (the table's "joint vs generic"), and for
+    the pool a percentile bootstrap over the cases (95 %), since 40 images per
+    seed spread the ratio by a few percent.
+
+    Parameters
+    ----------
+    row_sets : sequence of list of dict
+        One list of rows per run (``case``, ``identity``, ``method``, ``vertex_mm``).
+    method : str
+        The ``fitted`` mode's method to score (default: the joint fit).
+    resamples, seed : int
+        Bootstrap resamples and their seed.
+
+    Returns
+    -------
+    dict
+        ``runs``: ``[(cases, generic mean, method mean, change)]``; ``pooled``:
+        ``(cases, change, low, high)``, changes as fractions (-0.3 = 30 % below).
+    """
+    gens, fits, runs = [], [], []
+    for rows in row_sets:
+        generic = [r for r in rows if r["identity"] == "generic"]
+        if not generic:
+            raise FacegeomError("a run has no generic-neutral rows")
+        first = generic[0]["method"]
+        g = {int(r["case"]): float(r["vertex_mm"]) for r in generic if r["method"] == first}
+        f = {int(r["case"]): float(r["vertex_mm"]) for r in rows if r["identity"] == "fitted" and r["method"] == method}
+        cases = sorted(set(g) & set(f))
+        if not cases:
+            raise FacegeomError(f"a run has no cases with both generic and {method!r} rows")
+        gv, fv = np.array([g[c] for c in cases]), np.array([f[c] for c in cases])
+        runs.append((len(cases), float(gv.mean()), float(fv.mean()), float(fv.mean() / gv.mean() - 1.0)))
+        gens.append(gv)
+        fits.append(fv)
+    gv, fv = np.concatenate(gens), np.concatenate(fits)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, gv.size, (int(resamples), gv.size))
+    boot = fv[idx].mean(axis=1) / gv[idx].mean(axis=1) - 1.0
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return {"runs": runs, "pooled": (int(gv.size), float(fv.mean() / gv.mean() - 1.0), float(low), float(high))}
+
+
+if __name__ == "__main__":  # python -m facegeom.bench.fit_realistic pool OUT_DIR...: issue 18's one-photo target
+    import csv
+    import sys
+    from pathlib import Path
+
+    _dirs = [Path(a) for a in sys.argv[2:]] if sys.argv[1:2] == ["pool"] else []
+    if not _dirs:
+        sys.exit("usage: python -m facegeom.bench.fit_realistic pool BENCH_FIT_OUT_DIR [...]")
+    _sets = []
+    for _d in _dirs:
+        with open(_d / "fit-realistic-landmarks.csv", newline="", encoding="utf-8") as _fh:
+            _sets.append(list(csv.DictReader(_fh)))
+    _res = pooled_reduction(_sets)
+    print(format_table(["run", "cases", "generic (mm)", JOINT + " (mm)", "change"],
+                       [[str(d), n, g, f, f"{100 * c:+.1f} %"] for d, (n, g, f, c) in zip(_dirs, _res["runs"])]))
+    _n, _c, _lo, _hi = _res["pooled"]
+    print(f"pooled over {_n} cases: {100 * _c:+.1f} % (95 % bootstrap interval {100 * _lo:+.1f} to {100 * _hi:+.1f} %)")
