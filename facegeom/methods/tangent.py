@@ -515,7 +515,7 @@ def robust_kabsch_many(P: np.ndarray, Q: np.ndarray, iterations: int = ROBUST_IT
     return np.ascontiguousarray(R.transpose(2, 0, 1)), t
 
 
-#: Default weight of the biharmonic prior relative to the tangent alignment energy (see the README: tuned on
+#: Default weight of the biharmonic prior relative to the tangent alignment energy (see docs/driving.md: tuned on
 #: ``bench drive`` seeds 1000-3000, not the reported seed 0).
 SMOOTHNESS_DEFAULT = 30.0
 
@@ -697,10 +697,10 @@ class TangentDeformer(Params):
         realistic protocol 5-8 % better than ``uniform`` at 0.5 mm noise, the
         same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
         ~1.2 ms more per deform and ~7x the ``deform_many`` time per frame, so
-        it is not the default (see the README).
+        it is not the default (see docs/driving.md).
 
     Defaults (``kring``, 1 ring, ``d=2``, displacement, robust alignment,
-    smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see the README for how they were chosen
+    smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see docs/driving.md for how they were chosen
     (``facegeom bench drive``, tuning seeds apart from the reported ones); the
     paper's plain configuration is ``d=3, field="position", align="none",
     smoothness=0, beta=None``.
