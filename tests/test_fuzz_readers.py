@@ -29,6 +29,7 @@ from facegeom.io import (
     read_mesh,
     read_point_cloud,
     read_polygon_mesh,
+    read_pts,
 )
 
 EXAMPLES = int(os.environ.get("FACEGEOM_FUZZ_EXAMPLES", "100"))
@@ -65,9 +66,11 @@ SEEDS = {
     "landmarks": b"vertex_id,u,v\n0,10.5,20\n3,11,21.25\n7,0,0\n",
     "markers": b"vertex_id,x,y,z\n5,0.1,0.2,0.3\n0,1,2,3\n17,-1,-2,-3\n",
     "sequence": b"frame,marker,x,y,z\n0,m0,0,0,0\n0,m1,1,0,0\n1,m0,0,0.1,0\n1,m1,1,0.1,0\n",
+    "pts": b"version: 1\nn_points:  3\n{\n357.417253 308.455774\n356.005 320.18\n1 1\n}\n",
 }
 SUFFIX = {"obj": ".obj", "ply_ascii": ".ply", "ply_binary": ".ply", "ply_big": ".ply", "off": ".off",
-          "xyz": ".xyz", "landmarks": ".csv", "markers": ".csv", "sequence": ".csv", "npz": ".npz"}
+          "xyz": ".xyz", "landmarks": ".csv", "markers": ".csv", "sequence": ".csv", "npz": ".npz",
+          "pts": ".pts"}
 
 
 def _npz_seed() -> bytes:
@@ -147,6 +150,14 @@ def check_landmarks(path):
     assert uv.shape == (ids.size, 2) and np.isfinite(uv).all()
 
 
+def check_pts(path):
+    try:
+        P = read_pts(path)
+    except InputError:
+        return
+    assert P.dtype == np.float64 and P.ndim == 2 and P.shape[1] == 2 and P.shape[0] >= 1 and np.isfinite(P).all()
+
+
 def check_markers(path):
     try:
         ids, pos = read_markers(path, n_vertices=20)
@@ -169,7 +180,8 @@ def check_sequence(path):
 CHECKS = {"obj": (check_mesh, check_cloud), "ply_ascii": (check_mesh, check_cloud),
           "ply_binary": (check_mesh, check_cloud), "ply_big": (check_mesh, check_cloud),
           "off": (check_mesh, check_cloud), "xyz": (check_cloud,), "landmarks": (check_landmarks,),
-          "markers": (check_markers,), "sequence": (check_sequence,), "npz": (check_sequence,)}
+          "markers": (check_markers,), "sequence": (check_sequence,), "npz": (check_sequence,),
+          "pts": (check_pts,)}
 BOUNDED = {"obj", "ply_ascii", "ply_binary", "ply_big", "off", "xyz"}  # our readers: memory O(file size)
 
 

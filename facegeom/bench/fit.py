@@ -469,7 +469,7 @@ def plot(results, specs, fitted, weights):
 
 def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=5, samplings=10, points=30000,
          take=None, echo=print, progress=True, plot_it=True, takes=None, realistic_count=0, identity_fitters=None,
-         cloud_frame="model"):
+         cloud_frame="model", contour="outline"):
     """Run the selected fitting experiments and write their report.
 
     Fitters whose plugin cannot be built (an optional peer such as eos) are
@@ -519,6 +519,9 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     cloud_frame : "model" or "any"
         The realistic clouds in the model's frame and units, or as another tool
         exports them (:func:`facegeom.bench.fit_realistic.run_clouds`).
+    contour : "outline" or "fixed"
+        The realistic photos' jaw contour on the face's outline in the view, or
+        on fixed vertices (:func:`facegeom.bench.fit_realistic.run_landmarks`).
 
     Returns
     -------
@@ -541,7 +544,7 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
             identity_fitters = fit_realistic.identity_fitters(model)
         _, realistic_table = fit_realistic.main(model, specs, experiments, takes, realistic_count, seed, report,
                                                 identity_fitters, cloud_cases, min(points, 10000), echo, progress,
-                                                cloud_frame)
+                                                cloud_frame, contour)
     cases = fitting_cases(model, count, seed)
     results, fitted, tw = {}, None, None
     if "landmarks" in experiments:

@@ -51,6 +51,7 @@ from facegeom.bench.report import format_table
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.errors import FacegeomError, InputError
 from facegeom.methods.fitting import fit_aligned, to_rig_frame
+from facegeom.methods.identity import IdentityFitter
 from facegeom.model import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -62,10 +63,11 @@ from facegeom.model import (
     PointCloudTarget,
     look_at_camera,
 )
+from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates, silhouette_vertices
 from facegeom.registration import RigidAlignment, units_factor
 
 __all__ = ["RealisticCase", "realistic_cases", "identity_fitters", "FIT_LANDMARKS_40", "run_landmarks", "run_meshes",
-           "run_clouds", "summarize", "IDENTITY_MODES", "pooled_reduction"]
+           "run_clouds", "summarize", "IDENTITY_MODES", "pooled_reduction", "JOINT", "JOINT_GENERIC"]
 
 IDENTITY_MODES = ("generic", "fitted", "oracle")
 MESH_NOISE_CM = 0.05  # 0.5 mm
@@ -143,6 +145,13 @@ identity and the pose (what ``facegeom fit --identity`` returns without ``--meth
 
 _JOINT_SPEC = SimpleNamespace(label=JOINT)
 
+JOINT_GENERIC = "joint, no identity"
+"""Method name of the ``generic`` mode's extra landmark row: the identity fitter's joint fit (pose, expression,
+jaw contour) with the identity held at the generic neutral -- the reference that differs from :data:`JOINT` only by
+the identity."""
+
+_JOINT_GENERIC_SPEC = SimpleNamespace(label=JOINT_GENERIC)
+
 
 def _fits(model, case, target, specs, modes, identity_fitter, region=None, off_frame=False):
     """Yield ``(mode, rig, spec, result, seconds)`` for every identity mode and method that fits ``target``.
@@ -180,8 +189,19 @@ FIT_LANDMARKS_40 = tuple(range(17)) + tuple(FIT_LANDMARKS_23)
 """The realistic protocol's fit landmarks: the jaw contour (0-16) and the paper's 23."""
 
 
-def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, progress=True):
+def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fitter=None, progress=True,
+                  contour="outline"):
     """Fit the 40 noisy landmarks of every case (pose unknown, focal off) with every method and identity mode.
+
+    ``contour="outline"`` (realistic): the jaw-contour landmarks of
+    :data:`~facegeom.model.landmarks.SIDE_CONTOUR` are drawn where an annotator
+    or a detector puts them, on the true face's outline in the view
+    (:func:`~facegeom.model.landmarks.silhouette_vertices`), while the fitters
+    are told the landmarks' usual vertices; ``"fixed"``: on those vertices.
+    With an identity fitter, the ``generic`` mode also gets the joint fit with
+    the identity held at the generic neutral (:data:`JOINT_GENERIC`, an
+    :class:`~facegeom.methods.identity.IdentityFitter` with no identity modes):
+    what fitting the identity adds, everything else equal.
 
     Parameters
     ----------
@@ -202,20 +222,35 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
         against their clean projections, a fraction of the true inner-eye
         distance), ``time_ms``, plus the case's ``noise_px`` and ``yaw``.
     """
+    if contour not in ("outline", "fixed"):
+        raise InputError(f"contour must be 'outline' or 'fixed', got {contour!r}")
     rng = np.random.default_rng(7319)
-    lm = model.landmarks
+    lm = np.asarray(model.landmarks)
     fit_ids, eval_ids = lm[list(FIT_LANDMARKS_40)], lm[list(EVAL_LANDMARKS_26)]
+    candidates = (contour_candidates(np.asarray(model.neutral, dtype=np.float64), lm, region=np.arange(FACE_AREA))
+                  if contour == "outline" else {})
+    outline = np.isin(np.asarray(FIT_LANDMARKS_40), SIDE_CONTOUR)  # the rows an annotator puts on the outline
     eye_ids = lm[list(INNER_EYE_CORNERS)]
     rows = []
     for ci, c in enumerate(progress_bar(cases, "realistic landmarks", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
         cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
-        uv = cam.project(V[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * c.noise_px
+        seen = fit_ids
+        if candidates:  # the jaw contour where the outline is in this view
+            seen = silhouette_vertices(lambda ids: cam.project(V[ids]), lm, candidates,
+                                       float(cam.project(V[lm[[30]]])[0, 0]))[list(FIT_LANDMARKS_40)]
+        uv = cam.project(V[seen]) + rng.normal(size=(fit_ids.size, 2)) * c.noise_px
         uv_eval = cam.project(V[eval_ids])
         io = fm.interocular_distance(*cam.project(V[eye_ids]))
-        target = LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal * c.focal_factor, cam.cx, cam.cy))
-        for mode, rig, spec, r, dt in _fits(model, c, target, specs, modes, identity_fitter):
+        target = LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal * c.focal_factor, cam.cx, cam.cy),
+                                outline if candidates else None)
+        fits = list(_fits(model, c, target, specs, modes, identity_fitter))
+        if identity_fitter is not None and "fitted" in modes:
+            t = time.perf_counter()
+            generic = IdentityFitter(n_identities=0).fit(model, [target])
+            fits.append(("generic", generic.rig, _JOINT_GENERIC_SPEC, generic.fit_result(0), time.perf_counter() - t))
+        for mode, rig, spec, r, dt in fits:
             proj = projector(r, cam)
             rows.append(_row(rig, r, c, ci, V, spec.label, mode, dt, noise_px=c.noise_px, yaw=c.yaw,
                              ne_eval=fm.normalized_error(proj(r.vertices[eval_ids]), uv_eval, io)))
@@ -334,7 +369,7 @@ def summarize(results: dict, specs) -> str:
     The first column of each block is the identity the rig was built with; within a
     mode the best vertex error is the one to beat.
     """
-    labels = [s.label for s in specs] + [JOINT]  # the joint row shows only where an identity fitter gave it
+    labels = [s.label for s in specs] + [JOINT, JOINT_GENERIC]  # the joint rows show only where they were fitted
     parts = []
     for ex in ("landmarks", "meshes", "clouds"):
         rows = results.get(ex)
@@ -361,7 +396,7 @@ def summarize(results: dict, specs) -> str:
 
 
 def main(model, specs, experiments, takes, count, seed, report, identity_fitters=None, cloud_cases=3,
-         points=10000, echo=print, progress=True, cloud_frame="model"):
+         points=10000, echo=print, progress=True, cloud_frame="model", contour="outline"):
     """Run the realistic experiments among ``experiments`` and write their CSVs into ``report``.
 
     Parameters
@@ -383,6 +418,8 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
         Messages and progress bars.
     cloud_frame : "model" or "any"
         See :func:`run_clouds`.
+    contour : "outline" or "fixed"
+        See :func:`run_landmarks`.
 
     Returns
     -------
@@ -399,7 +436,7 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
 
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, modes("landmarks"), fitters.get("landmarks"),
-                                             progress)
+                                             progress, contour)
         report.csv(results["landmarks"], "realistic-landmarks")
     if "meshes" in experiments:
         results["meshes"] = run_meshes(model, cases, specs, modes("meshes"), fitters.get("meshes"), progress)
@@ -411,11 +448,13 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
     return results, summarize(results, specs)
 
 
-def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed: int = 0) -> dict:
+def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed: int = 0,
+                     reference: str | None = None) -> dict:
     """How far below the generic neutral a method's 3-D error is, per run and pooled over runs (issue 18's target).
 
     Each run (one ``bench fit`` seed) gives the per-case ``vertex_mm`` of the
-    ``generic`` mode's first method and of ``method`` in the ``fitted`` mode
+    ``generic`` mode's ``reference`` method (default: its first, the first
+    expression fitter of the lineup) and of ``method`` in the ``fitted`` mode
     (the rows of ``fit-realistic-landmarks.csv``). Per run and pooled: the
     ratio of the mean errors minus 1 (the table's "joint vs generic"), and for
     the pool a percentile bootstrap over the cases (95 %), since 40 images per
@@ -441,12 +480,12 @@ def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed:
         generic = [r for r in rows if r["identity"] == "generic"]
         if not generic:
             raise FacegeomError("a run has no generic-neutral rows")
-        first = generic[0]["method"]
+        first = generic[0]["method"] if reference is None else reference
         g = {int(r["case"]): float(r["vertex_mm"]) for r in generic if r["method"] == first}
         f = {int(r["case"]): float(r["vertex_mm"]) for r in rows if r["identity"] == "fitted" and r["method"] == method}
         cases = sorted(set(g) & set(f))
         if not cases:
-            raise FacegeomError(f"a run has no cases with both generic and {method!r} rows")
+            raise FacegeomError(f"a run has no cases with both generic {first!r} and {method!r} rows")
         gv, fv = np.array([g[c] for c in cases]), np.array([f[c] for c in cases])
         runs.append((len(cases), float(gv.mean()), float(fv.mean()), float(fv.mean() / gv.mean() - 1.0)))
         gens.append(gv)
@@ -471,8 +510,13 @@ if __name__ == "__main__":  # python -m facegeom.bench.fit_realistic pool OUT_DI
     for _d in _dirs:
         with open(_d / "fit-realistic-landmarks.csv", newline="", encoding="utf-8") as _fh:
             _sets.append(list(csv.DictReader(_fh)))
-    _res = pooled_reduction(_sets)
-    print(format_table(["run", "cases", "generic (mm)", JOINT + " (mm)", "change"],
-                       [[str(d), n, g, f, f"{100 * c:+.1f} %"] for d, (n, g, f, c) in zip(_dirs, _res["runs"])]))
-    _n, _c, _lo, _hi = _res["pooled"]
-    print(f"pooled over {_n} cases: {100 * _c:+.1f} % (95 % bootstrap interval {100 * _lo:+.1f} to {100 * _hi:+.1f} %)")
+    _refs = [None] + ([JOINT_GENERIC] if any(r["method"] == JOINT_GENERIC for r in _sets[0]) else [])
+    for _ref in _refs:
+        _res = pooled_reduction(_sets, reference=_ref)
+        _name = _ref or next(r["method"] for r in _sets[0] if r["identity"] == "generic")
+        print(f"\n{JOINT} against the generic neutral's {_name}:")
+        print(format_table(["run", "cases", "generic (mm)", JOINT + " (mm)", "change"],
+                           [[str(d), n, g, f, f"{100 * c:+.1f} %"] for d, (n, g, f, c) in zip(_dirs, _res["runs"])]))
+        _n, _c, _lo, _hi = _res["pooled"]
+        print(f"pooled over {_n} cases: {100 * _c:+.1f} % (95 % bootstrap interval {100 * _lo:+.1f} to "
+              f"{100 * _hi:+.1f} %)")

@@ -199,6 +199,9 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.option("--cloud-frame", type=click.Choice(["model", "any"]), default="model", show_default=True,
               help="Realistic clouds in the model's frame and units, or as other tools export scans (mm, any "
                    "orientation, moved; fitted as `facegeom fit` fits them).")
+@click.option("--contour", type=click.Choice(["outline", "fixed"]), default="outline", show_default=True,
+              help="Realistic photos: the jaw-contour landmarks on the face's outline in the view (as annotators and "
+                   "detectors mark them), or on fixed vertices (the idealised protocol of earlier releases).")
 @click.option("--take", "take_path", type=click.Path(), default=None,
               help="Take for the temporal experiment (default: the first found via --takes / $FACEGEOM_TAKES).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
@@ -212,7 +215,7 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
 def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, cloud_frame,
-              take_path, takes_path, start, frames, realistic_cases, out, no_plot, quiet):
+              contour, take_path, takes_path, start, frames, realistic_cases, out, no_plot, quiet):
     """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
     from facegeom.bench import fit as bf
     from facegeom.errors import DataNotFoundError, InputError
@@ -249,7 +252,7 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
             click.echo("no takes found: skipping the temporal experiment", err=True)
     bf.main(model, specs, ex, cases, seed, out, noise_px, cloud_cases, samplings, points, take, echo=click.echo,
             progress=not quiet, plot_it=not no_plot, takes=takes, realistic_count=realistic_cases,
-            cloud_frame=cloud_frame)
+            cloud_frame=cloud_frame, contour=contour)
 
 
 

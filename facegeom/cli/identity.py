@@ -18,8 +18,12 @@ import numpy as np
 
 from facegeom.cli.context import Context, parse_params
 
-TARGET_HELP = ("What the TARGETS are: meshes in correspondence with the model, landmark CSVs (vertex_id,u,v) or "
-               "point clouds (auto: .csv = landmarks, a mesh with the model's vertex count = mesh, else points).")
+TARGET_HELP = ("What the TARGETS are: meshes in correspondence with the model, landmarks (a vertex_id,u,v CSV or an "
+               "iBUG .pts annotation) or point clouds (auto: .csv / .pts = landmarks, a mesh with the model's vertex "
+               "count = mesh, else points).")
+
+IMAGE_HELP = ("Landmarks: the photo they were marked on; its size sets --cx / --cy (the centre) and, when --focal is "
+              "not given, the focal length (the larger side in pixels, a ~53 degree field of view).")
 
 
 SCALE_HELP = ("Meshes and point clouds: the factor into the model's units (cm), or auto: the power of ten that "
@@ -42,6 +46,28 @@ def read_targets(paths, model, kind="auto", focal=None, cx=None, cy=None, scale=
     for line in notes:
         click.echo(line)
     return kinds, targets
+
+
+def camera_defaults(focal, cx, cy, image):
+    """``--focal / --cx / --cy`` completed from ``--image``: the centre and, if not given, ``max(width, height)``.
+
+    A focal length that is off by up to 30 % costs little (the pose absorbs
+    it in the face's distance; see the realistic protocol of ``bench fit``),
+    so a photo's size is enough for a first fit. Says on the terminal what was
+    assumed.
+    """
+    if image is None:
+        return focal, cx, cy
+    from facegeom.io import image_size
+
+    w, h = image_size(image)
+    cx = (w - 1) / 2.0 if cx is None else cx
+    cy = (h - 1) / 2.0 if cy is None else cy
+    if focal is None:
+        focal = float(max(w, h))
+        click.echo(f"{Path(image).name}: {w} x {h} px; focal length not given, assumed {focal:g} px (the larger "
+                   f"side; give --focal if you know it)")
+    return focal, cx, cy
 
 
 def parse_scale(value: str):
@@ -119,6 +145,7 @@ def write_coefficients(path, fit, names, files) -> Path:
 @click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
 @click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
 @click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("--image", type=click.Path(dir_okay=False), default=None, help=IMAGE_HELP)
 @click.option("--scale", default="auto", show_default=True, help=SCALE_HELP)
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE",
               help="Identity fitter parameter, repeatable (e.g. -p noise_px=2 -p n_identities=50).")
@@ -127,7 +154,8 @@ def write_coefficients(path, fit, names, files) -> Path:
 @click.option("--with-expressions", is_flag=True,
               help="The targets are not neutral: fit an expression per target too (default: neutral frames).")
 @click.pass_obj
-def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, scale, params, coefficients, with_expressions):
+def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, image, scale, params, coefficients,
+                 with_expressions):
     """Fit one identity to TARGETS (neutral frames of one person) and write the user-specific rig.
 
     Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
@@ -136,10 +164,11 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, scale, para
     from facegeom.io import check_outputs
     from facegeom.methods.identity import IdentityFitter
 
-    check_outputs(list(targets), [output] + ([coefficients] if coefficients else []))
+    check_outputs(list(targets) + ([image] if image else []), [output] + ([coefficients] if coefficients else []))
     if coefficients and Path(coefficients).suffix.lower() != ".json":
         raise InputError("the coefficients file must be .json", coefficients)
     model = obj.face_model()
+    focal, cx, cy = camera_defaults(focal, cx, cy, image)
     kinds, tgs = read_targets(targets, model, kind, focal, cx, cy, parse_scale(scale))
     fitter = IdentityFitter(**{"expressions": with_expressions, **parse_params(params)})
     fit = fitter.fit(model, tgs)

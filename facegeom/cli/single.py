@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from facegeom.cli.context import Context, parse_params
+from facegeom.cli.identity import IMAGE_HELP
 
 
 def _make_folder(folder) -> list[Path]:
@@ -119,8 +120,9 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.command()
 @click.argument("target", type=click.Path(dir_okay=False))
 @click.option("--kind", type=click.Choice(["auto", "mesh", "landmarks", "points"]), default="auto", show_default=True,
-              help="What TARGET is: a mesh in correspondence with the rig, a landmark CSV (vertex_id,u,v) or a point "
-                   "cloud (auto: .csv = landmarks, a mesh with the rig's vertex count = mesh, else points).")
+              help="What TARGET is: a mesh in correspondence with the rig, landmarks (a vertex_id,u,v CSV, or an iBUG "
+                   ".pts annotation of the 68-point convention) or a point cloud (auto: .csv / .pts = landmarks, a "
+                   "mesh with the rig's vertex count = mesh, else points).")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs (neutral.obj + one per shape); "
                    "default: the ICT generic face with its 53 expressions.")
@@ -129,6 +131,7 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
 @click.option("--cx", type=float, default=None, help="Landmarks: principal point x (pixels).")
 @click.option("--cy", type=float, default=None, help="Landmarks: principal point y (pixels).")
+@click.option("--image", type=click.Path(dir_okay=False), default=None, help=IMAGE_HELP)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Coefficients by shape name (.json or .csv).")
 @click.option("--mesh-out", type=click.Path(dir_okay=False), default=None, help="Also write the fitted face mesh.")
@@ -143,21 +146,22 @@ def retarget(source, labels, output, method, params, fill_gaps):
               help="Meshes and point clouds: the factor into the rig's units, or auto: the power of ten that makes "
                    "the scan the size of the rig's face (a scan in mm for the ICT rig in cm gets 0.1).")
 @click.pass_context
-def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, output, mesh_out, identity, id_params, rig_out,
-        scale):
+def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, image, output, mesh_out, identity, id_params,
+        rig_out, scale):
     """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
     import numpy as np
 
     from facegeom import registry
-    from facegeom.cli.identity import parse_scale
+    from facegeom.cli.identity import camera_defaults, parse_scale
     from facegeom.io import all_or_nothing, check_outputs, write_mesh
     from facegeom.model import load_rig
     from facegeom.pipelines.single import fit_file, write_fit
 
     obj: Context = ctx.obj
-    check_outputs([target, rig_path], [output, mesh_out, rig_out])
+    check_outputs([target, rig_path, image], [output, mesh_out, rig_out])
     tp = Path(target)
     scale = parse_scale(scale)
+    focal, cx, cy = camera_defaults(focal, cx, cy, image)
     if identity or rig_out or id_params:
         from facegeom.cli.identity import fit_identity_target, write_rig
         from facegeom.errors import InputError

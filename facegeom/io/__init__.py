@@ -18,8 +18,10 @@ from facegeom.io.files import (
 from facegeom.io.fitfiles import (
     CLOUD_FORMATS,
     TARGET_KINDS,
+    image_size,
     read_landmarks,
     read_point_cloud,
+    read_pts,
     read_weights,
     write_weights,
 )
@@ -82,6 +84,8 @@ __all__ = [
     "CLOUD_FORMATS",
     "TARGET_KINDS",
     "read_landmarks",
+    "read_pts",
+    "image_size",
     "read_point_cloud",
     "read_weights",
     "write_weights",

@@ -1,7 +1,9 @@
 """Files of blendshape fitting: landmark CSVs, point clouds, fitted coefficients.
 
 - Landmarks: CSV with the header ``vertex_id,u,v`` (pixels; ``v`` grows
-  downwards, the convention of :class:`facegeom.model.camera.PinholeCamera`).
+  downwards, the convention of :class:`facegeom.model.camera.PinholeCamera`),
+  or an iBUG / 300-W ``.pts`` annotation (:func:`read_pts`: the 68-point
+  convention's points by index, 1-based pixels).
 - Point clouds: PLY / OBJ / XYZ / OFF read by the validating readers of
   :mod:`facegeom.io.formats` (faces, if any, are ignored), or ``.npy`` ``(N, 3)``
   (no pickles; its size checked against the file before loading).
@@ -26,7 +28,8 @@ from facegeom.io.files import atomic_path, read_csv_rows
 from facegeom.io.formats import read_points
 from facegeom.io.ints import check_int64
 
-__all__ = ["read_landmarks", "read_point_cloud", "write_weights", "read_weights", "CLOUD_FORMATS", "TARGET_KINDS"]
+__all__ = ["read_landmarks", "read_pts", "PTS_MAX_POINTS", "image_size", "read_point_cloud", "write_weights",
+           "read_weights", "CLOUD_FORMATS", "TARGET_KINDS"]
 
 CLOUD_FORMATS = (".ply", ".obj", ".xyz", ".off", ".npy")
 TARGET_KINDS = ("auto", "mesh", "landmarks", "points")
@@ -70,6 +73,111 @@ def read_landmarks(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     if (ids < 0).any():
         raise InputError(f"vertex_id {int(ids[ids < 0][0])} is negative", path)
     return ids, np.array(uv, dtype=np.float64)
+
+
+#: Most points a ``.pts`` file may hold (the common conventions have 5-194; the limit keeps a hostile count small).
+PTS_MAX_POINTS = 10_000
+
+
+def read_pts(path: str | os.PathLike) -> np.ndarray:
+    """Read an iBUG / 300-W ``.pts`` landmark annotation -> ``(N, 2)`` pixel coordinates, 0-based.
+
+    The format: optional header lines ``version: 1`` and ``n_points: N``, a
+    line ``{``, one ``x y`` line per point, a line ``}``. The annotations of
+    300-W and the tools that follow it are 1-based (Matlab's pixel indices:
+    the top-left pixel's centre is ``(1, 1)``), so 1 is subtracted to match
+    the 0-based convention of :class:`facegeom.model.camera.PinholeCamera`.
+    Which landmark each row is follows from its place (e.g. the 68-point
+    Multi-PIE / iBUG order).
+
+    Raises
+    ------
+    InputError
+        Missing, empty, not text, no ``{ ... }`` block, a row that is not two
+        numbers, NaN / inf, ``n_points`` not matching the rows, more than
+        :data:`PTS_MAX_POINTS` points.
+    """
+    path = Path(path)
+    _exists(path, "landmark")
+    if path.stat().st_size > 64 * PTS_MAX_POINTS + 4096:
+        raise InputError(f"too large for a .pts annotation (over {PTS_MAX_POINTS} points)", path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+    lines = text.splitlines()
+    count, start = None, None
+    for i, line in enumerate(lines):
+        t = line.strip()
+        if not t:
+            continue
+        if t == "{":
+            start = i + 1
+            break
+        key, sep, value = t.partition(":")
+        if not sep or key.strip().lower() not in ("version", "n_points"):
+            raise InputError(f"line {i + 1}: expected 'version: 1', 'n_points: N' or '{{', got {t[:40]!r}", path)
+        if key.strip().lower() == "n_points":
+            try:
+                count = int(value.strip())
+            except ValueError:
+                raise InputError(f"line {i + 1}: n_points is not a whole number", path) from None
+            if not 1 <= count <= PTS_MAX_POINTS:
+                raise InputError(f"line {i + 1}: n_points must be 1-{PTS_MAX_POINTS}, got {count}", path)
+    if start is None:
+        raise InputError("no '{' line opening the points", path)
+    pts, closed = [], False
+    for i in range(start, len(lines)):
+        t = lines[i].strip()
+        if not t:
+            continue
+        if t == "}":
+            closed = True
+            rest = [x for x in lines[i + 1:] if x.strip()]
+            if rest:
+                raise InputError(f"line {i + 2}: text after the closing '}}'", path)
+            break
+        parts = t.split()
+        if len(parts) != 2:
+            raise InputError(f"line {i + 1}: expected two numbers 'x y', got {len(parts)} values", path)
+        try:
+            q = [float(parts[0]), float(parts[1])]
+        except ValueError:
+            raise InputError(f"line {i + 1}: not a number", path) from None
+        if not np.all(np.isfinite(q)):
+            raise InputError(f"line {i + 1}: coordinate is NaN or inf", path)
+        pts.append(q)
+        if len(pts) > PTS_MAX_POINTS:
+            raise InputError(f"more than {PTS_MAX_POINTS} points", path)
+    if not closed:
+        raise InputError("no '}' line closing the points", path)
+    if not pts:
+        raise InputError("no points between '{' and '}'", path)
+    if count is not None and count != len(pts):
+        raise InputError(f"n_points says {count} but the file has {len(pts)} points", path)
+    return np.array(pts, dtype=np.float64) - 1.0
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """The ``(width, height)`` in pixels of a photo (any format Pillow reads; only its header is read).
+
+    Raises
+    ------
+    InputError
+        Missing, empty, or not an image Pillow can read.
+    """
+    path = Path(path)
+    _exists(path, "image")
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:  # lazy: the header only, no pixels decoded
+            w, h = im.size
+    except Exception as exc:  # noqa: BLE001 - Pillow raises many types on a malformed or unknown file
+        raise InputError(f"cannot read as an image ({exc.__class__.__name__})", path) from None
+    if not (w > 0 and h > 0):
+        raise InputError(f"the image has no pixels ({w} x {h})", path)
+    return int(w), int(h)
 
 
 def _read_npy(path: Path) -> np.ndarray:

@@ -249,6 +249,7 @@ from facegeom.model import (
     PointCloudTarget,
     estimate_pose,
 )
+from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates
 from facegeom.registration import align_rigid, kabsch, trim_outliers
 
 __all__ = ["IdentityFit", "IdentityFitter", "expression_statistics", "fit_identity"]
@@ -450,13 +451,21 @@ class IdentityFitter(Params):
         the fit at ``noise_px``, re-estimate the landmark sigma from the
         residual (pooled with ``noise_px``, at least half of it) and fit again
         from there (see "Landmark noise" in the module docstring).
+    contour : bool
+        Landmark targets with an estimated pose whose jaw-contour rows are
+        marked as on the outline (``LandmarkTarget.outline``, set for ``.pts``
+        annotations; :data:`~facegeom.model.landmarks.SIDE_CONTOUR`): each such
+        row moves every round (the first run of rounds) to the vertex of its
+        band that is farthest out in the current view
+        (:func:`~facegeom.model.landmarks.silhouette_vertices`; see "Jaw
+        contour" in the module docstring). ``False``: fixed vertices.
     """
 
     def __init__(self, noise_px: float = 1.0, noise_mm: float = 0.5, expression_prior: float = 1.0,
                  expression_l1: float = 5.0, expressions: bool = True, temper: bool = True, n_identities=None,
                  rigid: bool = True, region=None, rounds: int = 10,
                  icp_iterations: int = 100, tol: float = 1e-6, expression_stats=None, identity_scale=1.0,
-                 occam: bool = True, estimate_noise: bool = True, cloud_passes: int = 3):
+                 occam: bool = True, estimate_noise: bool = True, cloud_passes: int = 3, contour: bool = True):
         for name, v in (("noise_px", noise_px), ("noise_mm", noise_mm), ("expression_prior", expression_prior),
                         ("tol", tol)):
             if not is_finite_number(v) or v <= 0:
@@ -466,12 +475,14 @@ class IdentityFitter(Params):
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if n_identities is not None and (not is_integer(n_identities) or n_identities < 0):
             raise InputError(f"n_identities must be a non-negative integer or None, got {n_identities!r}")
-        for name, v in (("rigid", rigid), ("expressions", expressions), ("temper", temper), ("occam", occam)):
+        for name, v in (("rigid", rigid), ("expressions", expressions), ("temper", temper), ("occam", occam),
+                        ("contour", contour)):
             if not isinstance(v, (bool, np.bool_)):
                 raise InputError(f"{name} must be true or false, got {v!r}")
         self.expressions = bool(expressions)
         self.temper = bool(temper)
         self.occam = bool(occam)
+        self.contour = bool(contour)
         if region is not None:
             r = np.asarray(region)
             if r.ndim != 1 or r.size == 0 or not np.issubdtype(r.dtype, np.integer) or r.min() < 0:
@@ -529,6 +540,35 @@ class IdentityFitter(Params):
         deltas = np.asarray(model.expression_deltas[:, ids], dtype=np.float64)
         return (np.asarray(model.neutral[ids], dtype=np.float64),
                 np.ascontiguousarray(np.concatenate([modes, deltas]).transpose(1, 2, 0)))
+
+    def _contour_rows(self, model, ids, outline):
+        """The jaw-contour rows of a landmark target, packed for one product a round, or None.
+
+        ``(rows (J,), side (J,), starts (J,), cands (T,), N_c (T, 3), basis rows (T, 3, C))``: row ``rows[j]``
+        of the target may move to any of ``cands[starts[j]:starts[j + 1]]``; ``side`` is +1 on the face's
+        left (+x), -1 on its right.
+        """
+        lm = getattr(model, "landmarks", None)
+        if lm is None:
+            return None
+        lm = np.asarray(lm, dtype=np.int64)
+        cands = _cached(model, ("contour",))
+        if cands is None:
+            V = np.asarray(model.neutral, dtype=np.float64)
+            cands = _cached(model, ("contour",), contour_candidates(V, lm, region=np.arange(min(FACE_AREA, len(V)))))
+        mid = float(np.asarray(model.neutral, dtype=np.float64)[lm[[27, 28, 29, 30]], 0].mean())
+        rows, side, parts = [], [], []
+        for j, v in enumerate(ids):
+            for k in SIDE_CONTOUR:
+                if outline[j] and v == lm[k] and k in cands:
+                    rows.append(j)
+                    side.append(1.0 if float(model.neutral[lm[k]][0]) >= mid else -1.0)
+                    parts.append(cands[k])
+        if not rows:
+            return None
+        starts = np.cumsum([0] + [len(c) for c in parts[:-1]])
+        allc = np.concatenate(parts)
+        return (np.array(rows), np.array(side), starts, allc, *self._rows(model, allc))
 
     def _region_gram(self, model, ids):
         """``(A (3m, I+B), G = A'A)`` for the vertices ``ids`` (None: all), kept for the last model."""
@@ -646,6 +686,7 @@ class IdentityFitter(Params):
         if not state.free_poses and not any(isinstance(t, (LandmarkTarget, PointCloudTarget)) for t in targets):
             rounds = 1  # meshes in the model frame: one linear solve is exact
         x, r, converged = self._rounds(state, x, rounds, E_prev)
+        state.marching = False  # the outline found, the later runs (noise, scale) keep it
         if "points" in state.kinds:
             for _ in range(self.cloud_passes - 1):  # the annealing again, from where the last pass ended
                 state.rematch(x)
@@ -742,10 +783,15 @@ class _State:
         self.free_poses = [k for k, tg in enumerate(targets)
                            if (isinstance(tg, LandmarkTarget) and not tg.camera.posed)
                            or (not isinstance(tg, LandmarkTarget) and fitter.rigid)]
+        self.contour: list = [None] * K  # landmarks: the jaw contour's rows and candidates (_contour_rows)
+        self.marching = True  # the contour moves with the fit (the first run of rounds; then it is kept)
+        self.settled_contour = [False] * K  # a round left target k's contour where it was: no more moves
         for k, tg in enumerate(targets):
             if isinstance(tg, LandmarkTarget):
                 ids = np.asarray(tg.vertex_ids, dtype=np.int64)
                 self.sub[k] = (ids, *fitter._rows(model, ids))
+                if fitter.contour and not tg.camera.posed and tg.outline.any():
+                    self.contour[k] = fitter._contour_rows(model, ids, tg.outline)
             else:
                 if self.neutral is None:
                     self.neutral = fitter._basis(model)[0]
@@ -801,6 +847,8 @@ class _State:
                     stable = np.sort(np.argsort(reach, kind="stable")[:m])
                     self.cams[k] = estimate_pose(Nl[stable], tg.points2d[stable], tg.camera)
                 self.R[k], self.t[k] = self.cams[k].R, self.cams[k].t
+                if self.contour[k] is not None:
+                    self._march(x, k)
             else:
                 if isinstance(tg, PointCloudTarget):
                     if self.f.rigid:
@@ -901,11 +949,35 @@ class _State:
                 self.R[k], self.t[k] = Rm.T, -Rm.T @ tm
 
     def rematch(self, x):
-        """New closest points for the point clouds."""
+        """New closest points for the point clouds; the jaw contour's outline vertices for landmark targets."""
         self.changed = False
         for k, tg in enumerate(self.targets):
             if isinstance(tg, PointCloudTarget):
                 self._match(x, k)
+            elif self.contour[k] is not None and self.marching and not self.settled_contour[k]:
+                self._march(x, k)
+
+    def _march(self, x, k):
+        """Move each jaw-contour landmark of target ``k`` to the vertex of its band farthest out in the current view.
+
+        "Out" is the image direction of the face's own left-right axis (so a
+        rolled head is handled), signed by the landmark's side of the face.
+        """
+        rows, side, starts, cands, Nc, Bc = self.contour[k]
+        cam = self.cams[k]
+        uv = cam.project(Nc + Bc @ self._coef(x, k), "landmark")
+        axis = np.array([cam.R[0, 0], -cam.R[1, 0]])  # the face's +x in the image (u right, v down)
+        score = uv @ axis
+        best = np.empty(len(rows), dtype=np.int64)
+        for j, (a, b) in enumerate(zip(starts, np.r_[starts[1:], len(cands)])):
+            best[j] = a + int(np.argmax(side[j] * score[a:b]))
+        ids, Nl, Bl = self.sub[k]
+        if np.array_equal(ids[rows], cands[best]):
+            self.settled_contour[k] = True  # the outline no longer moves: it is kept from here on
+            return
+        ids, Nl, Bl = ids.copy(), Nl.copy(), Bl.copy()
+        ids[rows], Nl[rows], Bl[rows] = cands[best], Nc[best], Bc[best]
+        self.sub[k] = (ids, Nl, Bl)
 
     def anneal(self, r):
         """Point clouds: sigma from ``CLOUD_SIGMA0_MM``, times ``CLOUD_SIGMA_DECAY`` a round, down to ``noise_mm``.

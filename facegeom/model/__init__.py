@@ -26,7 +26,7 @@ from facegeom.model.face import (
     read_obj_polygons,
     read_obj_positions,
 )
-from facegeom.model.inputs import face_template, load_rig, read_fit_target, scan_scale
+from facegeom.model.inputs import face_template, load_rig, pts_vertex_ids, read_fit_target, scan_scale
 from facegeom.model.landmarks import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -100,6 +100,7 @@ __all__ = [
     "random_sparse_expression",
     "load_rig",
     "read_fit_target",
+    "pts_vertex_ids",
     "scan_scale",
     "face_template",
 ]

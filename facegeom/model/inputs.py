@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud
+from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
+from facegeom.model.landmarks import SIDE_CONTOUR
 
-__all__ = ['face_template', 'load_rig', 'read_fit_target', 'scan_scale']
+__all__ = ['face_template', 'load_rig', 'pts_vertex_ids', 'read_fit_target', 'scan_scale']
 
 
 def load_rig(rig_path=None, face_model=None):
@@ -36,9 +37,13 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
                     scale="auto", notes: list | None = None):
     """Read a fitting target for ``rig`` as ``facegeom fit`` does -> ``(kind, target)``.
 
-    ``kind`` ``auto``: ``.csv`` = landmarks (``vertex_id,u,v``), a mesh file with
-    the rig's vertex count = mesh, anything else = a point cloud. Landmarks need
-    the camera intrinsics ``focal, cx, cy`` (pixels).
+    ``kind`` ``auto``: ``.csv`` = landmarks (``vertex_id,u,v``), ``.pts`` =
+    landmarks of the 68-point iBUG convention (:func:`pts_vertex_ids`), a mesh
+    file with the rig's vertex count = mesh, anything else = a point cloud.
+    Landmarks need the camera intrinsics ``focal, cx, cy`` (pixels). A ``.pts``
+    annotation's jaw-contour points are marked as on the face's outline
+    (``LandmarkTarget.outline``); a CSV's rows are the projections of their
+    vertices.
 
     ``scale``: meshes and point clouds are multiplied by it into the rig's
     units; ``"auto"`` (default) = the power of ten that makes the scan the
@@ -54,7 +59,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(TARGET_KINDS)}")
     tp = Path(path)
     if kind == "auto":
-        if tp.suffix.lower() == ".csv":
+        if tp.suffix.lower() in (".csv", ".pts"):
             kind = "landmarks"
         elif tp.suffix.lower() in MESH_FORMATS:
             try:
@@ -67,10 +72,16 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     if kind == "landmarks":
         if focal is None or cx is None or cy is None:
             raise InputError("landmark targets need the camera: focal, cx and cy (pixels)", tp)
-        ids, uv = read_landmarks(tp)
+        outline = None
+        if tp.suffix.lower() == ".pts":
+            uv = read_pts(tp)
+            ids = pts_vertex_ids(rig, uv.shape[0], tp)
+            outline = np.isin(ids, np.asarray(rig.landmark_ids)[list(SIDE_CONTOUR)])
+        else:
+            ids, uv = read_landmarks(tp)
         if ids.max() >= rig.n_vertices:
             raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
-        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy))
+        tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy), outline)
     elif kind == "mesh":
         V, _ = read_mesh(tp)
         if V.shape[0] != rig.n_vertices:
@@ -81,6 +92,31 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         P = read_point_cloud(tp)
         tgt = PointCloudTarget(P * _factor(P, rig, scale, tp, notes))
     return kind, tgt
+
+
+def pts_vertex_ids(rig, count: int, path=None) -> np.ndarray:
+    """The rig's vertex of every point of a ``.pts`` annotation of ``count`` points (the 68-point iBUG convention).
+
+    68 points: the rig's 68 landmarks in order; 51: their inner points (17-67,
+    no jaw contour); 49: the 49 inner points (also without the inner mouth
+    corners 60 and 64), :data:`facegeom.model.landmarks.INNER_LANDMARKS_49`.
+
+    Raises
+    ------
+    InputError
+        The rig has no landmark table, or ``count`` is none of 68, 51, 49.
+    """
+    from facegeom.model.landmarks import INNER_LANDMARKS_49
+
+    if rig.landmark_ids is None:
+        raise InputError("the rig has no 68-landmark table to place a .pts annotation on; give a vertex_id,u,v CSV",
+                         path)
+    lm = np.asarray(rig.landmark_ids, dtype=np.int64)
+    rows = {68: np.arange(68), 51: np.arange(17, 68), 49: np.array(INNER_LANDMARKS_49)}.get(int(count))
+    if rows is None:
+        raise InputError(f"a .pts annotation of {count} points: facegeom reads the 68-point iBUG convention (68 "
+                         f"points, or its 51 or 49 inner ones)", path)
+    return lm[rows]
 
 
 def face_template(rig, vertices=None) -> np.ndarray:

@@ -26,10 +26,20 @@ The inner eye corners 39 / 42 (the paper's inter-ocular normaliser, eq. 31)
 are in the fitted set. :data:`INNER_EYE_CORNERS` and :data:`OUTER_EYE_CORNERS`
 give those and the outer corners 36 / 45 (right eye first); :data:`MIRROR_68`
 maps each landmark to its left/right mirror.
+
+The jaw contour (0-16) is not a set of fixed points on the face: annotators and
+detectors put it on the face's *outline* in the photo, which moves over the
+cheek as the head turns. :data:`SIDE_CONTOUR` are the contour points that
+follow the outline (the chin 6-10 is kept fixed), :func:`contour_candidates`
+the vertices each may land on, :func:`silhouette_vertices` where each lies in
+one view (the candidate farthest out in the image).
 """
 from __future__ import annotations
 
-__all__ = ['INNER_LANDMARKS_49', 'FIT_LANDMARKS_23', 'EVAL_LANDMARKS_26', 'INNER_EYE_CORNERS', 'OUTER_EYE_CORNERS', 'MIRROR_68']
+import numpy as np
+
+__all__ = ['INNER_LANDMARKS_49', 'FIT_LANDMARKS_23', 'EVAL_LANDMARKS_26', 'INNER_EYE_CORNERS', 'OUTER_EYE_CORNERS',
+           'MIRROR_68', 'SIDE_CONTOUR', 'CONTOUR_BAND', 'contour_candidates', 'silhouette_vertices']
 
 
 INNER_LANDMARKS_49: tuple[int, ...] = tuple(i for i in range(17, 68) if i not in (60, 64))
@@ -68,3 +78,79 @@ def _mirror_68() -> tuple[int, ...]:
 
 MIRROR_68: tuple[int, ...] = _mirror_68()
 """Left/right mirror of the 68 landmark indices (``MIRROR_68[36] == 45``)."""
+
+
+#: The jaw-contour landmarks that follow the face's outline in a photo (both sides; the chin 6-10 stays fixed).
+SIDE_CONTOUR: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16)
+
+#: Half height of a contour point's band of candidate vertices, relative to the height of the 68 landmarks' box
+#: (0.5 cm on the ICT face, about a third of the spacing of neighbouring contour points).
+CONTOUR_BAND = 0.033
+
+
+def contour_candidates(vertices, landmark_ids, region=None, band: float = CONTOUR_BAND) -> dict[int, np.ndarray]:
+    """For each landmark of :data:`SIDE_CONTOUR`, the vertices its outline point may land on -> ``{index: ids}``.
+
+    A candidate lies on the same side of the face (the sign of ``x``, the
+    face's left-right axis, +z towards the viewer, +y up), within ``band`` x
+    the landmarks' height of the landmark's own height, and between the face's
+    middle and the landmark sideways (the outline of a turned face moves in
+    over the cheek; past the landmark, towards the ear, it stays at the
+    landmark: the contour of the 68-point convention runs in front of the
+    ear). The landmark's own vertex is always a candidate.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        A face in the model's frame (the mean face).
+    landmark_ids : (68,) int
+        The 68 landmarks' vertex ids.
+    region : (r,) int, optional
+        Vertices allowed as candidates (default: all).
+    band : float
+        See :data:`CONTOUR_BAND`.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    lm = np.asarray(landmark_ids, dtype=np.int64)
+    pool = np.arange(V.shape[0]) if region is None else np.unique(np.asarray(region, dtype=np.int64))
+    P = V[pool]
+    height = float(np.ptp(V[lm, 1])) * band
+    centre_x = float(V[lm[[27, 28, 29, 30]], 0].mean())  # the nose bridge: the face's middle
+    out = {}
+    for k in SIDE_CONTOUR:
+        x, y = V[lm[k], 0] - centre_x, V[lm[k], 1]
+        dx = P[:, 0] - centre_x
+        keep = (np.abs(P[:, 1] - y) <= height) & (np.sign(dx) == np.sign(x)) & (np.abs(dx) <= abs(x))
+        keep &= np.abs(dx) >= 0.5 * abs(x)  # the outer half: the outline never reaches the nose
+        ids = np.union1d(pool[keep], [lm[k]])
+        out[k] = ids.astype(np.int64)
+    return out
+
+
+def silhouette_vertices(projected, landmark_ids, candidates: dict, centre_u: float) -> np.ndarray:
+    """The vertex each contour landmark lies on in one view: the candidate farthest out in the image.
+
+    Parameters
+    ----------
+    projected : callable
+        ``projected(ids) -> (len(ids), 2)`` pixel positions of vertices (the
+        posed face seen by the camera).
+    landmark_ids : (L,) int
+        The vertex ids of the 68 landmarks (or of those fitted, in 68 order for the contour).
+    candidates : dict
+        From :func:`contour_candidates`.
+    centre_u : float
+        The face's middle in the image (e.g. the nose's ``u``): "out" is away from it.
+
+    Returns
+    -------
+    (68,) int
+        ``landmark_ids`` with each :data:`SIDE_CONTOUR` entry replaced by its outline vertex.
+    """
+    ids = np.array(landmark_ids, dtype=np.int64)
+    for k, cand in candidates.items():
+        u = projected(cand)[:, 0]
+        u0 = projected(np.array([ids[k]]))[0, 0]
+        side = 1.0 if u0 >= centre_u else -1.0
+        ids[k] = cand[int(np.argmax(side * u))]
+    return ids

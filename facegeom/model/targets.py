@@ -77,11 +77,18 @@ class LandmarkTarget:
     vertex_ids : (L,)
         Distinct rig vertex ids (checked against a rig by :meth:`check`).
     camera : PinholeCamera
+    outline : (L,) bool, optional
+        Rows that are marked on the face's *outline* in the photo, as the
+        jaw contour of the 68-point convention is (annotations, detectors):
+        their vertex id is where the landmark usually lies, but the point is
+        wherever the outline is in this view. Default: none (every row is the
+        projection of its vertex). Set by the ``.pts`` reader
+        (:func:`facegeom.model.read_fit_target`); used by the identity fitter.
     """
 
-    __slots__ = ("points2d", "vertex_ids", "camera")
+    __slots__ = ("points2d", "vertex_ids", "camera", "outline")
 
-    def __init__(self, points2d, vertex_ids, camera: PinholeCamera):
+    def __init__(self, points2d, vertex_ids, camera: PinholeCamera, outline=None):
         p = np.asarray(points2d, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 2:
             raise InputError(f"landmark points must have shape (L, 2), got {p.shape}")
@@ -98,6 +105,13 @@ class LandmarkTarget:
         self.points2d = _readonly(p.copy())
         self.vertex_ids = _readonly(ids)
         self.camera = camera
+        if outline is None:
+            o = np.zeros(ids.size, dtype=bool)
+        else:
+            o = np.asarray(outline)
+            if o.dtype != bool or o.shape != (ids.size,):
+                raise InputError(f"outline must be a boolean array of shape ({ids.size},), got {o.dtype} {o.shape}")
+        self.outline = _readonly(o.copy())
 
     @property
     def n_landmarks(self) -> int:
@@ -150,7 +164,7 @@ class LandmarkTarget:
             raise InputError("rows must be a non-empty 1-D array of integers")
         if r.min() < -self.n_landmarks or r.max() >= self.n_landmarks:
             raise InputError(f"row out of range [0, {self.n_landmarks})")
-        return LandmarkTarget(self.points2d[r], self.vertex_ids[r], self.camera)
+        return LandmarkTarget(self.points2d[r], self.vertex_ids[r], self.camera, self.outline[r])
 
     def rows_of(self, vertex_ids) -> np.ndarray:
         """Row of each of ``vertex_ids`` in this target -> ``(r,)`` int64; InputError for an absent id."""
