@@ -12,7 +12,8 @@ from facegeom.constants import FACE_AREA
 from facegeom.errors import FacegeomError
 from facegeom.registry import MethodSpec
 
-__all__ = ["median_time", "available_specs", "face_area_triangles", "sample_surface", "progress_bar", "projector"]
+__all__ = ["median_time", "available_specs", "face_area_triangles", "sample_surface", "progress_bar", "projector",
+           "side_strip_seen", "PhotoAnnotator"]
 
 
 def median_time(fn, repeat: int = 5) -> tuple[float, object]:
@@ -95,3 +96,41 @@ def sample_surface(V, tris, count, rng) -> np.ndarray:
     flip = u.sum(axis=1) > 1
     u[flip] = 1 - u[flip]
     return a[k] + u[:, :1] * (b[k] - a[k]) + u[:, 1:] * (c[k] - a[k])
+
+
+class PhotoAnnotator:
+    """Landmarks of a face as an annotator or a detector marks them in a photo (realistic protocols).
+
+    The points of :data:`~facegeom.model.landmarks.SIDE_CONTOUR` go on the
+    face's outline in the view (:func:`~facegeom.model.landmarks.silhouette_vertices`),
+    the others on their vertices. ``outline=False``: every point on its vertex
+    (the idealised protocol).
+
+    Parameters
+    ----------
+    model : FaceModel
+    indices : sequence of int
+        The landmarks (indices into the 68) that are marked, in the target's row order.
+    outline : bool
+    """
+
+    def __init__(self, model, indices, outline: bool = True):
+        from facegeom.constants import FACE_AREA
+        from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates
+
+        self.lm = np.asarray(model.landmarks, dtype=np.int64)
+        self.indices = list(indices)
+        self.ids = self.lm[self.indices]  # what the fitters are told
+        self.candidates = (contour_candidates(np.asarray(model.neutral, dtype=np.float64), self.lm,
+                                              region=np.arange(FACE_AREA)) if outline else {})
+        self.mask = np.isin(np.asarray(self.indices), SIDE_CONTOUR) if outline else None  # LandmarkTarget.outline
+
+    def __call__(self, V, cam) -> np.ndarray:
+        """The marked points ``(L, 2)`` (noise-free) of the face ``V (n, 3)`` seen by ``cam``."""
+        from facegeom.model.landmarks import silhouette_vertices
+
+        if not self.candidates:
+            return cam.project(V[self.ids])
+        seen = silhouette_vertices(lambda i: cam.project(V[i]), self.lm, self.candidates,
+                                   float(cam.project(V[self.lm[[30]]])[0, 0]))
+        return cam.project(V[seen[self.indices]])

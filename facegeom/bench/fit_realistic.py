@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
 from facegeom.bench.common import (
+    PhotoAnnotator,
     available_specs,
     face_area_triangles,
     progress_bar,
@@ -63,7 +64,6 @@ from facegeom.model import (
     PointCloudTarget,
     look_at_camera,
 )
-from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates, silhouette_vertices
 from facegeom.registration import RigidAlignment, units_factor
 
 __all__ = ["RealisticCase", "realistic_cases", "identity_fitters", "FIT_LANDMARKS_40", "run_landmarks", "run_meshes",
@@ -227,24 +227,17 @@ def run_landmarks(model, cases, specs, modes=("generic", "oracle"), identity_fit
     rng = np.random.default_rng(7319)
     lm = np.asarray(model.landmarks)
     fit_ids, eval_ids = lm[list(FIT_LANDMARKS_40)], lm[list(EVAL_LANDMARKS_26)]
-    candidates = (contour_candidates(np.asarray(model.neutral, dtype=np.float64), lm, region=np.arange(FACE_AREA))
-                  if contour == "outline" else {})
-    outline = np.isin(np.asarray(FIT_LANDMARKS_40), SIDE_CONTOUR)  # the rows an annotator puts on the outline
+    annotate = PhotoAnnotator(model, FIT_LANDMARKS_40, contour == "outline")
     eye_ids = lm[list(INNER_EYE_CORNERS)]
     rows = []
     for ci, c in enumerate(progress_bar(cases, "realistic landmarks", progress)):
         truth = BlendshapeRig.from_face_model(model, c.identity)
         V = truth.evaluate(c.weights)
         cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
-        seen = fit_ids
-        if candidates:  # the jaw contour where the outline is in this view
-            seen = silhouette_vertices(lambda ids: cam.project(V[ids]), lm, candidates,
-                                       float(cam.project(V[lm[[30]]])[0, 0]))[list(FIT_LANDMARKS_40)]
-        uv = cam.project(V[seen]) + rng.normal(size=(fit_ids.size, 2)) * c.noise_px
+        uv = annotate(V, cam) + rng.normal(size=(fit_ids.size, 2)) * c.noise_px  # the jaw contour on the outline
         uv_eval = cam.project(V[eval_ids])
         io = fm.interocular_distance(*cam.project(V[eye_ids]))
-        target = LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal * c.focal_factor, cam.cx, cam.cy),
-                                outline if candidates else None)
+        target = LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal * c.focal_factor, cam.cx, cam.cy), annotate.mask)
         fits = list(_fits(model, c, target, specs, modes, identity_fitter))
         if identity_fitter is not None and "fitted" in modes:
             t = time.perf_counter()

@@ -66,7 +66,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from facegeom import metrics as fm
-from facegeom.bench.common import face_area_triangles, progress_bar, sample_surface, side_strip_seen
+from facegeom.bench.common import (
+    PhotoAnnotator,
+    face_area_triangles,
+    progress_bar,
+    sample_surface,
+    side_strip_seen,
+)
 from facegeom.bench.report import Report, format_table, machine_note
 from facegeom.constants import CM_TO_MM, FACE_AREA
 from facegeom.methods.identity import IdentityFit, IdentityFitter
@@ -174,10 +180,12 @@ def _rows(protocol, pi, person, cond, r, dt, truths, model, extra=None):
 
 
 def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points=30000, seed=0, progress=True,
-        jaw=True):
+        jaw=True, contour="outline"):
     """Fit every person of ``people`` under ``protocol`` in the three conditions -> list of row dicts.
 
     ``jaw``: landmark protocols fit the 17 jaw-contour landmarks too (40 in all), else the 23 of ``bench fit``.
+    ``contour``: ``"outline"``: the side contour is marked on the face's outline in each view, as annotators do
+    (:class:`~facegeom.bench.common.PhotoAnnotator`); ``"fixed"``: on its vertices.
     """
     params = dict(params or {})
     same = "partial" if protocol == "scan" else protocol  # scan: the partial protocol's scans, then moved
@@ -186,6 +194,7 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
     lm = model.landmarks
     fit_lm = (tuple(range(17)) if jaw else ()) + FIT_LANDMARKS_23
     fit_ids, eval_ids, eye_ids = lm[list(fit_lm)], lm[list(EVAL_LANDMARKS_26)], lm[list(INNER_EYE_CORNERS)]
+    annotate = PhotoAnnotator(model, fit_lm, contour == "outline")
     tris = model.triangles[(model.triangles < FACE_AREA).all(axis=1)]
     peer = identity_peer("eos") if protocol == "landmarks" else None
     rows = []
@@ -200,12 +209,13 @@ def run(model, protocol, people, params=None, noise_px=1.0, noise_mm=0.5, points
                 N = model.face(p.identity)
                 for _ in range(len(truths)):
                     cam = look_at_camera(N, yaw=rng.uniform(-30, 30), pitch=rng.uniform(-10, 10))
-                    uv = cam.project(N[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
-                    neutrals.append(LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
+                    uv = annotate(N, cam) + rng.normal(size=(fit_ids.size, 2)) * noise_px
+                    neutrals.append(LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy),
+                                                   annotate.mask))
             for T in truths:
                 cam = look_at_camera(T, yaw=rng.uniform(-30, 30), pitch=rng.uniform(-10, 10))
-                uv = cam.project(T[fit_ids]) + rng.normal(size=(fit_ids.size, 2)) * noise_px
-                targets.append(LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
+                uv = annotate(T, cam) + rng.normal(size=(fit_ids.size, 2)) * noise_px
+                targets.append(LandmarkTarget(uv, fit_ids, PinholeCamera(cam.focal, cam.cx, cam.cy), annotate.mask))
                 evals.append((cam.project(T[eval_ids]), fm.interocular_distance(*cam.project(T[eye_ids]))))
 
             def extra(k, r, evals=evals):
@@ -320,7 +330,7 @@ def summarize(rows) -> str:
 
 
 def main(model, protocols, count, seed, out, dense_weights=None, params=None, frames=5, cloud_count=4,
-         echo=print, progress=True):
+         echo=print, progress=True, contour="outline"):
     """Run the protocols, echo the table and write ``identity.csv`` + ``identity-summary.md`` into ``out``."""
     report = Report(out, "identity", echo)
     rows = []
@@ -329,11 +339,12 @@ def main(model, protocols, count, seed, out, dense_weights=None, params=None, fr
         same = "partial" if proto == "scan" else proto  # the same people for partial and scan
         people = make_people(model, n, seed + PROTOCOLS.index(same), dense_weights,
                              frames if proto in ("frames", "neutral") else 1)
-        rows += run(model, proto, people, params, seed=seed, progress=progress)
+        rows += run(model, proto, people, params, seed=seed, progress=progress, contour=contour)
     report.csv(rows)
     table = summarize(rows)
     dense = "dense = frames of the real takes" if dense_weights is not None else "no takes: sparse only"
-    note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw used, "
+    note = (f"{count} people per protocol ({cloud_count} for clouds), seed {seed}, {dense}; landmarks: 23 + 17 jaw "
+            f"used (the side contour {'on the outline' if contour == 'outline' else 'on fixed vertices'}), "
             f"focal known, pose unknown (yaw +-30 deg), 1 px; neutral / frames: {frames} images per person; mesh / cloud: "
             f"0.5 mm noise; partial / scan: {SCAN_POINTS} points, a side strip of U(0, {SCAN_HIDDEN:g}) hidden, "
             f"0.5 mm; scan: in mm, random rotation, moved; head: 30,000 points on the whole face geometry, in mm, random "

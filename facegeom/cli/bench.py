@@ -265,12 +265,15 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
 @click.option("--protocols", default="landmarks,neutral,frames,mesh,cloud,partial,scan,head", show_default=True,
               help="Comma-separated subset of landmarks, neutral, frames, mesh, cloud, partial, scan, head.")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Identity fitter parameter.")
+@click.option("--contour", type=click.Choice(["outline", "fixed"]), default="outline", show_default=True,
+              help="Photos: the jaw-contour landmarks on the face's outline in the view (as annotators mark them), or "
+                   "on fixed vertices (the idealised protocol of earlier releases).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
               help="Folder of takes for the dense expressions (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/identity", show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_identity(obj: Context, cases, cloud_cases, frames, seed, protocols, params, takes_path, out, quiet):
+def bench_identity(obj: Context, cases, cloud_cases, frames, seed, protocols, params, contour, takes_path, out, quiet):
     """Identity fitting: generic neutral vs identity fitted vs true identity, on landmarks, frames, meshes, clouds."""
     import numpy as np
 
@@ -290,7 +293,7 @@ def bench_identity(obj: Context, cases, cloud_cases, frames, seed, protocols, pa
     else:
         click.echo("no takes found: sparse expressions only", err=True)
     bi.main(model, pr, cases, seed, Path(out), dense, parse_params(params), frames, cloud_cases, echo=click.echo,
-            progress=not quiet)
+            progress=not quiet, contour=contour)
 
 
 @bench.command("scaling")
