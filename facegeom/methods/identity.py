@@ -140,10 +140,11 @@ convention on the face's outline in the photo, not on fixed points of the
 face: as the head turns, the far side's outline moves in over the cheek (on
 the ICT face, 5-10 px of a 300 px face at 30 degrees of yaw, a third of the
 inter-ocular distance). Rows of a target marked ``outline`` (the ``.pts``
-reader marks the side contour, ``SIDE_CONTOUR``) are moved every round of the
-first run to the vertex of their band (the same height, between the face's
-middle and the landmark) farthest out along the image direction of the
-face's left-right axis -- "landmark marching"; then kept. On ``bench fit``'s
+reader marks the side contour, ``SIDE_CONTOUR``) are moved, round after round
+of the first run until a round leaves them where they were, to the vertex of
+their band (the same height, between the face's middle and the landmark)
+farthest out along the image direction of the face's left-right axis --
+"landmark marching"; then kept. On ``bench fit``'s
 realistic photos with the contour drawn on the outline (``--contour
 outline``), seeds 1 / 2, 40 images: joint fit 3.18 / 3.35 mm with fixed
 vertices, 3.05 / 3.20 with the outline followed (the fixed-vertex protocol
@@ -484,8 +485,8 @@ class IdentityFitter(Params):
         Landmark targets with an estimated pose whose jaw-contour rows are
         marked as on the outline (``LandmarkTarget.outline``, set for ``.pts``
         annotations; :data:`~facegeom.model.landmarks.SIDE_CONTOUR`): each such
-        row moves every round (the first run of rounds) to the vertex of its
-        band that is farthest out in the current view
+        row moves, round after round of the first run until they settle, to
+        the vertex of its band that is farthest out in the current view
         (:func:`~facegeom.model.landmarks.silhouette_vertices`; see "Jaw
         contour" in the module docstring). ``False``: fixed vertices.
     """
