@@ -221,7 +221,7 @@ def test_identity_command_reads_pts_with_an_image(tmp_path):
 
 @pytest.mark.parametrize("args,match", [
     (["--image", "missing.png"], "missing.png: file not found"),
-    ([], "focal, --cx and --cy"),
+    ([], "focal, --cx and --cy (pixels), or --image PHOTO"),
 ])
 def test_photo_mistakes_are_one_line_errors(tmp_path, args, match):
     r = run("fit", str(PHOTOS / "takeo.pts"), "-o", str(tmp_path / "w.json"),

@@ -19,6 +19,7 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "pass fill=True": "pass --fill-gaps",  # io.read_retarget_inputs(fill=) / retarget --fill-gaps
     "use kind='points'": "use --kind points",  # model.read_fit_target(kind=) / fit --kind
     "the camera: focal, cx and cy": "the camera: --focal, --cx and --cy",  # read_fit_target / fit
+    "or the photo they were marked on to take them from": "or --image PHOTO (the photo they were marked on)",
     "clean the mesh with largest_component=True": "facegeom clean --largest",  # pipelines.cleanup.clean
     "the path argument (not given), $FACEGEOM_DATA": "the --data option (not given), $FACEGEOM_DATA",
     "Pass path=PATH or set FACEGEOM_DATA": "Pass --data PATH or set FACEGEOM_DATA",  # model.locate_data(path)

@@ -71,7 +71,8 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             kind = "points"
     if kind == "landmarks":
         if focal is None or cx is None or cy is None:
-            raise InputError("landmark targets need the camera: focal, cx and cy (pixels)", tp)
+            raise InputError("landmark targets need the camera: focal, cx and cy (pixels), or the photo they were "
+                             "marked on to take them from", tp)
         outline = None
         if tp.suffix.lower() == ".pts":
             uv = read_pts(tp)
