@@ -228,3 +228,34 @@ def test_photo_mistakes_are_one_line_errors(tmp_path, args, match):
             *[str(tmp_path / a) if a.endswith(".png") else a for a in args])
     assert r.returncode == 2
     assert match in r.stderr and "Traceback" not in r.stderr
+
+
+# ----------------------------------------------------------------------------- batch jobs
+def test_batch_fits_annotated_photos_each_with_its_own_camera(tmp_path, face_model):
+    """A folder of .pts annotations, each next to its photo: the job takes every camera from its photo."""
+    import shutil
+
+    from facegeom.io import read_weights
+    from facegeom.pipelines import batch as fb
+
+    (tmp_path / "photos").mkdir()
+    for name, size in SIZES.items():
+        shutil.copy(PHOTOS / f"{name}.pts", tmp_path / "photos" / f"{name}.pts")
+        blank_image(tmp_path / "photos" / f"{name}.png", size)
+    (tmp_path / "photos" / "lost.pts").write_text((PHOTOS / "takeo.pts").read_text())  # its photo is missing
+    job = fb.job_from_dict({"operation": "fit", "inputs": str(tmp_path / "photos" / "*.pts"), "output":
+                            str(tmp_path / "out"), "shared": {"image": "photos/{stem}.png"}},
+                           base=tmp_path, source=str(tmp_path / "job.toml"))
+    res = fb.run_job(job, inline=True, progress=False)
+    assert res.counts["ok"] == 3 and res.counts["failed"] == 1
+    rig = BlendshapeRig.from_face_model(face_model)
+    for name, size in SIZES.items():  # the same weights as `facegeom fit NAME.pts --image NAME.png`
+        r = run("fit", str(tmp_path / "photos" / f"{name}.pts"), "--image", str(tmp_path / "photos" / f"{name}.png"),
+                "-o", str(tmp_path / f"{name}.json"))
+        assert r.returncode == 0, r.stderr
+        np.testing.assert_allclose(read_weights(tmp_path / "out" / f"{name}.json", rig.names),
+                                   read_weights(tmp_path / f"{name}.json", rig.names), atol=1e-6)
+    no_camera = fb.job_from_dict({"operation": "fit", "inputs": str(tmp_path / "photos" / "*.pts"),
+                                  "output": str(tmp_path / "o")}, base=tmp_path, source="job.toml")
+    with pytest.raises(InputError, match="shared.focal, shared.cx and shared.cy .pixels., or shared.image"):
+        fb.run_job(no_camera, inline=True, progress=False)

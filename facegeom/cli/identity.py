@@ -49,22 +49,15 @@ def read_targets(paths, model, kind="auto", focal=None, cx=None, cy=None, scale=
 
 
 def camera_defaults(focal, cx, cy, image):
-    """``--focal / --cx / --cy`` completed from ``--image``: the centre and, if not given, ``max(width, height)``.
-
-    A focal length that is off by up to 30 % costs little (the pose absorbs
-    it in the face's distance; see the realistic protocol of ``bench fit``),
-    so a photo's size is enough for a first fit. Says on the terminal what was
-    assumed.
-    """
+    """``--focal / --cx / --cy`` completed from ``--image`` (:func:`facegeom.model.photo_camera`), said aloud."""
     if image is None:
         return focal, cx, cy
     from facegeom.io import image_size
+    from facegeom.model import photo_camera
 
-    w, h = image_size(image)
-    cx = (w - 1) / 2.0 if cx is None else cx
-    cy = (h - 1) / 2.0 if cy is None else cy
-    if focal is None:
-        focal = float(max(w, h))
+    focal, cx, cy, assumed = photo_camera(focal, cx, cy, image)
+    if assumed:
+        w, h = image_size(image)
         click.echo(f"{Path(image).name}: {w} x {h} px; focal length not given, assumed {focal:g} px (the larger "
                    f"side; give --focal if you know it)")
     return focal, cx, cy

@@ -26,7 +26,7 @@ from facegeom.model.face import (
     read_obj_polygons,
     read_obj_positions,
 )
-from facegeom.model.inputs import face_template, load_rig, pts_vertex_ids, read_fit_target, scan_scale
+from facegeom.model.inputs import face_template, load_rig, photo_camera, pts_vertex_ids, read_fit_target, scan_scale
 from facegeom.model.landmarks import (
     EVAL_LANDMARKS_26,
     FIT_LANDMARKS_23,
@@ -101,6 +101,7 @@ __all__ = [
     "load_rig",
     "read_fit_target",
     "pts_vertex_ids",
+    "photo_camera",
     "scan_scale",
     "face_template",
 ]

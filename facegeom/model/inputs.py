@@ -16,7 +16,7 @@ from facegeom.errors import InputError
 from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
 from facegeom.model.landmarks import SIDE_CONTOUR
 
-__all__ = ['face_template', 'load_rig', 'pts_vertex_ids', 'read_fit_target', 'scan_scale']
+__all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'scan_scale']
 
 
 def load_rig(rig_path=None, face_model=None):
@@ -93,6 +93,30 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         P = read_point_cloud(tp)
         tgt = PointCloudTarget(P * _factor(P, rig, scale, tp, notes))
     return kind, tgt
+
+
+def photo_camera(focal, cx, cy, image) -> tuple[float, float, float, bool]:
+    """Intrinsics completed from the photo the landmarks were marked on -> ``(focal, cx, cy, focal_assumed)``.
+
+    ``cx, cy`` default to the photo's centre (``(width - 1) / 2``, ``(height - 1) / 2``,
+    0-based pixels) and ``focal`` to its larger side in pixels (a ~53 degree
+    field of view; a focal length off by up to 30 % costs little, the pose
+    takes it up in the face's distance). Given values are kept. ``image=None``
+    returns the values as they are.
+
+    Raises
+    ------
+    InputError
+        The photo cannot be read (:func:`facegeom.io.image_size`).
+    """
+    if image is None:
+        return focal, cx, cy, False
+    from facegeom.io import image_size
+
+    w, h = image_size(image)
+    assumed = focal is None
+    return (float(max(w, h)) if assumed else focal, (w - 1) / 2.0 if cx is None else cx,
+            (h - 1) / 2.0 if cy is None else cy, assumed)
 
 
 def pts_vertex_ids(rig, count: int, path=None) -> np.ndarray:

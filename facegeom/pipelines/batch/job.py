@@ -67,8 +67,8 @@ class OperationSchema:
 
 SCHEMAS = {
     "fit": OperationSchema("sem-ls", {"rig": "path", "kind": "str", "focal": "number", "cx": "number", "cy": "number",
-                                      "identity": "bool"},
-                           ("json", "csv"), "json", (".csv", ".obj", ".ply", ".off", ".xyz", ".npy"), True),
+                                      "image": "template", "identity": "bool"},
+                           ("json", "csv"), "json", (".csv", ".pts", ".obj", ".ply", ".off", ".xyz", ".npy"), True),
     "drive": OperationSchema("tangent", {"mesh": "path", "markers": "str", "input": "str", "fill_gaps": "bool"},
                              ("ply", "obj", "off"), "ply", (".csv", ".npz", ".c3d"), True),
     "retarget": OperationSchema("tangent", {"labels": "template", "fill_gaps": "bool"}, ("npz", "csv"), "npz",

@@ -17,7 +17,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.interfaces import batched_targets, fit_many
 from facegeom.pipelines.batch.cache import load_model, stamp
-from facegeom.pipelines.batch.job import job_error
+from facegeom.pipelines.batch.job import job_error, resolve_template
 from facegeom.pipelines.batch.operations.base import (
     Operation,
     check_method,
@@ -42,10 +42,13 @@ class FitOperation(Operation):
 
         The rig is the ICT face (face data in ``spec['data']``) unless
         ``shared.rig`` names one, which is loaded once to check it. Landmark targets
-        (``shared.kind`` ``landmarks``, or ``auto`` with a ``.csv`` input) need
-        ``shared.focal``, ``cx`` and ``cy``. ``spec['shared']`` gets ``rig`` (path or
-        None), ``kind``, ``camera`` (``[focal, cx, cy]``) and ``vectorised`` (the
-        fitter solves landmark targets together).
+        (``shared.kind`` ``landmarks``, or ``auto`` with a ``.csv`` or ``.pts`` input) need
+        ``shared.focal``, ``cx`` and ``cy``, or ``shared.image``: a path template of
+        each input's photo (``"{stem}.jpg"``), whose size gives what is not set
+        (:func:`facegeom.model.photo_camera`). ``spec['shared']`` gets ``rig`` (path or
+        None), ``kind``, ``camera`` (``[focal, cx, cy]``), ``image`` (the template and
+        the job's folder, or None) and ``vectorised`` (the fitter solves landmark
+        targets together).
 
         Raises
         ------
@@ -70,11 +73,12 @@ class FitOperation(Operation):
             except InputError as exc:
                 raise job_error(job.source, f"shared.rig: {exc}") from None
         cam = [job.shared.get(k) for k in ("focal", "cx", "cy")]
-        landmarks = kind == "landmarks" or (kind == "auto" and any(f.suffix.lower() == ".csv" for f in files))
-        if landmarks and any(c is None for c in cam):
+        image = job.shared.get("image")
+        landmarks = kind == "landmarks" or (kind == "auto" and any(f.suffix.lower() in (".csv", ".pts") for f in files))
+        if landmarks and image is None and any(c is None for c in cam):
             raise job_error(job.source, "landmark targets need the camera: set shared.focal, shared.cx and shared.cy "
-                                        "(pixels)")
-        if landmarks and not cam[0] > 0:
+                                        "(pixels), or shared.image (each input's photo, e.g. \"{stem}.jpg\")")
+        if landmarks and cam[0] is not None and not cam[0] > 0:
             raise job_error(job.source, f"shared.focal must be a positive number (pixels), got {cam[0]!r}")
         fitter = check_method(job, "fitters")
         identity = job.shared.get("identity", False)
@@ -89,6 +93,7 @@ class FitOperation(Operation):
             for f in files:
                 folders.setdefault(str(f.parent), []).append(str(f))
         spec["shared"] = {"rig": rig, "kind": kind, "camera": cam, "identity": identity, "folders": folders,
+                          "image": None if image is None else [image, str(job.base)],
                           "vectorised": "landmarks" in batched_targets(fitter)}
         spec["stamp"] = stamp([rig] if rig else [spec.get("data")])
 
@@ -103,7 +108,18 @@ class FitOperation(Operation):
 
     def _is_landmarks(self, spec, path: str) -> bool:
         kind = spec["shared"]["kind"]
-        return kind == "landmarks" or (kind == "auto" and path.lower().endswith(".csv"))
+        return kind == "landmarks" or (kind == "auto" and path.lower().endswith((".csv", ".pts")))
+
+    @staticmethod
+    def _camera(spec, path) -> list:
+        """``[focal, cx, cy]`` of the input ``path``: the shared values, completed from its photo (shared.image)."""
+        cam = spec["shared"]["camera"]
+        image = spec["shared"].get("image")
+        if image is None:
+            return cam
+        from facegeom.model import photo_camera
+
+        return list(photo_camera(*cam, resolve_template(Path(image[1]), image[0], Path(path)))[:3])
 
     def default_chunk(self, job, spec, items):
         """64 items per task when the fitter batches landmark targets and every item is a landmark file, else 1."""
@@ -136,11 +152,10 @@ class FitOperation(Operation):
             from facegeom.methods.identity import IdentityFitter
             from facegeom.model import read_fit_target
 
-            cam = spec["shared"]["camera"]
             targets = []
             for f in spec["shared"]["folders"][folder]:
                 try:
-                    targets.append(read_fit_target(f, state["rig"], spec["shared"]["kind"], *cam)[1])
+                    targets.append(read_fit_target(f, state["rig"], spec["shared"]["kind"], *self._camera(spec, f))[1])
                 except InputError:
                     continue
             if not targets:
@@ -190,13 +205,13 @@ class FitOperation(Operation):
         from facegeom.pipelines.single import FitOutcome, fit_file
 
         fitter = state["fitter"]
-        cam = spec["shared"]["camera"]
         batch = [it for it in items if spec["shared"]["vectorised"] and self._is_landmarks(spec, it["input"])]
         in_batch = {it["index"] for it in batch}
         single = [it for it in items if it["index"] not in in_batch]
         if batch:
             good, targets = [], []
-            for it, res, dt in timed(lambda it: read_fit_target(it["input"], rig, "landmarks", *cam), batch):
+            for it, res, dt in timed(lambda it: read_fit_target(it["input"], rig, "landmarks",
+                                                                *self._camera(spec, it["input"])), batch):
                 if isinstance(res, BaseException):
                     yield it, res, dt
                 else:
@@ -213,7 +228,8 @@ class FitOperation(Operation):
                     for k, (it, dt) in enumerate(good):
                         yield it, FitOutcome("landmarks", res[k].weights, res[k].info["camera"]), dt + share
 
-        yield from timed(lambda it: fit_file(rig, it["input"], lambda: fitter, spec["shared"]["kind"], *cam), single)
+        yield from timed(lambda it: fit_file(rig, it["input"], lambda: fitter, spec["shared"]["kind"],
+                                             *self._camera(spec, it["input"])), single)
 
     def write(self, state, spec, item, result):
         """Write the item's coefficients by shape name, with the method, the target and a landmark fit's pose.
