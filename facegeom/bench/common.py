@@ -115,7 +115,6 @@ class PhotoAnnotator:
     """
 
     def __init__(self, model, indices, outline: bool = True):
-        from facegeom.constants import FACE_AREA
         from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates
 
         self.lm = np.asarray(model.landmarks, dtype=np.int64)
