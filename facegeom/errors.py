@@ -32,6 +32,10 @@ class DataNotFoundError(InputError):
     """The face-model data bundle was found nowhere."""
 
 
+class TakesNotFoundError(DataNotFoundError):
+    """No ARKit take was found where takes are looked for (a command may offer other sources: say so)."""
+
+
 class DownloadError(DataNotFoundError):
     """The face-model files could not be downloaded: no network, a server error, or a file failing its hash."""
 

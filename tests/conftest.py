@@ -18,6 +18,69 @@ def face_model():
         pytest.skip(f"real face data not available (run `facegeom data fetch`): {exc}")
 
 
+#: the untouched ICT-FaceKit files the importer and download tests use (a miniature checkout)
+ICT_ORIGINAL_NAMES = ("vertex_indices.json", "generic_neutral_mesh.obj", "jawOpen.obj", "mouthSmile_L.obj",
+                      "eyeBlink_R.obj", "identity000.obj", "identity001.obj")
+
+
+def _ict_original_folder():
+    """Where the seven original files are: ``original/`` next to the bundle found, else the cache's downloads."""
+    from facegeom.model import download as dl
+    from facegeom.model import locate_data
+
+    places = []
+    try:
+        places.append(locate_data().parent / "original")
+    except DataNotFoundError:
+        pass
+    places.append(dl.raw_folder(dl.read_registry()) / dl.MODEL_FOLDER)
+    return next((p for p in places if all((p / n).is_file() for n in ICT_ORIGINAL_NAMES)), None)
+
+
+@pytest.fixture(scope="session")
+def original(tmp_path_factory):
+    """A miniature ICT-FaceKit checkout: ``FaceXModel/`` with the seven files, and ``LICENSE`` when found
+    (from ``original/`` beside the bundle in ../shared, or the files `facegeom data fetch` downloaded)."""
+    import shutil
+
+    from facegeom.model import download as dl
+
+    folder = _ict_original_folder()
+    if folder is None:  # pragma: no cover - `make test` fetches them when ../shared is absent
+        pytest.skip("the original ICT-FaceKit files are not present (run `facegeom data fetch` or use ../shared)")
+    root = tmp_path_factory.mktemp("ict-mini")
+    mini = root / dl.MODEL_FOLDER
+    mini.mkdir()
+    for n in ICT_ORIGINAL_NAMES:
+        shutil.copyfile(folder / n, mini / n)
+    lic = next((p for p in (folder.parent / dl.LICENSE_COPY, folder.parent / dl.LICENSE_PATH) if p.is_file()), None)
+    if lic is not None:
+        shutil.copyfile(lic, root / dl.LICENSE_PATH)
+    return mini
+
+
+def take_files_or_skip(count: int = 1):
+    """The real takes the takes lookup finds ($FACEGEOM_TAKES, ../shared, the cache `make test` fetches the public
+    take into); skips, saying why, when there are fewer than ``count`` (a fresh machine has exactly one)."""
+    from facegeom.io.takes import find_takes
+    from facegeom.model import locate_takes
+
+    try:
+        files = find_takes(locate_takes())
+    except DataNotFoundError as exc:  # pragma: no cover - `make test` fetches the public take
+        pytest.skip(f"no real take (run `facegeom data fetch`): {exc}")
+    if len(files) < count:
+        pytest.skip(f"needs {count} real takes; {len(files)} found at {files[0].parent} (a fresh machine fetches one "
+                    f"public take; more come from $FACEGEOM_TAKES)")
+    return files
+
+
+@pytest.fixture(scope="session")
+def real_takes():
+    """The real take files of this machine (at least one; see :func:`take_files_or_skip`)."""
+    return take_files_or_skip()
+
+
 @pytest.fixture(scope="session")
 def face_mesh(face_model):
     return face_model.neutral.copy(), face_model.triangles.copy()

@@ -23,7 +23,7 @@ from facegeom.errors import InputError
 from facegeom.io import read_marker_sequence, read_mesh, read_weights, write_marker_sequence, write_markers, write_mesh
 from facegeom.pipelines import batch as fb
 
-from .conftest import grid_mesh
+from .conftest import grid_mesh, take_files_or_skip
 
 
 @pytest.fixture(scope="module")
@@ -271,8 +271,6 @@ def test_shared_state_that_cannot_be_built_fails_the_chunks(landmarks, tmp_path,
 
 
 def test_retarget_animate_clean_on_cluster(client, tmp_path, face_model):
-    from facegeom.model import default_takes_path
-
     from .test_cli_retarget import _pair
 
     # retarget: two sources with their labels (one broken), ground truth for the metrics
@@ -320,12 +318,9 @@ def test_retarget_animate_clean_on_cluster(client, tmp_path, face_model):
     assert_same_arrays(c / "out", c / "ref")
 
     # animate: one real take, 20 frames
-    takes = default_takes_path()
-    if not takes.is_dir():
-        pytest.skip("no ARKit takes")
+    take = take_files_or_skip()[0]
     a = tmp_path / "an"
     a.mkdir()
-    take = sorted(takes.glob("*.csv"))[0]
     job = {"operation": "animate", "inputs": str(take), "shared": {"frames": 20, "labels": 4}}
     res = fb.run_job(fb.job_from_dict({**job, "output": "out"}, base=a), client=client, progress=False)
     row = res.rows[0]

@@ -125,11 +125,11 @@ def test_bench_drive_bad_noise():
 
 def test_bench_retarget_small_on_real_takes(tmp_path, face_model):
     """End to end: 3 sequences (2 real-take windows if the takes exist, 1 synthetic), 2 label counts."""
-    from facegeom.model import default_takes_path
+    from facegeom.model import takes_places
 
     args = ["bench", "retarget", "--sequences", "3", "--frames", "40", "--labels", "4,10", "--quiet",
             "--methods", "copy;rbf;tangent", "--out", str(tmp_path / "rt")]
-    if not default_takes_path().is_dir():
+    if not any(found for _, _, found in takes_places()):
         args.append("--synthetic-only")
     r = run(*args)
     assert r.returncode == 0, r.stderr
@@ -153,12 +153,8 @@ def test_bench_retarget_bad_takes_folder(tmp_path, face_model):
     assert "no .csv take" in r.stderr and str(tmp_path) in r.stderr and "Traceback" not in r.stderr
 
 
-def test_animate_end_to_end(tmp_path, face_model):
+def test_animate_end_to_end(tmp_path, face_model, real_takes):
     """Real take -> actor markers -> retargeted -> character mesh per frame (npz + OBJ)."""
-    from facegeom.model import default_takes_path
-
-    if not default_takes_path().is_dir():
-        pytest.skip("real takes not available")
     out = tmp_path / "anim.npz"
     r = run("animate", "--start", "300", "--frames", "30", "--labels", "6", "-o", str(out),
             "--obj-dir", str(tmp_path / "objs"))

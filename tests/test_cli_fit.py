@@ -201,14 +201,10 @@ def test_bench_fit_small(tmp_path, face_model):
     assert r.returncode == 2 and "bogus" in r.stderr
 
 
-def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model):
+def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model, real_takes):
     """Real-take expressions on random identities: generic, fitted and true identity; the tables lead the summary."""
     import csv
 
-    from facegeom.model import default_takes_path
-
-    if not (default_takes_path().is_dir() or os.environ.get("FACEGEOM_TAKES")):
-        pytest.skip("no ARKit takes (../shared/data/arkit-takes or $FACEGEOM_TAKES)")
     out = tmp_path / "bf"
     r = run("bench", "fit", "--cases", "1", "--realistic-cases", "2", "--cloud-cases", "1", "--samplings", "1",
             "--points", "2000", "--experiments", "landmarks,meshes,clouds", "--methods", "sem-ls", "--quiet",
@@ -235,7 +231,7 @@ def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model):
     assert "identity (joint)" in summary and "joint, no identity" in summary
 
 
-def test_bench_fit_clouds_as_exported(tmp_path, face_model):
+def test_bench_fit_clouds_as_exported(tmp_path, face_model, real_takes):
     """`bench fit --cloud-frame any`: the realistic clouds in mm and any orientation, fitted as `fit` fits them."""
     r = run("bench", "fit", "--experiments", "clouds", "--cloud-cases", "1", "--realistic-cases", "1", "--cases", "1",
             "--samplings", "1", "--points", "2000", "--methods", "sem-ls", "--cloud-frame", "any", "--no-plot",

@@ -102,7 +102,7 @@ def test_bad_output_suffix_and_too_few_markers(capture, tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "c.npz").exists()
 
 
-def test_animate_with_a_rig_writes_curves(tmp_path):
+def test_animate_with_a_rig_writes_curves(tmp_path, real_takes):
     out = tmp_path / "anim.npz"
     r = run("animate", "--rig", "ict", "--frames", "40", "--labels", "5", "-o", str(out))
     assert r.returncode == 0, r.stderr

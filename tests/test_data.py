@@ -5,7 +5,6 @@ import pytest
 from facegeom.errors import DataNotFoundError, InputError
 from facegeom.model import face as fd
 
-ORIGINAL = fd.default_data_path() / "original"
 
 
 def test_locate_order(tmp_path, monkeypatch, face_model):
@@ -82,9 +81,8 @@ def test_random_identity_is_seeded(face_model):
     assert not np.array_equal(a, face_model.random_identity(8))
 
 
-@pytest.mark.skipif(not ORIGINAL.is_dir(), reason="original ICT files not present")
-def test_import_ict_folder_matches_bundle(face_model):
-    a = fd.import_ict_folder(ORIGINAL)
+def test_import_ict_folder_matches_bundle(face_model, original):
+    a = fd.import_ict_folder(original)
     m = face_model
     np.testing.assert_allclose(a["neutral"], m.neutral, atol=1e-6)
     np.testing.assert_array_equal(a["quads"], m.quads)

@@ -25,37 +25,9 @@ from facegeom.errors import DataNotFoundError, DownloadError, InputError
 from facegeom.model import download as dl
 from facegeom.model import face as fd
 
-NAMES = ("vertex_indices.json", "generic_neutral_mesh.obj", "jawOpen.obj", "mouthSmile_L.obj", "eyeBlink_R.obj",
-         "identity000.obj", "identity001.obj")
+from .conftest import ICT_ORIGINAL_NAMES as NAMES
+
 PREFIX = "/mirror/"
-
-
-def _original_folder() -> Path | None:
-    """The seven original files: ``original/`` next to the bundle found, else the cache's downloads."""
-    places = []
-    try:
-        places.append(fd.locate_data().parent / "original")
-    except DataNotFoundError:
-        pass
-    places.append(dl.raw_folder(dl.read_registry()) / dl.MODEL_FOLDER)
-    return next((p for p in places if all((p / n).is_file() for n in NAMES)), None)
-
-
-@pytest.fixture(scope="module")
-def original(tmp_path_factory):
-    """A miniature ICT-FaceKit checkout: ``FaceXModel/`` with the seven files, and ``LICENSE`` when found."""
-    folder = _original_folder()
-    if folder is None:
-        pytest.skip("the original ICT-FaceKit files are not present (run `facegeom data fetch` or use ../shared)")
-    root = tmp_path_factory.mktemp("ict-mini")
-    mini = root / dl.MODEL_FOLDER
-    mini.mkdir()
-    for n in NAMES:
-        shutil.copyfile(folder / n, mini / n)
-    lic = next((p for p in (folder.parent / dl.LICENSE_COPY, folder.parent / dl.LICENSE_PATH) if p.is_file()), None)
-    if lic is not None:
-        shutil.copyfile(lic, root / dl.LICENSE_PATH)
-    return mini
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +135,8 @@ def test_fetch_builds_the_bundle_in_the_cache(mirror, registry, original, tmp_pa
         assert f.stat().st_mode & 0o777 == 0o666 & ~mask, f
     # the announcement: file count and size up front, from the registry; the address of $FACEGEOM_DATA_URL
     size = sum(registry.files[f"{dl.MODEL_FOLDER}/{n}"][1] for n in NAMES)
-    assert f"7 files, {size / 1e6:.1f} MB" in lines[0] and "3 expressions, 2 identities" in lines[0]
-    assert mirror.url in lines[1]
+    assert mirror.url in lines[0]  # said before the first request
+    assert f"7 files, {size / 1e6:.1f} MB" in lines[1] and "3 expressions, 2 identities" in lines[1]
     assert all(mirror.count(n) == 1 for n in NAMES)
     # the bundle: what the importer reads from the same files, with the commit as its source
     m = fd.load_face_model(out)
@@ -177,7 +149,7 @@ def test_fetch_builds_the_bundle_in_the_cache(mirror, registry, original, tmp_pa
     # a second fetch downloads nothing
     mirror.requests.clear()
     _, lines = _fetch(registry)
-    assert mirror.requests == [] and "7 files" in lines[0].split("),")[-1]
+    assert mirror.requests == [] and "7 files" in lines[1].split("),")[-1]
     # the data lookup ends with the cache
     _no_lookup_but_cache(monkeypatch, tmp_path)
     assert fd.locate_data() == out
@@ -291,7 +263,8 @@ def test_progress_counts_each_file_once_across_retries():
 def test_build_from_a_local_folder_verifies_the_hashes(original, registry, tmp_path, monkeypatch):
     monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
     lines = []
-    out = dl.build_bundle(original, identities=1, dest=tmp_path / "out", registry=registry, echo=lines.append)
+    out = dl.build_bundle(original, identities=1, dest=tmp_path / "out", registry=registry, echo=lines.append,
+                          partial=True)
     m = fd.load_face_model(out)
     assert (m.n_expressions, m.n_identities) == (3, 1) and "verified against" in m.source
     assert any("checking 6 files" in ln for ln in lines)
@@ -300,13 +273,14 @@ def test_build_from_a_local_folder_verifies_the_hashes(original, registry, tmp_p
     with open(copy / "eyeBlink_R.obj", "ab") as fh:
         fh.write(b"# edited\n")
     with pytest.raises(InputError, match="eyeBlink_R.obj: SHA-256 mismatch.*pass verify=False"):
-        dl.build_bundle(tmp_path, dest=tmp_path / "out2", registry=registry, echo=lines.append)  # the checkout
-    out = dl.build_bundle(copy, dest=tmp_path / "out2", registry=registry, verify=False, echo=lines.append)
+        dl.build_bundle(tmp_path, dest=tmp_path / "out2", registry=registry, echo=lines.append, partial=True)
+    out = dl.build_bundle(copy, dest=tmp_path / "out2", registry=registry, verify=False, echo=lines.append,
+                          partial=True)
     assert "not checked" in fd.load_face_model(out).source and fd.load_face_model(out).n_identities == 2
     with pytest.raises(InputError, match="not a folder"):
         dl.build_bundle(tmp_path / "nowhere", registry=registry)
     with pytest.raises(InputError, match="no identity002.obj"):
-        dl.build_bundle(copy, identities=3, registry=registry, verify=False)
+        dl.build_bundle(copy, identities=3, registry=registry, verify=False, partial=True)
 
 
 def test_not_found_names_the_cache_and_the_fetch_command(tmp_path, monkeypatch):
@@ -371,8 +345,22 @@ def test_cli_build_mismatch_names_the_flag(original, tmp_path, monkeypatch, caps
     copy = tmp_path / "FaceXModel"
     shutil.copytree(original, copy)
     (copy / "generic_neutral_mesh.obj").write_bytes(b"v 0 0 0\n")
-    code, _out, err = _run(["data", "build", str(copy), "--dest", str(tmp_path / "out")], capsys)
+    code, _out, err = _run(["data", "build", str(copy), "--dest", str(tmp_path / "out"), "--partial"], capsys)
     assert code == 2 and err.count("\n") == 1 and "pass --no-verify" in err and "verify=False" not in err
+
+
+def test_build_refuses_a_folder_missing_expressions(original, tmp_path, capsys):
+    """The seven-file folder lists 53 expressions and holds 3: refused, one line, nothing written; --partial builds."""
+    copy = tmp_path / "FaceXModel"
+    shutil.copytree(original, copy)
+    out = tmp_path / "out"
+    code, _out, err = _run(["data", "build", str(copy), "--dest", str(out)], capsys)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert f"{copy}: holds 3 of the 53 expression OBJs" in err and "browDown_L.obj" in err and "--partial" in err
+    assert not out.exists()
+    code, _out, err = _run(["data", "build", str(copy), "--dest", str(out), "--partial", "--no-verify"], capsys)
+    assert code == 0, err
+    assert fd.load_face_model(out).n_expressions == 3
 
 
 def test_cli_info_and_if_missing(mirror, registry, tmp_path, monkeypatch, capsys):
@@ -386,7 +374,141 @@ def test_cli_info_and_if_missing(mirror, registry, tmp_path, monkeypatch, capsys
     assert code == 0
     assert f"user cache           {out_path.parent}: {fd.BUNDLE_NAME}" in out and "<- in use" in out
     assert "3 expressions, 2 identities, 9409 vertices" in out and registry.commit in out
-    code, out, _ = _run(["data", "fetch", "--if-missing"], capsys)
+    code, out, _ = _run(["data", "fetch", "--if-missing", "--no-take"], capsys)
     assert code == 0 and out.strip() == f"face data: {out_path} (found; nothing to fetch)"
     code, out, _err = _run(["--data", str(tmp_path / "wrong"), "data", "info"], capsys)
     assert code == 0 and "--data               " in out and "in use: none" in out
+
+
+# --------------------------------------------------------------------------- the public real take
+
+
+def _takes_registry(tmp_path, files: dict[str, bytes], commit="6492a4a14721ed2c080ae739f453dc667d580f16") -> Path:
+    import hashlib
+
+    lines = [f"# a take, commit {commit}", "# raw file address pattern: https://example.invalid/<commit>/<path>"]
+    lines += [f"{p} {hashlib.sha256(b).hexdigest()} {len(b)}" for p, b in files.items()]
+    f = tmp_path / "takes-registry.txt"
+    f.write_text("\n".join(lines) + "\n")
+    return f
+
+
+@pytest.fixture
+def take_mirror(tmp_path, monkeypatch):
+    """A mirror laid out like the takes' repository (``anim/<take>.csv``, ``LICENSE``), a small real-format take."""
+    from facegeom.io.takes import write_livelink_csv
+
+    src = tmp_path / "src.csv"
+    t = np.linspace(0, 1, 40)[:, None]
+    write_livelink_csv(src, np.clip(np.sin(6 * t + np.arange(4)), 0, 1),
+                       ["jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft"], 30.0)
+    files = {"anim/take_a.csv": src.read_bytes(), "LICENSE": b"MIT License\n(test copy)\n"}
+    m = Mirror(files)
+    monkeypatch.setattr(pooch.core, "time", types.SimpleNamespace(sleep=lambda s: None))
+    monkeypatch.setenv(dl.TAKES_URL_ENV_VAR, m.url)
+    monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
+    monkeypatch.delenv(fd.TAKES_ENV_VAR, raising=False)
+    monkeypatch.setattr(fd, "default_takes_path", lambda: tmp_path / "no-shared")
+    m.registry = dl.read_registry(_takes_registry(tmp_path, files))
+    yield m
+    m.close()
+
+
+def test_fetch_takes_puts_the_take_and_its_licence_in_the_cache_for_the_lookup(take_mirror, tmp_path):
+    from facegeom.io.takes import find_takes, read_take
+
+    lines = []
+    folder = dl.fetch_takes(take_mirror.registry, echo=lines.append)
+    assert folder == tmp_path / "cache" / "arkit-takes" == fd.takes_cache_folder()
+    assert sorted(f.name for f in folder.iterdir()) == ["LICENSE", "take_a.csv"]  # flat, licence beside it
+    assert (folder / "LICENSE").read_bytes() == take_mirror.files["LICENSE"]
+    assert take_mirror.url in lines[0] and "MIT licence" in lines[0]
+    assert sorted(take_mirror.requests) == ["LICENSE", "anim/take_a.csv"]
+    assert fd.locate_takes() == folder and read_take(find_takes(folder)[0]).n_frames == 40
+    assert not any(p.name.startswith(".") for p in folder.parent.iterdir())  # no download leftovers
+    take_mirror.requests.clear()
+    lines.clear()
+    dl.fetch_takes(take_mirror.registry, echo=lines.append)  # a second fetch: nothing downloaded
+    assert take_mirror.requests == [] and "already in" in lines[0]
+    (folder / "take_a.csv").write_bytes(b"edited")  # a changed file is fetched again
+    dl.fetch_takes(take_mirror.registry, echo=lines.append)
+    assert take_mirror.requests == ["anim/take_a.csv"]
+    assert (folder / "take_a.csv").read_bytes() == take_mirror.files["anim/take_a.csv"]
+
+
+def test_fetch_takes_refuses_a_corrupt_file_and_writes_nothing(take_mirror, tmp_path):
+    take_mirror.corrupt.add("anim/take_a.csv")
+    with pytest.raises(DownloadError, match="anim/take_a.csv: SHA-256 mismatch"):
+        dl.fetch_takes(take_mirror.registry, echo=lambda s: None)
+    folder = fd.takes_cache_folder()
+    assert not folder.exists() or not any(folder.iterdir())
+    with pytest.raises(DataNotFoundError, match="facegeom data fetch"):
+        fd.locate_takes()
+
+
+def test_cli_fetch_if_missing_fetches_only_the_take(take_mirror, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(dl, "read_registry", lambda path=None, shipped=dl.REGISTRY_FILE, _r=dl.read_registry:
+                        take_mirror.registry if shipped == dl.TAKES_REGISTRY_FILE else _r(path, shipped))
+    code, out, err = _run(["data", "fetch", "--if-missing", "--no-progress"], capsys)
+    assert code == 0, err
+    assert "(found; nothing to fetch)" in out.splitlines()[0]  # the face data of this machine
+    assert f"real take: {fd.takes_cache_folder()}" in out
+    code, out, _ = _run(["data", "fetch", "--if-missing"], capsys)
+    assert code == 0 and out.splitlines()[-1] == f"takes: {fd.takes_cache_folder()} (found; nothing to fetch)"
+    code, out, _ = _run(["data", "info"], capsys)
+    assert code == 0 and f"user cache           {fd.takes_cache_folder()}: take_a.csv   <- in use" in out
+    assert "takes                Live Link Face takes of alexdjulin" in out
+    assert f"text: {fd.takes_cache_folder() / 'LICENSE'}" in out and "facegeom             MIT licence" in out
+
+
+def test_no_take_anywhere_says_how_to_get_one(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
+    monkeypatch.delenv(fd.TAKES_ENV_VAR, raising=False)
+    monkeypatch.setattr(fd, "default_takes_path", lambda: tmp_path / "no-shared")
+    from facegeom.errors import TakesNotFoundError
+
+    with pytest.raises(TakesNotFoundError, match="facegeom data fetch.*Pass path=PATH"):
+        fd.locate_takes()
+    code, _out, err = _run(["animate", "--frames", "10", "-o", str(tmp_path / "a.npz")], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert "facegeom data fetch" in err and "--takes FOLDER" in err and "--take FILE" in err
+    assert str(tmp_path / "cache" / "arkit-takes") in err and "path=PATH" not in err
+    code, _out, err = _run(["bench", "retarget", "--sequences", "1", "--out", str(tmp_path / "b")], capsys)
+    assert code == 2 and "--synthetic-only" in err and not (tmp_path / "b").exists()
+
+
+def test_a_server_that_never_answers_is_given_up_on_in_bounded_time(tmp_path, monkeypatch):
+    """It accepts the connection and says nothing: the address is named first, then one line within seconds."""
+    import time
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    held = []
+    stop = threading.Event()
+
+    def accept():
+        listener.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                held.append(listener.accept()[0])
+            except OSError:
+                pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    monkeypatch.setattr(dl, "READ_TIMEOUT_S", 1)
+    monkeypatch.setattr(pooch.core, "time", types.SimpleNamespace(sleep=lambda s: None))
+    monkeypatch.setenv(dl.URL_ENV_VAR, f"http://127.0.0.1:{listener.getsockname()[1]}/")
+    monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
+    lines = []
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(DownloadError, match=r"no answer within 1 s, twice"):
+            dl.fetch_data(identities=0, echo=lines.append, progress=False)
+    finally:
+        stop.set()
+        listener.close()
+        for c in held:
+            c.close()
+    assert time.monotonic() - t0 < 10
+    assert lines and "127.0.0.1" in lines[0]

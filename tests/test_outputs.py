@@ -254,12 +254,8 @@ def test_clean_writes_every_output_or_none(files, capsys, monkeypatch):
     assert code != 0 and listing(d) == before
 
 
-def test_animate_obj_dir_writes_everything_or_nothing(tmp_path, capsys, monkeypatch, face_model):
+def test_animate_obj_dir_writes_everything_or_nothing(tmp_path, capsys, monkeypatch, face_model, real_takes):
     import facegeom.io as fio
-    from facegeom.model import default_takes_path
-
-    if not default_takes_path().is_dir():
-        pytest.skip("real takes not available")
     monkeypatch.setattr(fio, "write_mesh", failing_after(2, fio.write_mesh))
     args = ["animate", "--start", "300", "--frames", "4", "--labels", "2", "-o", tmp_path / "anim.npz",
             "--obj-dir", tmp_path / "objs"]

@@ -77,6 +77,11 @@ def test_wheel_holds_only_the_facegeom_package(wheel):
     assert top_level in ([], ["facegeom"]), top_level
     entry_points = zipfile.ZipFile(wheel).read(meta["entry_points.txt"]).decode()
     assert "= baselines." not in entry_points and "facegeom.baselines.rbf:RBFDeformer" in entry_points
+    # the project's own licence travels with the wheel, and so do the registries of the data it downloads
+    assert "LICENSE" in meta, "no LICENSE in the wheel's metadata"
+    assert zipfile.ZipFile(wheel).read(meta["LICENSE"]).decode() == (ROOT / "LICENSE").read_text()
+    assert "MIT License" in (ROOT / "LICENSE").read_text()
+    assert {"facegeom/model/ICT-FaceKit-registry.txt", "facegeom/model/takes-registry.txt"} <= set(names)
 
 
 def test_commands_run_from_the_installed_wheel(installed):

@@ -1,6 +1,9 @@
 """What every command shares: the ``--data`` context object and option parsing helpers."""
 from __future__ import annotations
 
+import contextlib
+from pathlib import Path
+
 import click
 
 
@@ -28,3 +31,32 @@ def parse_params(items) -> dict:
         k, v = item.split("=", 1)
         out[k.strip()] = parse_value(v)
     return out
+
+
+#: where a command's takes come from when --takes is not given (option help)
+TAKES_LOOKUP = ("the takes lookup: $FACEGEOM_TAKES, ../shared/data/arkit-takes in a checkout, then the public take "
+                "`facegeom data fetch` downloads")
+
+
+@contextlib.contextmanager
+def other_take_sources(*alternatives: str):
+    """Add the command's own ways round a missing take (``--take FILE``, ``--synthetic``) to its error."""
+    from facegeom.errors import TakesNotFoundError
+
+    try:
+        yield
+    except TakesNotFoundError as exc:
+        more = "".join(f", or {a}" for a in alternatives)
+        raise TakesNotFoundError(f"{exc}{more}") from None
+
+
+def take_files(takes_path=None, take_path=None, alternatives=("--take FILE (one take)",)) -> list[Path]:
+    """The takes a command plays: ``--take FILE``, else every ``.csv`` of the takes lookup (``--takes``, ...)."""
+    if take_path:
+        return [Path(take_path)]
+    from facegeom.io import find_takes
+    from facegeom.model import locate_takes
+
+    with other_take_sources(*alternatives):
+        where = locate_takes(takes_path)
+    return [where] if where.is_file() else find_takes(where)

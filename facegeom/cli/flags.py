@@ -24,10 +24,11 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "the path argument (not given), $FACEGEOM_DATA": "the --data option (not given), $FACEGEOM_DATA",
     "Pass path=PATH or set FACEGEOM_DATA": "Pass --data PATH or set FACEGEOM_DATA",  # model.locate_data(path)
     "the path argument (not given), $FACEGEOM_TAKES": "the --takes option (not given), $FACEGEOM_TAKES",
-    "Pass path=PATH or set FACEGEOM_TAKES": "Pass --takes PATH or set FACEGEOM_TAKES",  # model.locate_takes(path)
+    "Pass path=PATH or set FACEGEOM_TAKES": "pass --takes FOLDER or set FACEGEOM_TAKES",  # model.locate_takes
     "pass drop_lost=True": "pass --drop-lost-markers",  # pipelines.cleanup.carry_vertex_csv(drop_lost=)
     "the vertex target must be": "--vertices must be",  # pipelines.cleanup.decimate(vertices=)
-    "pass verify=False": "pass --no-verify",  # model.download.build_bundle(verify=) / data build --no-verify
+    "pass verify=False": "pass --no-verify",
+    "pass partial=True": "pass --partial",  # model.download.build_bundle(partial=) / data build --partial  # model.download.build_bundle(verify=) / data build --no-verify
 }
 
 

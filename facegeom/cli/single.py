@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from facegeom.cli.context import Context, parse_params
+from facegeom.cli.context import TAKES_LOOKUP, Context, parse_params, take_files
 from facegeom.cli.identity import IMAGE_HELP
 
 
@@ -112,9 +112,10 @@ def retarget(source, labels, output, method, params, fill_gaps):
     res = retarget_files(source, labels, lambda: registry.create("retargeters", method, **parse_params(params)),
                          fill_gaps, echo=click.echo)
     write_retargeted(output, res)
+    unit = res.source.unit or "in the markers' length unit"  # the source's unit (C3D states one; CSV and npz do not)
     click.echo(f"{method}: {res.source.n_frames} frames x {res.source.n_markers} markers from {res.labels.n_frames} "
                f"labelled frames in {res.seconds * 1e3:.1f} ms (largest deviation from a label "
-               f"{res.label_deviation:.3g}) -> {output}")
+               f"{res.label_deviation:.3g} {unit}) -> {output}")
 
 
 @click.command()
@@ -197,8 +198,8 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, image, outpu
 
 @click.command()
 @click.option("--take", "take_path", type=click.Path(), default=None,
-              help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES).")
-@click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes (for the default take).")
+              help="A Live Link Face CSV take (default: the first take of --takes, else of the takes lookup).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None, help=f"Folder of takes (for the default take; default: {TAKES_LOOKUP}).")
 @click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the window.")
 @click.option("--frames", default=100, show_default=True, type=click.IntRange(2, 100000))
 @click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
@@ -224,13 +225,12 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
                      rig_path, fitter, smooth)
         return
     from facegeom.errors import InputError
-    from facegeom.io import all_or_nothing, check_outputs, find_takes, write_mesh
-    from facegeom.model import locate_takes
+    from facegeom.io import all_or_nothing, check_outputs, write_mesh
     from facegeom.pipelines.animate import animate_take, write_animation_npz
     from facegeom.registry import parse_method
 
     model = obj.face_model()
-    path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    path = take_files(takes_path, take_path)[0]
     objs = [Path(obj_dir) / f"frame_{t:05d}.obj" for t in range(frames)] if obj_dir else []
     check_outputs([path], [output] + objs)
     anim, seq, ids = animate_take(model, path, start, frames, labels, seed,
@@ -267,9 +267,9 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
 
     from facegeom.cli.solve import parse_smooth
     from facegeom.errors import InputError
-    from facegeom.io import check_outputs, find_takes
+    from facegeom.io import check_outputs
     from facegeom.io.markerseq import MarkerSequence
-    from facegeom.model import load_rig, locate_takes
+    from facegeom.model import load_rig
     from facegeom.pipelines.animate import solve_take
     from facegeom.pipelines.solve import DEFAULT_FPS, SolvedCapture, write_curves
     from facegeom.registry import parse_method
@@ -278,7 +278,7 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
         raise InputError("--obj-dir writes driven meshes; with --rig the output is weight curves")
     amount = parse_smooth(smooth)
     model = obj.face_model()
-    path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+    path = take_files(takes_path, take_path)[0]
     rig_file = None if rig_path == "ict" else rig_path
     check_outputs([path, rig_file], [output])
     rig = load_rig(rig_file, lambda: model)

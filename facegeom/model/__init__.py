@@ -25,6 +25,8 @@ from facegeom.model.face import (
     locate_takes,
     read_obj_polygons,
     read_obj_positions,
+    takes_cache_folder,
+    takes_places,
 )
 from facegeom.model.inputs import face_template, load_rig, photo_camera, pts_vertex_ids, read_fit_target, scan_scale
 from facegeom.model.landmarks import (
@@ -71,6 +73,8 @@ __all__ = [
     "load_face_model",
     "locate_data",
     "locate_takes",
+    "takes_cache_folder",
+    "takes_places",
     "read_obj_polygons",
     "read_obj_positions",
     "BlendshapeRig",

@@ -33,11 +33,19 @@ import numpy as np
 
 from facegeom.errors import DownloadError, InputError
 from facegeom.io.files import atomic_path
-from facegeom.model.face import BUNDLE_NAME, cache_bundle_folder, cache_folder, import_ict_folder, load_bundle
+from facegeom.model.face import (
+    BUNDLE_NAME,
+    cache_bundle_folder,
+    cache_folder,
+    import_ict_folder,
+    load_bundle,
+    takes_cache_folder,
+)
 
 __all__ = [
     "MODEL_FOLDER",
     "N_IDENTITIES",
+    "TAKES_URL_ENV_VAR",
     "URL_ENV_VAR",
     "Registry",
     "base_url",
@@ -46,6 +54,8 @@ __all__ = [
     "downloaded_files",
     "fetch_data",
     "fetch_plan",
+    "fetch_takes",
+    "takes_state",
     "raw_folder",
     "read_registry",
     "write_bundle",
@@ -58,7 +68,10 @@ REGISTRY_FILE = "ICT-FaceKit-registry.txt"
 #: the repository's licence text (not in the registry, which lists FaceXModel/ only)
 LICENSE_PATH, LICENSE_SHA256 = "LICENSE", "b20a78d8fc51657e14f3e00c8abb538d786ad00aa63210328c22565e583167e1"
 LICENSE_COPY = "LICENSE.ICT-FaceKit"
-TIMEOUT_S = 30
+#: seconds to wait for a connection, and for the next bytes once connected (each attempt; a file is tried twice)
+CONNECT_TIMEOUT_S, READ_TIMEOUT_S = 10, 15
+TAKES_URL_ENV_VAR = "FACEGEOM_TAKES_URL"
+TAKES_REGISTRY_FILE = "takes-registry.txt"
 
 
 @dataclass(frozen=True)
@@ -83,13 +96,14 @@ class Registry:
         return sum(self.files[p][1] for p in paths if p in self.files)
 
 
-def read_registry(path: str | os.PathLike | None = None) -> Registry:
+def read_registry(path: str | os.PathLike | None = None, shipped: str = REGISTRY_FILE) -> Registry:
     """Parse a registry: the header's commit and address pattern, then ``path sha256 bytes`` lines.
 
     Parameters
     ----------
     path : path, optional
-        A registry file; default: the one shipped with facegeom.
+        A registry file; default: the one shipped with facegeom called ``shipped``
+        (the ICT-FaceKit registry, or :data:`TAKES_REGISTRY_FILE`).
 
     Raises
     ------
@@ -97,8 +111,8 @@ def read_registry(path: str | os.PathLike | None = None) -> Registry:
         No commit or address pattern in the header, or a malformed line.
     """
     if path is None:
-        text = resources.files("facegeom.model").joinpath(REGISTRY_FILE).read_text(encoding="utf-8")
-        shown = REGISTRY_FILE
+        text = resources.files("facegeom.model").joinpath(shipped).read_text(encoding="utf-8")
+        shown = shipped
     else:
         shown = str(path)
         try:
@@ -250,22 +264,32 @@ def _short_reason(exc: Exception) -> str:
     return exc.__class__.__name__
 
 
-def _offline_message(base: str, reason: str) -> str:
+def _offline_message(base: str, reason: str, what: str = "the face data") -> str:
     from urllib.parse import urlsplit
 
     host = urlsplit(base).netloc or base
-    return (f"cannot download the face data from {host} ({reason}): no network, or the server is down. "
-            f"Run `facegeom data fetch` again later (it continues where it stopped), or build the bundle "
-            f"from a local ICT-FaceKit checkout with `facegeom data build PATH/{MODEL_FOLDER}`")
+    if "timed out" in reason.lower():
+        reason = f"no answer within {READ_TIMEOUT_S} s, twice"
+    build = (f", or build the bundle from a local ICT-FaceKit checkout with `facegeom data build PATH/{MODEL_FOLDER}`"
+             if what == "the face data" else "")
+    return (f"cannot download {what} from {host} ({reason}): no network, or the server is down. "
+            f"Run `facegeom data fetch` again later (it continues where it stopped){build}")
 
 
-def _fetch_file(pup, path: str, base: str, progress, commit: str) -> Path:
-    """Fetch one registry path through pooch; every failure as one :class:`DownloadError` line."""
+def _fetch_file(pup, path: str, base: str, progress, commit: str, what: str = "the face data",
+                url_var: str = URL_ENV_VAR) -> Path:
+    """Fetch one registry path through pooch; every failure as one :class:`DownloadError` line.
+
+    A server that accepts the connection and then says nothing is given up on after
+    :data:`READ_TIMEOUT_S` seconds (tried twice), one that does not accept it after
+    :data:`CONNECT_TIMEOUT_S`.
+    """
     import pooch
     import requests
 
     url = base + path
-    downloader = pooch.HTTPDownloader(progressbar=progress if progress is not None else False, timeout=TIMEOUT_S)
+    downloader = pooch.HTTPDownloader(progressbar=progress if progress is not None else False,
+                                      timeout=(CONNECT_TIMEOUT_S, READ_TIMEOUT_S))
     try:
         got = Path(pup.fetch(path, downloader=downloader))
         _honour_umask(got)
@@ -273,11 +297,10 @@ def _fetch_file(pup, path: str, base: str, progress, commit: str) -> Path:
     except requests.exceptions.HTTPError as exc:
         r = exc.response
         status = f"{r.status_code} {r.reason}" if r is not None else "an error"
-        hint = f"; is ${URL_ENV_VAR} a mirror of ICT-FaceKit at commit {commit[:7]}?" \
-            if os.environ.get(URL_ENV_VAR) else ""
+        hint = f"; is ${url_var} a mirror of the repository at commit {commit[:7]}?" if os.environ.get(url_var) else ""
         raise DownloadError(f"the server answered {status} for {url}{hint}", path) from None
     except (requests.exceptions.ConnectionError, requests.exceptions.Timeout) as exc:
-        raise DownloadError(_offline_message(base, _short_reason(exc))) from None
+        raise DownloadError(_offline_message(base, _short_reason(exc), what)) from None
     except requests.exceptions.RequestException as exc:  # e.g. the body cut short twice
         raise DownloadError(f"the download from {url} failed twice ({_short_reason(exc)}); run `facegeom data "
                             f"fetch` again to continue", path) from None
@@ -354,6 +377,7 @@ def fetch_data(identities: int | None = None, dest: str | os.PathLike | None = N
     pup = _pooch_for(registry, base, {LICENSE_PATH: f"sha256:{LICENSE_SHA256}"})
     index_path = registry.model_file("vertex_indices.json")
     index_before = _have(folder, index_path, registry.files.get(index_path, (None, -1))[1])
+    echo(f"ICT-FaceKit model at commit {registry.commit[:7]} (MIT licence), from {base}")
     with _quiet_pooch():
         index = _fetch_file(pup, index_path, base, None, registry.commit)  # the plan needs its expression list
         expressions = _expression_list(index)
@@ -361,10 +385,8 @@ def fetch_data(identities: int | None = None, dest: str | os.PathLike | None = N
         total = registry.size(plan)
         have = [p for p in plan if _have(folder, p, registry.files[p][1])]
         before = [p for p in have if p != index_path or index_before]
-        echo(f"ICT-FaceKit model at commit {registry.commit[:7]} (MIT licence): {len(plan)} files, {_mb(total)} "
-             f"({len(expressions)} expressions, {n_id} identities), {_files(len(before))} "
-             f"({_mb(registry.size(before))}) already in {folder}")
-        echo(f"downloading from {base}")
+        echo(f"{len(plan)} files, {_mb(total)} ({len(expressions)} expressions, {n_id} identities), "
+             f"{_files(len(before))} ({_mb(registry.size(before))}) already in {folder}")
         bar = tqdm(total=total, initial=registry.size(have), unit="B", unit_scale=True, dynamic_ncols=True,
                    disable=not progress, mininterval=0.5, desc=f"{len(have)}/{len(plan)} files")
         try:
@@ -436,7 +458,7 @@ def _sha256(path: Path) -> str:
 
 def build_bundle(folder: str | os.PathLike, identities: int | None = None, dest: str | os.PathLike | None = None,
                  verify: bool = True, registry: Registry | None = None,
-                 echo: Callable[[str], None] = print) -> Path:
+                 echo: Callable[[str], None] = print, partial: bool = False) -> Path:
     """Build the bundle from an ICT-FaceKit folder already on disk (a clone, or its ``FaceXModel/``).
 
     Parameters
@@ -454,6 +476,9 @@ def build_bundle(folder: str | os.PathLike, identities: int | None = None, dest:
         Default: the registry shipped with facegeom.
     echo : callable
         Prints a line.
+    partial : bool
+        Build from the expression OBJs present even when some that
+        ``vertex_indices.json`` lists are missing (default: refuse).
 
     Returns
     -------
@@ -463,7 +488,8 @@ def build_bundle(folder: str | os.PathLike, identities: int | None = None, dest:
     Raises
     ------
     InputError
-        Not a folder, a file missing, or (with ``verify``) a file whose hash differs.
+        Not a folder, a file missing (an expression only without ``partial``),
+        or (with ``verify``) a file whose hash differs.
     """
     folder = Path(folder)
     if (folder / MODEL_FOLDER).is_dir():
@@ -474,7 +500,15 @@ def build_bundle(folder: str | os.PathLike, identities: int | None = None, dest:
     index = folder / "vertex_indices.json"
     if not index.is_file():
         raise InputError(f"no vertex_indices.json here: not an ICT-FaceKit {MODEL_FOLDER} folder", folder)
-    expressions = [e for e in _expression_list(index) if (folder / f"{e}.obj").is_file()]
+    listed = _expression_list(index)
+    expressions = [e for e in listed if (folder / f"{e}.obj").is_file()]
+    absent = [e for e in listed if e not in expressions]
+    if absent and not partial:
+        more = f" and {len(absent) - 3} more" if len(absent) > 3 else ""
+        raise InputError(f"holds {len(expressions)} of the {len(listed)} expression OBJs that vertex_indices.json "
+                         f"lists (missing {', '.join(f'{e}.obj' for e in absent[:3])}{more}): a bundle needs them all; "
+                         f"copy the complete {MODEL_FOLDER} folder, or pass partial=True to build from what is here",
+                         folder)
     present = sorted(p.stem for p in folder.glob("identity[0-9][0-9][0-9].obj"))
     if identities is None:
         ids = present
@@ -535,3 +569,65 @@ def downloaded_files(registry: Registry | None = None) -> tuple[int, int]:
     folder = raw_folder(registry)
     have = [p for p, (_, size) in registry.files.items() if _have(folder, p, size)]
     return len(have), registry.size(have)
+
+
+# --------------------------------------------------------------------------- the public real take
+
+
+def takes_state(registry: Registry | None = None) -> dict[str, bool]:
+    """Which files of the takes registry are in the cache's takes folder (by name; hashes checked on fetch)."""
+    registry = registry or read_registry(shipped=TAKES_REGISTRY_FILE)
+    folder = takes_cache_folder()
+    return {Path(p).name: _have(folder, Path(p).name, size) for p, (_, size) in registry.files.items()}
+
+
+def fetch_takes(registry: Registry | None = None, echo: Callable[[str], None] = print, progress: bool = True) -> Path:
+    """Download the public real take of the takes registry (verified) into the cache, its licence beside it.
+
+    The files (a Live Link Face CSV and the repository's ``LICENSE``) land
+    flat in :func:`facegeom.model.face.takes_cache_folder`, the last place of
+    the takes lookup; a file already there with the right hash is kept. The
+    base address is the registry's, or ``$FACEGEOM_TAKES_URL`` (a mirror laid
+    out like the repository; the hashes still decide).
+
+    Returns
+    -------
+    Path
+        The takes folder.
+
+    Raises
+    ------
+    DownloadError
+        As :func:`fetch_data`: one line naming the file.
+    """
+    import pooch
+
+    registry = registry or read_registry(shipped=TAKES_REGISTRY_FILE)
+    base = os.environ.get(TAKES_URL_ENV_VAR) or registry.default_base_url
+    base = base if base.endswith("/") else base + "/"
+    folder = takes_cache_folder()
+    todo = []
+    for path, (sha, size) in registry.files.items():
+        final = folder / Path(path).name
+        if not (_have(folder, final.name, size) and _sha256(final) == sha):
+            todo.append(path)
+    names = ", ".join(Path(p).name for p in registry.files)
+    if not todo:
+        echo(f"real take: {names} already in {folder}")
+        return folder
+    echo(f"real take (Live Link Face, MIT licence, commit {registry.commit[:7]}): {names}, "
+         f"{_mb(registry.size(todo))} from {base}")
+    staging = folder.parent / f".arkit-takes-{registry.commit[:7]}-download"
+    pup = pooch.create(path=staging, base_url=base, registry={p: f"sha256:{registry.files[p][0]}" for p in todo},
+                       retry_if_failed=1)
+    got = {}
+    with _quiet_pooch():
+        for path in todo:
+            got[path] = _fetch_file(pup, path, base, None, registry.commit, what="the real take",
+                                    url_var=TAKES_URL_ENV_VAR)
+    folder.mkdir(parents=True, exist_ok=True)
+    for path, f in got.items():  # every file verified: move them in (same file system as the cache)
+        os.replace(f, folder / Path(path).name)
+    shutil.rmtree(staging, ignore_errors=True)
+    echo(f"real take: {folder}")
+    return folder

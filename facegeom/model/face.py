@@ -23,7 +23,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from facegeom.errors import DataNotFoundError, InputError
+from facegeom.errors import DataNotFoundError, InputError, TakesNotFoundError
 from facegeom.io.formats.common import read_file_bytes
 from facegeom.io.formats.obj import read_obj
 
@@ -36,6 +36,8 @@ __all__ = [
     "data_places",
     "default_takes_path",
     "locate_takes",
+    "takes_cache_folder",
+    "takes_places",
     "BUNDLE_NAME",
     "REQUIRED_KEYS",
     "FaceModel",
@@ -557,27 +559,58 @@ def default_takes_path() -> Path:
     return REPO_ROOT.parent / "shared" / "data" / "arkit-takes"
 
 
+def takes_cache_folder() -> Path:
+    """Where ``facegeom data fetch`` puts the public real take (and its licence): ``arkit-takes/`` in the cache."""
+    return cache_folder() / "arkit-takes"
+
+
+def _holds_takes(folder: Path) -> bool:
+    return folder.is_dir() and any(f.suffix.lower() == ".csv" and f.is_file() for f in folder.iterdir())
+
+
+def takes_places(path: str | os.PathLike | None = None) -> list[tuple[str, Path | None, bool]]:
+    """The places of the takes lookup, in order: ``(what, where, found)``.
+
+    ``where`` is None when the place does not apply (no path given, variable
+    not set, not running from a repository checkout); ``found`` says whether a
+    take is there (a ``.csv`` file, or a folder holding one).
+    """
+    env = os.environ.get(TAKES_ENV_VAR)
+    places = [
+        ("the path argument", None if path is None else Path(path)),
+        (f"${TAKES_ENV_VAR}", Path(env) if env else None),
+        ("the development folder", default_takes_path() if _in_repository() else None),
+        ("the user cache", takes_cache_folder()),
+    ]
+    return [(what, where, where is not None and (where.is_file() or _holds_takes(where))) for what, where in places]
+
+
 def locate_takes(path: str | os.PathLike | None = None) -> Path:
-    """Folder of ARKit take CSVs: ``path``, else ``$FACEGEOM_TAKES``, else the default.
+    """Folder of ARKit take CSVs (or one take file).
+
+    Looked for at ``path``, else ``$FACEGEOM_TAKES``, else ``../shared/data/arkit-takes``
+    (a repository checkout only), else the user cache, where ``facegeom data fetch``
+    puts one public real take.
 
     Raises
     ------
     DataNotFoundError
-        Naming the places that were looked at.
+        Naming the places that were looked at and how to get a take.
     """
     if path is not None:
         p = Path(path)
         if p.is_dir() or p.is_file():
             return p
         raise DataNotFoundError(f"takes not found at the given path {path} (expected a folder of .csv takes)")
+    places = takes_places()
+    for _, where, found in places[1:]:
+        if found:
+            return where
     env = os.environ.get(TAKES_ENV_VAR)
-    if env and Path(env).exists():
-        return Path(env)
-    default = default_takes_path()
-    if default.is_dir():
-        return default
-    raise DataNotFoundError(
-        "ARKit takes not found; looked at: the path argument (not given), "
-        + (f"${TAKES_ENV_VAR}={env}" if env else f"${TAKES_ENV_VAR} (not set)")
-        + f", {default}. Pass path=PATH or set {TAKES_ENV_VAR}."
+    tried = [f"${TAKES_ENV_VAR}={env}" if env else f"${TAKES_ENV_VAR} (not set)"]
+    tried += [str(where) for what, where, _ in places[2:] if where is not None]
+    raise TakesNotFoundError(
+        "ARKit takes not found; looked at: the path argument (not given), " + ", ".join(tried)
+        + ". Run `facegeom data fetch` (it downloads one public Live Link Face take, 3.3 MB), "
+        + f"or Pass path=PATH or set {TAKES_ENV_VAR}"
     )
