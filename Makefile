@@ -1,7 +1,8 @@
 # Two entry points for a fresh machine: `make demo` and `make test`.
 # Each creates .venv (if missing or stale) and installs the project into it, then makes sure the face
 # data is there: found by the data lookup, else downloaded once (ICT-FaceKit, about 400 MB, verified) into
-# the user cache (`facegeom data fetch`; $FACEGEOM_CACHE, $FACEGEOM_DATA_URL for a mirror).
+# the user cache (`facegeom data fetch`; $FACEGEOM_CACHE, $FACEGEOM_DATA_URL for a mirror), and one public real
+# take likewise unless a take is found ($FACEGEOM_TAKES, ../shared; $FACEGEOM_TAKES_URL for a mirror).
 PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin

@@ -126,3 +126,15 @@ def test_info_finds_the_face_data_from_the_wheel(installed, face_model):
     bindir, work, env = installed
     out = _run([bindir / "facegeom", "--data", face_model.path, "info"], cwd=work, env=env)
     assert "face data:" in out and "9409" in out
+
+
+def test_no_take_from_the_wheel_says_how_to_get_one(installed, face_model, tmp_path):
+    """An installed package has no repository: the error names the real places and `facegeom data fetch`."""
+    bindir, work, env = installed
+    env = {**env, "FACEGEOM_DATA": face_model.path, "FACEGEOM_CACHE": str(tmp_path / "cache")}
+    env.pop("FACEGEOM_TAKES", None)
+    r = subprocess.run([str(bindir / "facegeom"), "animate", "--frames", "10", "-o", "a.npz"], cwd=work, env=env,
+                       capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "facegeom data fetch" in r.stderr and "--take FILE" in r.stderr and "--takes FOLDER" in r.stderr
+    assert "shared" not in r.stderr and str(tmp_path / "cache" / "arkit-takes") in r.stderr
