@@ -27,7 +27,8 @@ from facegeom.constants import CM_TO_MM
 from facegeom.errors import FacegeomError, InputError
 
 __all__ = ["NO_DISPLAY", "display_available", "check_display", "init_polyscope", "parse_size", "Widgets",
-           "BaseView", "error_mm", "row_offsets", "colormap_rgb", "color_u32"]
+           "BaseView", "error_mm", "row_offsets", "colormap_rgb", "color_u32", "scale_text", "COLOR_MAX_LABEL",
+           "COLOR_MAX_RANGE"]
 
 CMAP = "viridis"
 FOV_DEG = 15.0
@@ -36,6 +37,11 @@ SELECTED_COLOR = (1.0, 0.0, 0.6)
 TRUTH_COLOR = (0.78, 0.78, 0.8)
 BUSY_FPS = 12  # frame rate cap while methods fit in worker processes (the renderer is software GL here)
 COLORBAR_H = 74  # pixels kept free at the bottom of the window for the colour scale
+# The colour scale's maximum (mm): one range, one label and one number format for the panel's slider and the
+# drawn colour bar, so both always show the same value.
+COLOR_MAX_LABEL = "colour max (mm)"
+COLOR_MAX_RANGE = (0.01, 50.0)
+SCALE_FORMAT = "%.3g"
 # matplotlib's viridis (the faces' colour map) sampled at 0, 1/8, ..., 1: enough for a drawn colour bar
 _VIRIDIS = np.array([[68, 1, 84], [72, 40, 120], [62, 74, 137], [49, 104, 142], [38, 130, 142],
                      [31, 158, 137], [53, 183, 121], [109, 205, 89], [253, 231, 37]], dtype=np.float64) / 255.0
@@ -101,6 +107,11 @@ def error_mm(Y: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.asarray(Y) - np.asarray(T), axis=-1) * CM_TO_MM
 
 
+def scale_text(x: float) -> str:
+    """A number of the colour scale (mm) as the slider and the colour bar both print it."""
+    return SCALE_FORMAT % float(x)
+
+
 def row_offsets(V: np.ndarray, count: int, gap: float = 0.12) -> np.ndarray:
     """``(count, 3)`` shifts placing ``count`` copies of a face like ``V`` side by side along x."""
     width = float(np.ptp(np.asarray(V)[:, 0]))
@@ -144,6 +155,7 @@ class Widgets:
     def __init__(self):
         self.pending: dict[str, object] = {}
         self.rects: dict[str, list[float]] = {}  # label -> window pixels x0, y0, x1, y1 of its last draw
+        self.shown: dict[str, str] = {}  # label -> the text a slider displayed in its last draw
 
     def set(self, label: str, value) -> None:
         """Queue ``value`` for the widget ``label``: its next draw reports a change to ``value``.
@@ -161,11 +173,16 @@ class Widgets:
             return True, self.pending.pop(label)
         return changed, value
 
-    def slider_float(self, label, v, lo, hi, fmt="%.3f"):
-        """A float slider over ``[lo, hi]`` showing ``v`` (printf format ``fmt``) -> ``(changed, value)``."""
+    def slider_float(self, label, v, lo, hi, fmt="%.3f", logarithmic=False):
+        """A float slider over ``[lo, hi]`` showing ``v`` (printf format ``fmt``) -> ``(changed, value)``.
+
+        ``logarithmic`` spaces the values logarithmically along the slider (a scale spanning decades).
+        """
         import polyscope.imgui as psim
 
-        return self._take(label, *psim.SliderFloat(label, float(v), float(lo), float(hi), format=fmt))
+        flags = psim.ImGuiSliderFlags_Logarithmic if logarithmic else 0
+        self.shown[label] = fmt % float(v)
+        return self._take(label, *psim.SliderFloat(label, float(v), float(lo), float(hi), format=fmt, flags=flags))
 
     def slider_int(self, label, v, lo, hi):
         """An integer slider over ``[lo, hi]`` showing ``v`` -> ``(changed, value)``."""
@@ -230,6 +247,34 @@ class BaseView:
         self._state_written = 0.0
         self._exit_at: float | None = None
         self._stop = False
+
+    @property
+    def vmax(self) -> float:
+        """The colour scale's maximum (mm): the faces' colours, the slider and the colour bar all use it.
+
+        Setting it keeps it in :data:`COLOR_MAX_RANGE` and rounds it to the digits the slider and the bar
+        print, so what is shown is exactly the scale the faces are coloured on.
+        """
+        return self._vmax
+
+    @vmax.setter
+    def vmax(self, value: float) -> None:
+        """Set the maximum (mm), clipped to :data:`COLOR_MAX_RANGE` and rounded as it is printed."""
+        lo, hi = COLOR_MAX_RANGE
+        self._vmax = float(scale_text(min(max(float(value), lo), hi)))
+
+    def color_max_slider(self) -> bool:
+        """The panel's ``colour max (mm)`` slider (logarithmic over :data:`COLOR_MAX_RANGE`); sets :attr:`vmax`
+        and returns whether it changed."""
+        lo, hi = COLOR_MAX_RANGE
+        changed, v = self.ui.slider_float(COLOR_MAX_LABEL, self.vmax, lo, hi, SCALE_FORMAT, logarithmic=True)
+        if changed:
+            self.vmax = v
+        return changed
+
+    def colorbar_labels(self) -> list[str]:
+        """The five tick labels of the drawn colour bar, 0 to :attr:`vmax` (mm), printed as the slider prints."""
+        return [scale_text(self.vmax * j / 4) for j in range(5)]
 
     # ------------------------------------------------------------------ structures
     def _grow_bounds(self, P: np.ndarray) -> None:
@@ -370,10 +415,9 @@ class BaseView:
             dl.AddRectFilledMultiColor((a, y0), (b + 0.5, y0 + h), ca, cb, cb, ca)
         black = color_u32((0.1, 0.1, 0.1))
         dl.AddText((x0, y0 - 19), black, self.colorbar_title)
-        for j in range(5):
+        for j, label in enumerate(self.colorbar_labels()):
             x = x0 + w * j / 4
             dl.AddLine((x, y0 + h), (x, y0 + h + 4), black)
-            label = f"{self.vmax * j / 4:.3g}"
             tw = psim.CalcTextSize(label)[0]
             dl.AddText((min(max(x - tw / 2, x0 - 8), x0 + w + 8 - tw), y0 + h + 4), black, label)
 

@@ -654,9 +654,7 @@ class DriveView(BaseView):
         psim.TextUnformatted(c.description)
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
         psim.TextUnformatted("colour: distance to the true target (mm)")
-        ch, v = ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
-        if ch:
-            self.vmax = float(v)
+        if self.color_max_slider():
             self._auto_vmax = False
             self.refresh()
         psim.TextUnformatted("per method: last deform (ms), fit (s); error over the face area (mm)")

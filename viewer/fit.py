@@ -345,9 +345,7 @@ class FitView(BaseView):
         psim.TextWrapped(c.description)
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
         psim.TextUnformatted("colour: distance to the true face (mm)")
-        ch, v = ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
-        if ch:
-            self.vmax = float(v)
+        if self.color_max_slider():
             self._auto_vmax = False
             self.refresh_colors()
         psim.Separator()

@@ -241,9 +241,7 @@ class RetargetView(PlaybackView):
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
         psim.TextWrapped("dark dots: the character's true markers; coloured dots: retargeted markers, colour = "
                          "error (mm)")
-        ch, v = self.ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
-        if ch:
-            self.vmax = float(v)
+        if self.color_max_slider():
             self.show_frame()
         self.playback_panel()
         labelled = " (labelled)" if self.frame in set(self.labelled.tolist()) else ""
@@ -373,9 +371,7 @@ class AnimateView(PlaybackView):
                          f"labelled frames; deformer {self.d_spec.label} (fit {self.fit_s:.2f} s)")
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
         psim.TextUnformatted("colour: distance to the character's true face (mm)")
-        ch, v = self.ui.slider_float("colour max (mm)", self.vmax, 0.1, 50.0, "%.1f")
-        if ch:
-            self.vmax = float(v)
+        if self.color_max_slider():
             self.show_frame()
         self.playback_panel()
         labelled = " (labelled)" if self.frame in set(self.labelled.tolist()) else ""

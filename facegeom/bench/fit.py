@@ -133,51 +133,92 @@ def run_landmarks(model, cases, specs, noise_px=1.0, seed=0, progress=True):
     return rows
 
 
-def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10, repeats=1):
+def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_by_one=10, repeats=1,
+                            progress=False):
     """Landmark fits per second on one rig: known pose and estimated pose.
 
     A method that solves landmark targets together (``"landmarks"`` in
     :func:`~facegeom.interfaces.batched_targets`) fits ``count`` targets in one
     :func:`~facegeom.interfaces.fit_many`; others are timed one by one on
     ``one_by_one`` targets. The rate is the median of ``repeats`` timed runs
-    (on a shared machine single runs vary by 2x).
+    (on a shared machine single runs vary by 2x). ``progress`` shows two bars:
+    the targets being made, then the timed runs (one step per method and pose).
     """
     rng = np.random.default_rng([int(seed), 57])
     cases = fitting_cases(model, count, int(seed) + 1000)
     rig = BlendshapeRig.from_face_model(model, cases[0].identity)
     ids = model.landmarks[list(FIT_LANDMARKS_23)]
     posed, unposed = [], []
-    for c in cases:
+    for c in progress_bar(cases, "landmark speed: targets", progress, unit="target"):
         V = rig.evaluate(c.weights)
         cam = look_at_camera(V, yaw=c.yaw, pitch=c.pitch)
         uv = cam.project(V[ids]) + rng.normal(size=(ids.size, 2)) * noise_px
         posed.append(LandmarkTarget(uv, ids, cam))
         unposed.append(LandmarkTarget(uv, ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
-    rows = []
-    for spec in specs:
-        m = spec.build("fitters")
-        row = {"method": spec.label}
-        for key, targets in (("known_pose", posed), ("estimated_pose", unposed)):
-            try:
-                m.fit(rig, targets[0])
-            except FacegeomError:
-                row[key] = float("nan")
-                continue
-            rates = []
-            for _ in range(max(1, int(repeats))):
-                if "landmarks" in batched_targets(m):
-                    t = time.perf_counter()
-                    fit_many(m, rig, targets)
-                    n, row["path"] = len(targets), "batched"
-                else:
-                    n, row["path"] = min(one_by_one, len(targets)), "one by one"
-                    t = time.perf_counter()
-                    for tg in targets[:n]:
-                        m.fit(rig, tg)
-                rates.append(n / (time.perf_counter() - t))
-            row[key] = float(np.median(rates))
-        rows.append(row)
+    work = [(i, key, targets) for i in range(len(specs))
+            for key, targets in (("known_pose", posed), ("estimated_pose", unposed))]
+    rows = [{"method": s.label} for s in specs]
+    built = {}
+    for i, key, targets in progress_bar(work, "landmark speed", progress, unit="run"):
+        if i not in built:  # one fitter per method, for both poses
+            built[i] = specs[i].build("fitters")
+        m = built[i]
+        row = rows[i]
+        try:
+            m.fit(rig, targets[0])
+        except FacegeomError:
+            row[key] = float("nan")
+            continue
+        rates = []
+        for _ in range(max(1, int(repeats))):
+            if "landmarks" in batched_targets(m):
+                t = time.perf_counter()
+                fit_many(m, rig, targets)
+                n, row["path"] = len(targets), "batched"
+            else:
+                n, row["path"] = min(one_by_one, len(targets)), "one by one"
+                t = time.perf_counter()
+                for tg in targets[:n]:
+                    m.fit(rig, tg)
+            rates.append(n / (time.perf_counter() - t))
+        row[key] = float(np.median(rates))
     return rows
+
+
+def throughput_heading(kind: str, n_methods: int, count: int, repeats: int = 1) -> str:
+    """The line announcing a throughput measurement: what it times and roughly how long it takes.
+
+    Parameters
+    ----------
+    kind : "landmark" or "mesh"
+        Which throughput.
+    n_methods : int
+        Fitters timed.
+    count : int
+        Targets per timed run (a method without a batched path times only its first few).
+    repeats : int
+        Timed runs per method (the rate is their median).
+
+    Returns
+    -------
+    str
+        One line; the duration is a range, from a quiet machine to a busy one.
+    """
+    runs = max(1, n_methods) * max(1, int(repeats))
+    lo, hi = (s * runs for s in THROUGHPUT_SECONDS[kind])
+    what = ("landmark fits per second on one rig, 23 landmarks per target, with the pose known and with it "
+            "estimated" if kind == "landmark" else "mesh fits per second on one rig, targets in correspondence")
+    median = f", median of {repeats} runs" if repeats > 1 else ""
+    return (f"{kind} throughput: {what} ({n_methods} fitters, {count:,} targets{median}); "
+            f"this takes roughly {_duration(lo)} to {_duration(hi)}")
+
+
+THROUGHPUT_SECONDS = {"landmark": (5.0, 30.0), "mesh": (0.5, 3.0)}
+"""Seconds per fitter and timed run of the throughputs (targets included): an idle 2-core machine, a busy one."""
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} minutes"
 
 
 # --------------------------------------------------------------------------- point clouds
@@ -293,24 +334,24 @@ def run_meshes(model, cases, specs, seed=0, progress=True):
             row.update(_common(rig, r, c.weights, V))
             rows.append(row)
     # throughput on one rig: many targets at once where a method has a batched path
-    return rows, run_mesh_throughput(rigs[0], specs, seed)
+    return rows, run_mesh_throughput(rigs[0], specs, seed, progress=progress)
 
 
-def run_mesh_throughput(rig, specs, seed=0, count=2000, one_by_one=100, repeats=1):
+def run_mesh_throughput(rig, specs, seed=0, count=2000, one_by_one=100, repeats=1, progress=False):
     """Mesh fits per second on one rig: ``count`` random sparse targets in correspondence.
 
     Each shape is active with probability 0.08, weight U(0.2, 1). A method that
     batches mesh targets (``"mesh"`` in :func:`~facegeom.interfaces.batched_targets`)
     fits them all in one :func:`~facegeom.interfaces.fit_many` after a
     10-target warm-up (``"batched"``); others fit the first ``one_by_one`` one by
-    one. The rate is the median of ``repeats`` timed runs. Returns one dict
-    per method that accepts meshes: ``method``, ``fits_per_s``, ``path``.
+    one. The rate is the median of ``repeats`` timed runs (``progress``: a bar over the methods). Returns
+    one dict per method that accepts meshes: ``method``, ``fits_per_s``, ``path``.
     """
     rng = np.random.default_rng([int(seed), 31])
     W = np.where(rng.random((count, rig.n_shapes)) < 0.08, rng.uniform(0.2, 1.0, (count, rig.n_shapes)), 0.0)
     T = rig.neutral[None] + np.tensordot(W, rig.deltas, 1)
     throughput = []
-    for spec in specs:
+    for spec in progress_bar(specs, "mesh speed", progress, unit="method"):
         m = spec.build("fitters")
         try:
             m.fit(rig, MeshTarget(T[0]))
@@ -443,26 +484,72 @@ def summarize(results: dict, specs) -> str:
 
 
 def plot(results, specs, fitted, weights):
-    """Landmark accuracy and redundancy per method, and jawOpen over the take: a matplotlib figure."""
+    """The experiments run, one panel each, as a matplotlib figure.
+
+    Landmark accuracy and redundancy (two panels), the mean vertex error of the
+    point-cloud and the mesh fits, and jawOpen over the take (temporal): only
+    the panels of the experiments in ``results`` (and ``fitted``) are laid out,
+    so none is left empty.
+
+    Parameters
+    ----------
+    results : dict
+        The rows per experiment, as from :func:`main`.
+    specs : list of MethodSpec
+        The methods, in bar order.
+    fitted : dict of str -> (T, 1) array, or None
+        The jawOpen coefficient of every method over the take (temporal).
+    weights : (T, 1) array or None
+        The true jawOpen coefficient over the take.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     import matplotlib.pyplot as plt
 
     labels = [s.label for s in specs]
-    fig, ax = plt.subplots(1, 3, figsize=(17, 4.6))
-    if "landmarks" in results:
-        rows = results["landmarks"]
-        ms = [m for m in labels if any(r["method"] == m for r in rows)]
-        ax[0].bar(ms, [100 * _mean(rows, m, "ne_eval") for m in ms])
-        ax[0].set(ylabel="NE on the 26 unused landmarks (%)", title="Landmarks: accuracy")
-        ax[1].bar(ms, [_mean(rows, m, "corr") for m in ms])
-        ax[1].set(ylabel="Corr (cm^2)", title="Landmarks: redundancy (eq. 33)")
-        for a in ax[:2]:
+
+    def present(rows):
+        return [m for m in labels if any(r["method"] == m for r in rows)]
+
+    def bars(title, ylabel, rows, key, scale=1.0):
+        ms = present(rows)
+
+        def draw(a):
+            a.bar(ms, [scale * _mean(rows, m, key) for m in ms])
+            a.set(ylabel=ylabel, title=title)
             a.tick_params(axis="x", rotation=45)
-    if fitted is not None:  # one key shape (jawOpen) over the take, truth and every method
-        ax[2].plot(weights[:, 0], "k-", lw=2, label="truth")
-        for m, W in fitted.items():
-            ax[2].plot(W[:, 0], label=m)
-        ax[2].set(xlabel="frame", ylabel="coefficient", title="Temporal stability: jawOpen")
-        ax[2].legend(fontsize=8)
+        return draw
+
+    panels = []
+    if results.get("landmarks"):
+        rows = results["landmarks"]
+        panels.append(bars("Landmarks: accuracy", "NE on the 26 unused landmarks (%)", rows, "ne_eval", 100.0))
+        panels.append(bars("Landmarks: redundancy (eq. 33)", "Corr (cm^2)", rows, "corr"))
+    if results.get("clouds"):
+        panels.append(bars("Point clouds: accuracy", "mean vertex error, face area (mm)", results["clouds"],
+                           "vertex_mm"))
+    if results.get("meshes") and results["meshes"][0]:
+        panels.append(bars("Corresponding meshes: accuracy", "mean vertex error, face area (mm)",
+                           results["meshes"][0], "vertex_mm"))
+    if fitted is not None and weights is not None:  # one key shape (jawOpen) over the take, truth and every method
+        def temporal(a):
+            a.plot(weights[:, 0], "k-", lw=2, label="truth")
+            for m, W in fitted.items():
+                a.plot(W[:, 0], label=m)
+            a.set(xlabel="frame", ylabel="coefficient", title="Temporal stability: jawOpen")
+            a.legend(fontsize=8)
+        panels.append(temporal)
+    if not panels:  # only throughputs (their numbers are in the summary): say so rather than draw empty axes
+        def nothing(a):
+            a.text(0.5, 0.5, "no accuracy experiment run: see the summary's throughput tables", ha="center",
+                   va="center", transform=a.transAxes)
+            a.set_axis_off()
+        panels.append(nothing)
+    fig, ax = plt.subplots(1, len(panels), figsize=(5.7 * len(panels), 4.6), squeeze=False)
+    for a, draw in zip(ax[0], panels):
+        draw(a)
     fig.tight_layout()
     return fig
 
@@ -550,14 +637,18 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)
         report.csv(results["landmarks"], "landmarks")
-        results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px)
+        echo(throughput_heading("landmark", len(specs), 1000))
+        results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px, progress=progress)
         report.csv(results["landmark_speed"], "landmark-speed")
     if "speed" in experiments:  # only the throughputs, each the median of 3 runs
         if "landmark_speed" not in results:
-            results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px, repeats=3)
+            echo(throughput_heading("landmark", len(specs), 1000, repeats=3))
+            results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px, repeats=3,
+                                                                progress=progress)
             report.csv(results["landmark_speed"], "landmark-speed")
+        echo(throughput_heading("mesh", len(specs), 2000, repeats=3))
         results["mesh_speed"] = run_mesh_throughput(BlendshapeRig.from_face_model(model, cases[0].identity), specs,
-                                                    seed, repeats=3)
+                                                    seed, repeats=3, progress=progress)
         report.csv(results["mesh_speed"], "mesh-speed")
     if "clouds" in experiments:
         results["clouds"] = run_clouds(model, cases[:cloud_cases], specs, samplings, points, seed=seed,

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from facegeom.cli.context import Context
+from facegeom.cli.context import TAKES_LOOKUP, Context
 
 
 @click.group()
@@ -22,7 +22,7 @@ def bench():
               help="Marker-noise levels of the realistic protocol (mm per coordinate, comma-separated).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
               help="Folder of ARKit take CSVs for the realistic protocol's dense expressions. Default: "
-                   "$FACEGEOM_TAKES, else ../shared/data/arkit-takes; without takes, dense synthetic expressions.")
+                   f"{TAKES_LOOKUP}; without takes, dense synthetic expressions.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of identities and expressions.")
 @click.option("--methods", default="all", show_default=True,
               help="'all' or ';'-separated specs [label=]name[:k=v,k=v], e.g. 'rbf;t1=tangent:rings=1'.")
@@ -36,7 +36,7 @@ def bench():
 @click.pass_obj
 def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, seed, methods, layout_name, layout_seed,
                 out, no_plot, quiet):
-    """Face driving on the real ICT face: every deformer, errors in mm, times (realistic protocol, then Fig. 10's)."""
+    """Face driving on the real ICT face: every deformer, errors in mm, times (realistic protocol, then Figure 10's)."""
     from facegeom.bench import drive as bd
     from facegeom.errors import InputError
     from facegeom.registry import LINEUPS, parse_methods
@@ -69,8 +69,8 @@ def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, 
 @click.option("--labels", default="2,3,4,6,8,10,15,20,25,30", show_default=True,
               help="Numbers of labelled frames (evenly spread) to sweep.")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
-              help="Folder of ARKit take CSVs (or one CSV). Default: $FACEGEOM_TAKES, "
-                   "else ../shared/data/arkit-takes next to the repository.")
+              help="Folder of ARKit take CSVs (or one CSV). Default: "
+                   f"{TAKES_LOOKUP}.")
 @click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes (no real recordings needed).")
 @click.option("--realistic/--no-realistic", default=True, show_default=True,
               help="First the realistic protocol: 5/10/20 uneven labels, clean and with 0.2 mm capture and label noise.")
@@ -83,7 +83,7 @@ def bench_drive(obj: Context, cases, realistic_cases, noise_levels, takes_path, 
 @click.pass_obj
 def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes_path, synthetic_only, realistic,
                    layout_name, layout_seed, out, no_plot, quiet):
-    """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figs. 6-8)."""
+    """Expression retargeting on real performances: error vs labels, per sequence, per frame (Figures 6-8)."""
     from facegeom.bench import retarget as br
     from facegeom.errors import InputError
     from facegeom.registry import LINEUPS, parse_methods
@@ -96,20 +96,18 @@ def bench_retarget(obj: Context, sequences, frames, seed, methods, labels, takes
         raise InputError(f"--labels must lie in [2, {frames}] (the frames of a sequence)")
     specs = parse_methods(methods, "retargeters", LINEUPS["retarget"])
     model = obj.face_model()
-    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    takes = [] if synthetic_only else _load_takes(model, takes_path, ("--synthetic-only",))
     br.main(model, takes, specs, sequences, seed, Path(out), layout_name, layout_seed, frames, counts,
             echo=click.echo, plot_it=not no_plot, progress=not quiet, realistic=realistic)
 
 
-def _load_takes(model, takes_path):
+def _load_takes(model, takes_path, alternatives=()):
     """``[(name, W (T, E))]`` ICT weights of every take CSV found (a note per take on stderr)."""
-    from facegeom.io import find_takes, ict_weights, read_take
-    from facegeom.model import locate_takes
+    from facegeom.cli.context import take_files
+    from facegeom.io import ict_weights, read_take
 
-    where = locate_takes(takes_path)
-    files = [where] if where.is_file() else find_takes(where)
     out = []
-    for f in files:
+    for f in take_files(takes_path, alternatives=alternatives):
         take = read_take(f)
         click.echo(f"take {f.name}: {take.n_frames} frames"
                    + (f" ({take.lost_rows} lost-tracking rows, policy {take.policy})" if take.lost_rows else ""), err=True)
@@ -126,7 +124,7 @@ def _load_takes(model, takes_path):
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--methods", default="all", show_default=True, help="'all' or ';'-separated retargeter specs.")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
-              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+              help=f"Folder of Live Link Face CSV takes (default: {TAKES_LOOKUP}).")
 @click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/noise", show_default=True)
 @click.option("--no-plot", is_flag=True, help="Skip the plot.")
@@ -149,7 +147,7 @@ def bench_noise(obj: Context, sequences, frames, labels, levels, seed, methods, 
         raise InputError(f"--labels {labels} exceeds --frames {frames}")
     specs = parse_methods(methods, "retargeters", LINEUPS["noise"])
     model = obj.face_model()
-    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    takes = [] if synthetic_only else _load_takes(model, takes_path, ("--synthetic-only",))
     bn.main(model, takes, specs, sequences, seed, out, lv, labels, frames, echo=click.echo, plot_it=not no_plot,
             progress=not quiet)
 
@@ -163,7 +161,7 @@ def bench_noise(obj: Context, sequences, frames, labels, levels, seed, methods, 
               help="'all' (copy, rbf, tangent) or ';'-separated retargeter specs.")
 @click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
-              help="Folder of Live Link Face CSV takes (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+              help=f"Folder of Live Link Face CSV takes (default: {TAKES_LOOKUP}).")
 @click.option("--synthetic-only", is_flag=True, help="Use only synthetic takes.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/animate", show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
@@ -180,7 +178,7 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
     specs = parse_methods(retargeters, "retargeters", LINEUPS["animate"])
     d_spec = parse_method(deformer)
     model = obj.face_model()
-    takes = [] if synthetic_only else _load_takes(model, takes_path)
+    takes = [] if synthetic_only else _load_takes(model, takes_path, ("--synthetic-only",))
     ba.main(model, takes, specs, d_spec, sequences, seed, out, labels, frames, echo=click.echo, progress=not quiet)
 
 
@@ -216,7 +214,7 @@ def bench_animate(obj: Context, sequences, frames, labels, seed, retargeters, de
 @click.pass_obj
 def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_cases, samplings, points, cloud_frame,
               contour, take_path, takes_path, start, frames, realistic_cases, out, no_plot, quiet):
-    """Blendshape fitting (SEM paper, Sec. V): landmarks, point clouds, meshes, temporal stability."""
+    """Blendshape fitting (SEM paper, section V): landmarks, point clouds, meshes, temporal stability, speed."""
     from facegeom.bench import fit as bf
     from facegeom.errors import DataNotFoundError, InputError
     from facegeom.registry import LINEUPS, parse_methods
@@ -238,11 +236,12 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
         if not takes:
             click.echo("no takes found: skipping the realistic protocol (give --takes or set FACEGEOM_TAKES)", err=True)
     if "temporal" in ex:
-        from facegeom.io import find_takes, ict_weights, read_take
-        from facegeom.model import default_takes_path, locate_takes
+        from facegeom.cli.context import take_files
+        from facegeom.io import ict_weights, read_take
+        from facegeom.model import takes_places
 
-        if take_path or takes_path or default_takes_path().is_dir():
-            path = Path(take_path) if take_path else find_takes(locate_takes(takes_path))[0]
+        if take_path or takes_path or any(found for _, _, found in takes_places()[1:]):
+            path = take_files(takes_path, take_path)[0]
             W = ict_weights(read_take(path), model.expression_names)
             if start + frames > W.shape[0]:
                 raise InputError(f"the take has {W.shape[0]} frames; --start {start} --frames {frames} runs past its end",
@@ -269,7 +268,7 @@ def bench_fit(obj: Context, cases, seed, methods, experiments, noise_px, cloud_c
               help="Photos: the jaw-contour landmarks on the face's outline in the view (as annotators mark them), or "
                    "on fixed vertices (the idealised protocol of earlier releases).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
-              help="Folder of takes for the dense expressions (default: $FACEGEOM_TAKES or ../shared/data/arkit-takes).")
+              help=f"Folder of takes for the dense expressions (default: {TAKES_LOOKUP}).")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/identity", show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj

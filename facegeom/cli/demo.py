@@ -15,6 +15,9 @@ from facegeom.errors import FacegeomError
 @click.pass_context
 def demo(ctx, cases, out):
     """The main job: face driving, expression retargeting and blendshape fitting compared on a few real faces."""
+    import time
+
+    started = time.time()
     root = ctx.find_root()  # `info` lives in facegeom.cli.main, which imports this module
     ctx.invoke(root.command.get_command(root, "info"))
     click.echo("")
@@ -38,6 +41,39 @@ def demo(ctx, cases, out):
     _demo_capture(ctx, Path(out) / "capture")
     click.echo("")
     _demo_viewer(obj_model=ctx.obj.face_model(), path=Path(out) / "view-drive.png")
+    click.echo("")
+    click.echo(results_line(Path(out), since=started))
+
+
+RESULT_KINDS = (("summaries", ("*-summary.md", "batch-summary.csv")), ("images", ("*.png",)),
+                ("animation", ("*.glb",)))
+"""What the demo's last line lists, by kind: the file name patterns (searched in the whole output folder)."""
+
+
+def results_line(out: Path, since: float | None = None) -> str:
+    """The demo's last line: where its results are, and the main files there (paths relative to ``out``).
+
+    Parameters
+    ----------
+    out : Path
+        The demo's output folder.
+    since : float, optional
+        Only files written at or after this time (``time.time()``): not what an earlier run left.
+
+    Returns
+    -------
+    str
+        ``results in <folder>: summaries a, b; images c; animation d`` (one line).
+    """
+    out = Path(out)
+    parts = []
+    for kind, patterns in RESULT_KINDS:
+        found = sorted({p for pat in patterns for p in out.rglob(pat)
+                        if p.is_file() and (since is None or p.stat().st_mtime >= since - 1.0)},
+                       key=lambda p: (len(p.relative_to(out).parts), str(p)))
+        if found:
+            parts.append(f"{kind} {', '.join(str(p.relative_to(out)) for p in found)}")
+    return f"results in {out.resolve()}: " + ("; ".join(parts) if parts else "no files written")
 
 
 def _demo_batch(model, folder: Path, count: int = 128) -> None:

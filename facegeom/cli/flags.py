@@ -26,6 +26,8 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "the path argument (not given), $FACEGEOM_TAKES": "the --takes option (not given), $FACEGEOM_TAKES",
     "Pass path=PATH or set FACEGEOM_TAKES": "pass --takes FOLDER or set FACEGEOM_TAKES",  # model.locate_takes
     "pass drop_lost=True": "pass --drop-lost-markers",  # pipelines.cleanup.carry_vertex_csv(drop_lost=)
+    "pass markers=MAP.csv": "pass --markers MAP.csv",  # pipelines.solve.marker_vertices(markers=) / solve --markers
+    "a layout, markers=ict80": "a layout, --markers ict80",  # the same
     "the vertex target must be": "--vertices must be",  # pipelines.cleanup.decimate(vertices=)
     "pass verify=False": "pass --no-verify",
     "pass partial=True": "pass --partial",  # model.download.build_bundle(partial=) / data build --partial  # model.download.build_bundle(verify=) / data build --no-verify

@@ -82,6 +82,19 @@ def methods(kind):
             click.echo(f"  {name:<14} {target}")
 
 
+def usage_line(exc: click.exceptions.UsageError) -> str:
+    """A click usage error as facegeom's one line: ``facegeom: error: <command>: <message> (see `... --help`)``.
+
+    ``<command>`` is the (sub)command the error is about, e.g. ``drive`` or ``bench fit``; an error of the
+    ``facegeom`` group itself (an unknown command) names no command.
+    """
+    message = " ".join(exc.format_message().split()).removesuffix(".")  # click's messages may span lines
+    words = exc.ctx.command_path.split()[1:] if exc.ctx is not None else []
+    command = " ".join(words)
+    where = f"{command}: " if command else ""
+    return f"facegeom: error: {where}{message} (see `{' '.join(['facegeom', *words])} --help`)"
+
+
 def main(argv=None):
     """Entry point: run the CLI, turning user errors into one line and exit 2."""
     try:
@@ -89,6 +102,12 @@ def main(argv=None):
     except click.exceptions.Abort:
         click.echo("facegeom: aborted", err=True)
         sys.exit(130)
+    except click.exceptions.NoArgsIsHelpError as exc:  # a group run without a command: its help, as click shows it
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click.exceptions.UsageError as exc:  # bad arguments and options (BadParameter, NoSuchOption, ...)
+        click.echo(usage_line(exc), err=True)
+        sys.exit(2)
     except click.exceptions.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)

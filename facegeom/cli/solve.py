@@ -51,8 +51,9 @@ class _Progress:
 @click.option("--fitter", default="sem-ls", show_default=True, help="A registered fitter (see `facegeom methods`).")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Fitter parameter, repeatable.")
 @click.option("--markers", default=None,
-              help="Marker -> vertex: a map CSV (marker,vertex) or a layout (ict80, landmarks68, random<k>, the "
-                   "markers in file order); default: the marker names are vertex ids (v123 or 123).")
+              help="Marker -> vertex: a map CSV (header marker,vertex_id or marker,vertex) or a layout (ict80, "
+                   "landmarks68, random<k>, the markers in file order); default: the marker names are vertex ids "
+                   "(v123 or 123).")
 @click.option("--smooth", default="auto", show_default=True,
               help="Temporal smoothing of the curves: auto (a Whittaker smoother, strength per curve by generalised "
                    "cross-validation; on 0.5 mm marker noise it halves the weight error), off, or a strength.")
@@ -62,6 +63,7 @@ def solve_cmd(obj: Context, capture, rig_path, output, fitter, params, markers, 
     import numpy as np
 
     from facegeom import registry
+    from facegeom.constants import CM_TO_MM  # the solve works in rig units, cm (RIG_UNIT)
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.model import load_rig
@@ -86,5 +88,5 @@ def solve_cmd(obj: Context, capture, rig_path, output, fitter, params, markers, 
     smooth_txt = "off" if not s.smoothing.any() else f"median strength {float(np.median(s.smoothing)):.3g}"
     click.echo(f"{fitter}: {T} frames x {solved.vertex_ids.size} markers -> {len(s.names)} shapes in "
                f"{s.time_s:.2f} s ({s.time_s / T * 1e3:.2f} ms/frame); marker residual median "
-               f"{float(np.median(s.rms)):.4g} (rig units), {int(s.lost.sum())} lost markers; smoothing {smooth_txt}")
+               f"{float(np.median(s.rms)) * CM_TO_MM:.4g} mm, {int(s.lost.sum())} lost markers; smoothing {smooth_txt}")
     click.echo(f"wrote {output}")

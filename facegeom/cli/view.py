@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import click
 
+from facegeom.cli.context import TAKES_LOOKUP, other_take_sources
+
 __all__ = ["view"]
 
 
@@ -35,8 +37,9 @@ def _output_options(f):
 def _take_options(f):
     for opt in reversed([
         click.option("--take", "take_path", type=click.Path(), default=None,
-                     help="A Live Link Face CSV take (default: the first take found via --takes / $FACEGEOM_TAKES)."),
-        click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes."),
+                     help="A Live Link Face CSV take (default: the first take of --takes, else of the takes lookup)."),
+        click.option("--takes", "takes_path", type=click.Path(), default=None,
+                     help=f"Folder of takes (default: {TAKES_LOOKUP})."),
         click.option("--synthetic", is_flag=True, help="A synthetic take (onset-apex-offset) instead of a real one."),
         click.option("--start", default=0, show_default=True, type=click.IntRange(0),
                      help="First frame of the take window."),
@@ -143,7 +146,8 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
     from facegeom.viewer.playback import RetargetView, load_sequence
 
     model = obj.face_model()
-    seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
+    with other_take_sources("--take FILE", "--synthetic"):
+        seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
     _run(RetargetView(model, seq, methods, labels, frame=min(frame, frames - 1)), screenshot, size, exit_after,
          state_path)
 
@@ -179,7 +183,8 @@ def view_animate(obj, input_path, rig_path, retargeters, deformer, take_path, ta
     from facegeom.viewer.playback import AnimateView, load_sequence
 
     model = obj.face_model()
-    seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
+    with other_take_sources("--take FILE", "--synthetic"):
+        seq = load_sequence(model, take_path, takes_path, start, frames, seed, synthetic)
     _run(AnimateView(model, seq, retargeters, deformer, labels, frame=min(frame, frames - 1)), screenshot, size,
          exit_after, state_path)
 

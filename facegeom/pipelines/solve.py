@@ -3,8 +3,8 @@
 The steps, shared by the CLI and anything else that solves files:
 
 1. :func:`marker_vertices` maps the capture's markers to rig vertices: a map
-   CSV (header ``marker,vertex``), marker names that are vertex ids (``v123``
-   or ``123``), or a named layout (:func:`facegeom.model.layouts.layout`:
+   CSV (header ``marker,vertex`` or ``marker,vertex_id``), marker names that
+   are vertex ids (``v123`` or ``123``), or a named layout (:func:`facegeom.model.layouts.layout`:
    ``ict80``, ``landmarks68``, ``random<k>``), the file's markers in order;
 2. :func:`solve_file` reads the capture and runs
    :func:`facegeom.methods.marker_solve.solve_markers`;
@@ -66,15 +66,20 @@ class SolvedCapture:
     """The :class:`~facegeom.model.rig.BlendshapeRig` solved for (the ``.glb`` writer needs its mesh)."""
 
 
+MAP_HEADERS = (("marker", "vertex"), ("marker", "vertex_id"))
+"""The headers a marker map may have (``vertex_id`` as in facegeom's other vertex CSVs)."""
+
+
 def _read_map(path: Path, names) -> np.ndarray:
     rows = read_csv_rows(path, "marker map")
     body = [(i, r) for i, r in enumerate(rows) if r and any(c.strip() for c in r)]
-    if not body or [c.strip().lower() for c in body[0][1]] != ["marker", "vertex"]:
-        raise InputError("a marker map needs the header marker,vertex", path)
+    header = tuple(c.strip().lower() for c in body[0][1]) if body else ()
+    if header not in MAP_HEADERS:
+        raise InputError("a marker map needs the header marker,vertex (or marker,vertex_id)", path)
     table: dict[str, int] = {}
     for i, r in body[1:]:
         if len(r) != 2 or not r[0].strip():
-            raise InputError(f"line {i + 1}: expected marker,vertex", path)
+            raise InputError(f"line {i + 1}: expected {','.join(header)}", path)
         v = r[1].strip()
         if not v.isdigit() or len(v) > 18:
             raise InputError(f"line {i + 1}: vertex {v!r} is not a non-negative integer id", path)
@@ -96,8 +101,8 @@ def marker_vertices(names, rig, markers=None) -> np.ndarray:
         The capture's marker names, in its column order.
     rig : BlendshapeRig
     markers : str, path or None
-        A map CSV (``marker,vertex``), a layout name (``ict80``, ``landmarks68``,
-        ``random<k>``: the markers in file order, or by number when the names
+        A map CSV (header ``marker,vertex`` or ``marker,vertex_id``), a layout
+        name (``ict80``, ``landmarks68``, ``random<k>``: the markers in file order, or by number when the names
         are ``0..p-1``), or None: the names themselves are vertex ids
         (``v123`` or ``123``).
 
@@ -113,8 +118,9 @@ def marker_vertices(names, rig, markers=None) -> np.ndarray:
         for n in names:
             m = _VERTEX_NAME.match(n.strip())
             if m is None or len(m.group(1)) > 18:
-                raise InputError(f"marker {n!r} is not a vertex id (v<id> or a number): "
-                                 "give a marker map (marker,vertex) or a layout name")
+                raise InputError(f"the marker names are not vertex ids (marker {n!r} is not a vertex id like v123 or "
+                                 "123): pass markers=MAP.csv (a CSV headed marker,vertex_id, one line per marker) "
+                                 "or a layout, markers=ict80 (or landmarks68, random<k>)")
             ids.append(int(m.group(1)))
         return as_handles(np.array(ids, dtype=np.int64), rig.n_vertices, "marker vertex ids")
     text = str(markers)
@@ -144,7 +150,12 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
     seq = read_marker_sequence(capture)
     if getattr(seq, "unit", None) is not None:
         seq = seq.in_unit(RIG_UNIT)
-    ids = marker_vertices(seq.names, rig, markers)
+    try:
+        ids = marker_vertices(seq.names, rig, markers)
+    except InputError as exc:  # a map file's own errors name it; the others are about the capture's markers
+        if exc.path:
+            raise
+        raise InputError(exc.reason, capture) from None
     try:
         res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
     except InputError as exc:
