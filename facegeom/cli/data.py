@@ -30,18 +30,23 @@ def data():
               help="Folder for the bundle. Default: the user cache ($FACEGEOM_CACHE), the last place "
                    "of the data lookup.")
 @click.option("--if-missing", is_flag=True,
-              help="Do nothing when face data is found already (--data, $FACEGEOM_DATA, ../shared, the cache).")
+              help="Fetch only what the lookups do not find already: the face data (--data, $FACEGEOM_DATA, "
+                   "../shared, the cache) and a real take ($FACEGEOM_TAKES, ../shared, the cache).")
+@click.option("--no-take", is_flag=True, help="Do not fetch the public real take.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @click.pass_context
-def fetch(ctx, identities, dest, if_missing, no_progress):
-    """Download the ICT-FaceKit model files (pinned commit, SHA-256 checked) and build the face data bundle.
+def fetch(ctx, identities, dest, if_missing, no_take, no_progress):
+    """Download the ICT-FaceKit model (pinned commit, SHA-256 checked), build the face data bundle, and fetch
+    one public real Live Link Face take (MIT licence, 3.3 MB) for the commands that play a take.
 
     Files already in the cache with the right hash are not downloaded again: run it again to continue an
-    interrupted fetch. $FACEGEOM_DATA_URL replaces the download address (a mirror); the hashes still decide.
+    interrupted fetch. $FACEGEOM_DATA_URL replaces the face model's download address, $FACEGEOM_TAKES_URL the
+    take's (mirrors laid out like the repositories); the hashes still decide.
     """
-    from facegeom.model import locate_data
-    from facegeom.model.download import fetch_data
+    from facegeom.model import locate_data, takes_places
+    from facegeom.model.download import fetch_data, fetch_takes
 
+    need_face = True
     if if_missing:
         try:
             found = locate_data(dest) if dest is not None else locate_data(_root_data(ctx))
@@ -49,9 +54,18 @@ def fetch(ctx, identities, dest, if_missing, no_progress):
             click.echo("no face data found here: fetching it (a one-time download)")
         else:
             click.echo(f"face data: {found} (found; nothing to fetch)")
+            need_face = False
+    if need_face:
+        out = fetch_data(identities=identities, dest=dest, echo=click.echo, progress=not no_progress)
+        _note_lookup(ctx, out)
+    if no_take:
+        return
+    if if_missing:
+        found = next((where for _, where, ok in takes_places()[1:] if ok), None)
+        if found is not None:
+            click.echo(f"takes: {found} (found; nothing to fetch)")
             return
-    out = fetch_data(identities=identities, dest=dest, echo=click.echo, progress=not no_progress)
-    _note_lookup(ctx, out)
+    fetch_takes(echo=click.echo)
 
 
 @data.command()
@@ -61,12 +75,15 @@ def fetch(ctx, identities, dest, if_missing, no_progress):
 @click.option("--dest", type=click.Path(file_okay=False), default=None,
               help="Folder for the bundle. Default: the user cache ($FACEGEOM_CACHE).")
 @click.option("--no-verify", is_flag=True, help="Do not check the files against the SHA-256 registry.")
+@click.option("--partial", is_flag=True,
+              help="Build from the expression OBJs present even if some that vertex_indices.json lists are missing.")
 @click.pass_context
-def build(ctx, path, identities, dest, no_verify):
+def build(ctx, path, identities, dest, no_verify, partial):
     """Build the face data bundle from an ICT-FaceKit folder on disk (a git clone, or its FaceXModel folder)."""
     from facegeom.model.download import build_bundle
 
-    out = build_bundle(path, identities=identities, dest=dest, verify=not no_verify, echo=click.echo)
+    out = build_bundle(path, identities=identities, dest=dest, verify=not no_verify, echo=click.echo,
+                       partial=partial)
     _note_lookup(ctx, out)
 
 
@@ -135,3 +152,59 @@ def info(ctx):
     click.echo(f"download address: {base_url(registry)}  "
                + (f"(${URL_ENV_VAR})" if url_env else f"(${URL_ENV_VAR} not set)"))
     click.echo(f"  ICT-FaceKit commit {registry.commit}, SHA-256 registry of {len(registry.files)} files")
+    takes_in_use = _takes_info()
+    _licences(in_use, takes_in_use)
+
+
+def _takes_info():
+    """The takes lookup, place by place, and the public take's download address; the folder in use or None."""
+    from facegeom.model import takes_places
+    from facegeom.model.download import TAKES_REGISTRY_FILE, TAKES_URL_ENV_VAR, read_registry
+
+    click.echo("takes lookup (the first place holding a take is used; --takes on a command goes first):")
+    labels = ["$FACEGEOM_TAKES", "development folder", "user cache"]
+    in_use = None
+    for label, (_, where, found) in zip(labels, takes_places()[1:]):
+        if where is None:
+            click.echo(f"  {label:<20} " + ("(not set)" if label.startswith("$") else "(not a repository checkout)"))
+            continue
+        mark = ""
+        if found and in_use is None:
+            in_use, mark = where, "   <- in use"
+        what = "no take"
+        if found:
+            files = [where] if where.is_file() else sorted(f for f in where.iterdir() if f.suffix.lower() == ".csv")
+            what = ", ".join(f.name for f in files[:4]) + (f" and {len(files) - 4} more" if len(files) > 4 else "")
+        click.echo(f"  {label:<20} {where}: {what}{mark}")
+    registry = read_registry(shipped=TAKES_REGISTRY_FILE)
+    env = os.environ.get(TAKES_URL_ENV_VAR)
+    base = env or registry.default_base_url
+    click.echo(f"take download address: {base}  " + (f"(${TAKES_URL_ENV_VAR})" if env else
+                                                    f"(${TAKES_URL_ENV_VAR} not set)"))
+    click.echo(f"  commit {registry.commit}: {', '.join(registry.files)}")
+    return in_use
+
+
+def _licences(bundle, takes) -> None:
+    """The licence of facegeom and of the data in use, and whether its text is kept beside the files."""
+    from facegeom.model.download import LICENSE_COPY
+
+    click.echo("licences:")
+    click.echo("  facegeom             MIT licence (LICENSE in the package's metadata)")
+    if bundle is not None:
+        text = bundle.parent / LICENSE_COPY
+        click.echo(f"  face data            ICT-FaceKit, MIT licence (USC Institute for Creative Technologies); "
+                   f"text: {text if text.is_file() else 'not beside the bundle'}")
+    from facegeom.model import default_takes_path, takes_cache_folder
+
+    if takes is not None and takes not in (default_takes_path(), takes_cache_folder()):
+        click.echo(f"  takes                your own ({takes}): their licence is yours to check")
+    elif takes is not None:
+        folder = takes
+        text = next((folder / n for n in ("LICENSE", "LICENSE.txt", "LICENSE.md") if (folder / n).is_file()), None)
+        click.echo(f"  takes                Live Link Face takes of alexdjulin/LiveLinkFace-CSV-Retarget-For-"
+                   f"Motionbuilder, MIT licence; text: {text or 'not beside the takes'}")
+
+# `facegeom data examples DIR` (defined in its own module): example inputs for every README example
+from facegeom.cli.examples import examples  # noqa: E402
+data.add_command(examples)

@@ -30,7 +30,8 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "a layout, markers=ict80": "a layout, --markers ict80",  # the same
     "the vertex target must be": "--vertices must be",  # pipelines.cleanup.decimate(vertices=)
     "pass verify=False": "pass --no-verify",
-    "pass partial=True": "pass --partial",  # model.download.build_bundle(partial=) / data build --partial  # model.download.build_bundle(verify=) / data build --no-verify
+    "pass partial=True": "pass --partial",
+    "pass force=True": "use --force",  # pipelines.examples.write_examples(force=) / data examples --force  # model.download.build_bundle(partial=) / data build --partial  # model.download.build_bundle(verify=) / data build --no-verify
 }
 
 
