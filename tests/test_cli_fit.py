@@ -232,15 +232,26 @@ def test_bench_fit_realistic_protocol_comes_first(tmp_path, face_model, real_tak
 
 
 def test_bench_fit_clouds_as_exported(tmp_path, face_model, real_takes):
-    """`bench fit --cloud-frame any`: the realistic clouds in mm and any orientation, fitted as `fit` fits them."""
-    r = run("bench", "fit", "--experiments", "clouds", "--cloud-cases", "1", "--realistic-cases", "1", "--cases", "1",
-            "--samplings", "1", "--points", "2000", "--methods", "sem-ls", "--cloud-frame", "any", "--no-plot",
-            "--quiet", "--out", str(tmp_path))
-    assert r.returncode == 0, r.stderr
-    assert "in mm, any orientation" in r.stdout
+    """`bench fit --cloud-frame any`: the realistic clouds in mm and any orientation, fitted as `fit` fits them.
+
+    The same case in the model's frame is the reference: the error left on a real-take frame depends on the
+    frame (a range-of-motion take's extremes leave ~2 mm even for the true rig), a failed alignment leaves
+    centimetres, so the exported scan must fit as well as the one in the model's frame.
+    """
     import csv
 
-    rows = list(csv.DictReader(open(tmp_path / "fit-realistic-clouds.csv")))
-    err = {row["identity"]: float(row["vertex_mm"]) for row in rows if row["method"] == "sem-ls"}
-    assert err["oracle"] < 1.5 and err["fitted"] < err["generic"]  # aligned: the true rig fits within ~1 mm
+    def oracle_and_rows(frame):
+        out = tmp_path / frame
+        r = run("bench", "fit", "--experiments", "clouds", "--cloud-cases", "1", "--realistic-cases", "1", "--cases",
+                "1", "--samplings", "1", "--points", "2000", "--methods", "sem-ls", "--cloud-frame", frame,
+                "--no-plot", "--quiet", "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        rows = list(csv.DictReader(open(out / "fit-realistic-clouds.csv")))
+        return {row["identity"]: float(row["vertex_mm"]) for row in rows if row["method"] == "sem-ls"}, rows, r
+
+    ref, _, _ = oracle_and_rows("model")
+    err, rows, r = oracle_and_rows("any")
+    assert "in mm, any orientation" in r.stdout
+    assert err["oracle"] < 1.1 * ref["oracle"] + 0.1, (err, ref)  # aligned as well as in the model's frame
+    assert err["oracle"] < 3.0 and err["fitted"] < err["generic"]
     assert {row["cloud_frame"] for row in rows} == {"any"}

@@ -446,7 +446,8 @@ def test_fetch_takes_refuses_a_corrupt_file_and_writes_nothing(take_mirror, tmp_
         fd.locate_takes()
 
 
-def test_cli_fetch_if_missing_fetches_only_the_take(take_mirror, tmp_path, monkeypatch, capsys):
+def test_cli_fetch_if_missing_fetches_only_the_take(take_mirror, tmp_path, monkeypatch, capsys, face_model):
+    monkeypatch.setenv(fd.ENV_VAR, face_model.path)  # the face data of this machine (the cache is a new one here)
     monkeypatch.setattr(dl, "read_registry", lambda path=None, shipped=dl.REGISTRY_FILE, _r=dl.read_registry:
                         take_mirror.registry if shipped == dl.TAKES_REGISTRY_FILE else _r(path, shipped))
     code, out, err = _run(["data", "fetch", "--if-missing", "--no-progress"], capsys)
@@ -461,7 +462,8 @@ def test_cli_fetch_if_missing_fetches_only_the_take(take_mirror, tmp_path, monke
     assert f"text: {fd.takes_cache_folder() / 'LICENSE'}" in out and "facegeom             MIT licence" in out
 
 
-def test_no_take_anywhere_says_how_to_get_one(tmp_path, monkeypatch, capsys):
+def test_no_take_anywhere_says_how_to_get_one(tmp_path, monkeypatch, capsys, face_model):
+    monkeypatch.setenv(fd.ENV_VAR, face_model.path)
     monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
     monkeypatch.delenv(fd.TAKES_ENV_VAR, raising=False)
     monkeypatch.setattr(fd, "default_takes_path", lambda: tmp_path / "no-shared")
