@@ -3,7 +3,8 @@
 Meshes (:mod:`.mesh`), marker CSVs (:mod:`.markers`), vertex-indexed CSVs
 (:mod:`.vertex_csv`), marker sequences (:mod:`.markerseq`), ARKit takes
 (:mod:`.takes`), fitting files (:mod:`.fitfiles`: landmarks, point clouds,
-coefficients), atomic writes (:mod:`.files`). Errors name the file.
+coefficients), glTF blendshape rigs (:mod:`.gltf`), atomic writes (:mod:`.files`).
+Errors name the file.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from facegeom.io.fitfiles import (
     write_weights,
 )
 from facegeom.io.formats import MeshData
+from facegeom.io.gltf import GltfRig, RigPart, read_gltf_rig
 from facegeom.io.markers import MARKER_HEADER, read_markers, write_markers
 from facegeom.io.markerseq import (
     SEQUENCE_HEADER,
@@ -89,4 +91,7 @@ __all__ = [
     "read_point_cloud",
     "read_weights",
     "write_weights",
+    "GltfRig",
+    "RigPart",
+    "read_gltf_rig",
 ]

@@ -1,4 +1,4 @@
-"""glTF 2.0 binary (``.glb``) out: a blendshape rig with a weights animation, or a vertex sequence as morph targets.
+"""glTF 2.0: blendshape rigs and vertex sequences out as ``.glb``; blendshape rigs in from ``.glb`` / ``.gltf``.
 
 Both writers build the document with pygltflib and write one ``.glb`` atomically:
 
@@ -20,21 +20,37 @@ input (measured after rounding to float32, as the file stores it).
 :func:`read_glb_animation` reads such files back (and other ``.glb`` files
 with one morphed triangle mesh and a weights animation) for tests and the
 viewer.
+
+:func:`read_gltf_rig` reads a user's rig (``.glb``, or ``.gltf`` with external
+or data-URI buffers; Ready Player Me / VRM avatars, Blender or Maya exports,
+three.js assets, this module's own files) as one :class:`GltfRig`: every mesh
+the default scene places, with its node's world transform, in one vertex array
+whose :class:`RigPart` slices are named; morph targets are matched across
+meshes by name. Every accessor's size is checked against its buffer, and the
+rig's size against the file's, before anything is allocated. Draco-compressed
+primitives are decoded by the optional ``DracoPy`` package; meshopt-compressed
+buffers are refused with the command that writes an uncompressed copy.
 """
 from __future__ import annotations
 
+import base64
+import binascii
+import json
 import os
+import re
 import struct
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
+from urllib.parse import unquote
 
 import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path
 
-__all__ = ["GlbAnimation", "write_rig_glb", "write_sequence_glb", "read_glb_animation", "DEFAULT_TOLERANCE"]
+__all__ = ["GlbAnimation", "GltfRig", "RigPart", "write_rig_glb", "write_sequence_glb", "read_glb_animation",
+           "read_gltf_rig", "DEFAULT_TOLERANCE"]
 
 #: Default bound of :func:`write_sequence_glb`: 0.01 mesh units, 0.1 mm on the ICT face (in cm).
 DEFAULT_TOLERANCE = 0.01
@@ -43,6 +59,12 @@ _FLOAT, _UINT, _USHORT, _UBYTE = 5126, 5125, 5123, 5121
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _DTYPES = {_FLOAT: np.float32, _UINT: np.uint32, _USHORT: np.uint16, _UBYTE: np.uint8}
+_BYTE, _SHORT = 5120, 5122
+_ANY_DTYPES = {**_DTYPES, _BYTE: np.int8, _SHORT: np.int16}
+_ANY_COMPONENTS = {**_COMPONENTS, "MAT4": 16}
+_INDEX_DTYPES = {_UBYTE: np.uint8, _USHORT: np.uint16, _UINT: np.uint32}
+#: int -> float for ``normalized`` accessors (glTF 2.0, "Animations"): signed ``max(c / m, -1)``, unsigned ``c / m``.
+_NORMALIZED = {_BYTE: 127.0, _UBYTE: 255.0, _SHORT: 32767.0, _USHORT: 65535.0}
 
 
 @dataclass
@@ -396,36 +418,134 @@ def _principal_axes(D: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray
 
 
 def _accessor(doc, blob: bytes, index, path, what: str) -> np.ndarray:
-    """The accessor's data as ``(count, components)``, every offset and size checked against the buffer."""
+    """The accessor's data as ``(count, components)``, every offset and size checked against the buffer.
+
+    What :func:`read_glb_animation` reads: the ``.glb``'s own buffer only, float
+    and unsigned components as stored (no ``normalized`` scaling), no sparse
+    accessors, no matrices.
+    """
+    def own(buffer, what_):
+        if buffer != 0:
+            raise InputError(f"{what_}: data outside the .glb's own buffer (buffer {buffer}) is not read", path)
+        return blob
+
+    return _decode_accessor(doc, own, index, path, what, dtypes=_DTYPES, kinds=_COMPONENTS, sparse=False,
+                            normalize=False)
+
+
+def _decode_accessor(doc, data_of, index, path, what: str, *, dtypes=None, kinds=None, sparse: bool = True,
+                     normalize: bool = True, max_values: int | None = None) -> np.ndarray:
+    """An accessor's elements as a ``(count, components)`` array, checked before anything is allocated.
+
+    Parameters
+    ----------
+    doc : pygltflib.GLTF2
+        The document.
+    data_of : callable
+        ``data_of(buffer_index, what)`` -> the bytes of a buffer (raises
+        :class:`InputError` when it cannot be had).
+    index : int
+        The accessor.
+    path : Path
+        The file, for errors.
+    what : str
+        What the accessor holds, for errors.
+    dtypes, kinds : dict, optional
+        Allowed component types (code -> numpy type) and element types
+        (``"VEC3"`` -> 3); every one glTF defines for vertex data by default.
+    sparse : bool
+        Read sparse accessors (else refuse them).
+    normalize : bool
+        Turn ``normalized`` integers into floats by the glTF formulas
+        (``max(c / 127, -1)`` for bytes, ``c / 65535`` for unsigned shorts...).
+    max_values : int, optional
+        Refuse an accessor of more than this many numbers (one without a
+        buffer view or a sparse one is not bounded by its data).
+
+    Returns
+    -------
+    ndarray
+        float64 for float or normalized components, int64 for other integers
+        (float64 zeros for an accessor without a buffer view).
+    """
+    dtypes = _ANY_DTYPES if dtypes is None else dtypes
+    kinds = _ANY_COMPONENTS if kinds is None else kinds
     if not isinstance(index, int) or not 0 <= index < len(doc.accessors or []):
         raise InputError(f"{what}: accessor {index!r} does not exist", path)
     acc = doc.accessors[index]
-    if acc.componentType not in _DTYPES or acc.type not in _COMPONENTS:
-        raise InputError(f"{what}: unsupported accessor type {acc.type} / component {acc.componentType}", path)
-    if getattr(acc, "sparse", None) is not None:
+    ctype, kind = acc.componentType, acc.type
+    if not (isinstance(ctype, int) and ctype in dtypes and isinstance(kind, str) and kind in kinds):
+        raise InputError(f"{what}: unsupported accessor type {kind} / component {ctype}", path)
+    if getattr(acc, "sparse", None) is not None and not sparse:
         raise InputError(f"{what}: sparse accessors are not read", path)
-    dtype = np.dtype(_DTYPES[acc.componentType]).newbyteorder("<")
-    comps = _COMPONENTS[acc.type]
+    dtype = np.dtype(dtypes[ctype]).newbyteorder("<")
+    comps = kinds[kind]
     count = acc.count
     if not isinstance(count, int) or count < 0:
         raise InputError(f"{what}: bad accessor count {count!r}", path)
+    norm = normalize and acc.normalized is True
+    if norm and ctype not in _NORMALIZED:
+        raise InputError(f"{what}: a normalized accessor must have byte or short components, not {ctype}", path)
+    if max_values is not None and count * comps > max_values:
+        raise InputError(f"{what}: {count} elements, more than a file of this size can describe", path)
     if acc.bufferView is None:
-        return np.zeros((count, comps), dtype=np.float64)
-    if not isinstance(acc.bufferView, int) or not 0 <= acc.bufferView < len(doc.bufferViews or []):
-        raise InputError(f"{what}: buffer view {acc.bufferView!r} does not exist", path)
-    view = doc.bufferViews[acc.bufferView]
-    if view.buffer != 0:
-        raise InputError(f"{what}: data outside the .glb's own buffer (buffer {view.buffer}) is not read", path)
-    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+        out = np.zeros((count, comps), dtype=np.float64)
+    else:
+        raw = _elements(doc, data_of, acc.bufferView, acc.byteOffset, count, comps, dtype, path, what)
+        out = raw.astype(np.float64 if ctype == _FLOAT or norm else np.int64)
+    if acc.sparse is not None:
+        out = _apply_sparse(doc, data_of, acc.sparse, out, count, comps, dtype, path, what)
+    if norm:
+        out = np.maximum(out / _NORMALIZED[ctype], -1.0)
+    return out
+
+
+def _elements(doc, data_of, view_index, byte_offset, count: int, comps: int, dtype: np.dtype, path, what: str,
+              strided: bool = True) -> np.ndarray:
+    """A read-only ``(count, comps)`` view of a buffer view's elements (its ``byteStride`` when ``strided``)."""
+    if not isinstance(view_index, int) or not 0 <= view_index < len(doc.bufferViews or []):
+        raise InputError(f"{what}: buffer view {view_index!r} does not exist", path)
+    view = doc.bufferViews[view_index]
+    blob = data_of(view.buffer, what)
     elem = dtype.itemsize * comps
-    stride = view.byteStride or elem
-    if not all(isinstance(x, int) and x >= 0 for x in (start, stride, view.byteLength or 0)) or stride < elem:
+    vstart, vlength, offset = view.byteOffset or 0, view.byteLength or 0, byte_offset or 0
+    stride = (view.byteStride if strided else None) or elem
+    if not all(isinstance(x, int) and x >= 0 for x in (vstart, vlength, offset, stride)) or stride < elem:
         raise InputError(f"{what}: bad buffer view offsets", path)
+    start = vstart + offset
     end = start + (stride * (count - 1) + elem if count else 0)
-    if end > (view.byteOffset or 0) + (view.byteLength or 0) or end > len(blob):
+    if end > vstart + vlength or end > len(blob):
         raise InputError(f"{what}: accessor data runs past the end of its buffer", path)
-    raw = np.ndarray((count, comps), dtype=dtype, buffer=blob, offset=start, strides=(stride, dtype.itemsize))
-    return raw.astype(np.float64 if acc.componentType == _FLOAT else np.int64)
+    if count == 0:
+        return np.zeros((0, comps), dtype=dtype)
+    return np.ndarray((count, comps), dtype=dtype, buffer=blob, offset=start, strides=(stride, dtype.itemsize))
+
+
+def _apply_sparse(doc, data_of, sp, out: np.ndarray, count: int, comps: int, dtype: np.dtype, path,
+                  what: str) -> np.ndarray:
+    """``out`` with the sparse accessor's substituted elements written in."""
+    k, idx, vals = _get(sp, "count"), _get(sp, "indices"), _get(sp, "values")
+    if not isinstance(k, int) or not 1 <= k <= count or idx is None or vals is None:
+        raise InputError(f"{what}: bad sparse accessor ({k!r} substitutions for {count} elements)", path)
+    ictype = _get(idx, "componentType")
+    if not (isinstance(ictype, int) and ictype in _INDEX_DTYPES):
+        raise InputError(f"{what}: sparse indices of unsupported component {ictype!r}", path)
+    itype = np.dtype(_INDEX_DTYPES[ictype]).newbyteorder("<")
+    rows = _elements(doc, data_of, _get(idx, "bufferView"), _get(idx, "byteOffset"), k, 1, itype, path,
+                     f"{what} sparse indices", strided=False).reshape(-1).astype(np.int64)
+    if rows.max() >= count:
+        raise InputError(f"{what}: sparse indices outside 0..{count - 1}", path)
+    values = _elements(doc, data_of, _get(vals, "bufferView"), _get(vals, "byteOffset"), k, comps, dtype, path,
+                       f"{what} sparse values", strided=False)
+    out[rows] = values
+    return out
+
+
+def _get(obj, key: str, default=None):
+    """A property of a pygltflib object or of a plain JSON object (``default`` when absent)."""
+    if isinstance(obj, dict):
+        return obj.get(key, default)
+    return getattr(obj, key, default)
 
 
 def read_glb_animation(path: str | os.PathLike) -> GlbAnimation:
@@ -549,3 +669,761 @@ def _unpack(doc, blob: bytes, path: Path) -> GlbAnimation:
     if not (np.isfinite(V).all() and np.isfinite(D).all() and np.isfinite(W).all() and np.isfinite(times).all()):
         raise InputError("the .glb holds NaN or inf values", path)
     return GlbAnimation(V, F, D, tuple(str(s) for s in names), times, W, fps, str(path))
+
+
+# ----------------------------------------------------------------------------- reading a blendshape rig
+
+#: The work a file may ask for: ``_BASE_VALUES + _VALUES_PER_BYTE * bytes`` numbers in the rig's arrays
+#: (vertices x (targets + 1) x 3), counting the document and its external buffers.
+_BASE_VALUES = 4_000_000
+_VALUES_PER_BYTE = 64
+_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP",
+          6: "TRIANGLE_FAN"}
+_MESHOPT = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+_DRACO = "KHR_draco_mesh_compression"
+_DECOMPRESS = "gltf-transform copy in.glb out.glb (npm package @gltf-transform/cli)"
+_ARRAYS = ("accessors", "animations", "bufferViews", "buffers", "meshes", "nodes", "scenes", "skins")
+_URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")
+
+
+@dataclass(frozen=True)
+class RigPart:
+    """One placed primitive of a :class:`GltfRig`: its slices of the vertex and face arrays.
+
+    Attributes
+    ----------
+    name : str
+        The node's name, else the mesh's, else ``mesh{i}.prim{j}``; with
+        ``.prim{j}`` appended for a mesh of several primitives and ``.1``,
+        ``.2`` ... for a name already taken.
+    vertex_start, vertex_stop : int
+        Its vertices are ``neutral[vertex_start:vertex_stop]``.
+    face_start, face_stop : int
+        Its triangles are ``faces[face_start:face_stop]``.
+    has_targets : bool
+        The primitive has morph targets (a part without them has zero deltas).
+    """
+
+    name: str
+    vertex_start: int
+    vertex_stop: int
+    face_start: int
+    face_stop: int
+    has_targets: bool
+
+
+@dataclass(frozen=True, eq=False)
+class GltfRig:
+    """A blendshape rig read from a glTF file: every placed mesh of the scene in one vertex array.
+
+    Attributes
+    ----------
+    neutral : (n, 3) float64
+        Rest positions, in the scene's frame (each node's world transform applied).
+    faces : (m, 3) int64
+        Triangles (strips and fans triangulated).
+    deltas : (K, n, 3) float64
+        Morph-target position offsets, in the scene's frame; zero on a part
+        without a target of that name.
+    names : tuple of K str
+        Distinct target names, in the order first met.
+    parts : tuple of RigPart
+        The placed primitives, in scene order.
+    units : str
+        ``"m"``: glTF positions are metres by definition (the file does not say).
+    up_axis : str
+        ``"+y"``: glTF is Y-up by definition.
+    path : str
+        The file read.
+
+    The arrays are read-only.
+    """
+
+    neutral: np.ndarray
+    faces: np.ndarray
+    deltas: np.ndarray
+    names: tuple[str, ...]
+    parts: tuple[RigPart, ...]
+    units: str = "m"
+    up_axis: str = "+y"
+    path: str = ""
+
+    def part(self, name: str) -> RigPart:
+        """The part called ``name`` (``KeyError`` when there is none)."""
+        for p in self.parts:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+
+def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None) -> GltfRig:
+    """Read a blendshape rig from a glTF 2.0 file (``.glb``, or ``.gltf`` with external or embedded buffers).
+
+    Every mesh placed by the default scene's nodes is read, with the node's
+    world transform (``matrix`` or translation / rotation / scale, down the
+    hierarchy) applied to its positions and morph-target offsets; a mesh placed
+    by two nodes is read twice, a mesh no node of the scene places is left
+    out. Skinned meshes are placed by their joints at the file's pose (the
+    skinned node's own transform is ignored, as glTF says). Morph targets are
+    matched across meshes by name (``mesh.extras.targetNames``, else
+    ``target{k}``): one ``jawOpen`` moves the face and the teeth.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.glb`` or ``.gltf`` file. A ``.gltf``'s external buffers must be
+        files in its folder (or below it), named by relative paths; data URIs
+        are read, URLs and absolute paths are refused (nothing is downloaded).
+    mesh : str or list of str, optional
+        Read only the meshes with these names (mesh or node names), e.g. to
+        leave out hair or clothes.
+
+    Returns
+    -------
+    GltfRig
+        Neutral mesh, triangles, target deltas and names, the parts.
+
+    Raises
+    ------
+    InputError
+        One line naming the file: missing, not glTF, bad JSON or ``.glb``
+        chunks, accessors outside their buffers or larger than the file can
+        describe, counts that disagree, NaN or inf positions, points or lines
+        primitives, no mesh with triangles, no morph targets ("no blendshapes
+        (morph targets)"), a buffer outside the folder, compressed geometry
+        that cannot be decoded here (``EXT_meshopt_compression``; Draco
+        without the optional ``DracoPy`` package), an unknown ``mesh`` name.
+
+    Notes
+    -----
+    Supported: sparse accessors (with or without a base buffer view),
+    ``normalized`` integers and ``KHR_mesh_quantization`` (integer positions
+    and offsets, dequantised by the glTF formulas), interleaved buffer views,
+    triangle strips and fans, several primitives, meshes and buffers, and
+    ``KHR_draco_mesh_compression`` when ``DracoPy`` is installed (``pip install
+    DracoPy``). The mesh's default ``weights`` are not applied: ``neutral`` is
+    the base mesh.
+    """
+    path = Path(path)
+    wanted = _wanted_meshes(mesh, path)
+    doc, buffers, size = _load_gltf(path)
+    try:
+        with np.errstate(all="ignore"):  # overflow in a transform ends as inf, refused below
+            return _build_rig(doc, buffers, size, path, wanted)
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a field of the wrong type deep in the JSON
+        raise InputError(f"corrupt glTF: unexpected content ({exc.__class__.__name__})", path) from None
+
+
+def _wanted_meshes(mesh, path: Path) -> set[str] | None:
+    if mesh is None:
+        return None
+    names = [mesh] if isinstance(mesh, str) else mesh
+    try:
+        names = list(names)
+    except TypeError:
+        names = None
+    if not names or not all(isinstance(n, str) for n in names):
+        raise InputError(f"mesh must be a mesh name or a non-empty list of names, got {mesh!r}", path)
+    return set(names)
+
+
+def _load_gltf(path: Path):
+    """``(doc, buffers, bytes)``: the parsed document, its buffer reader and the bytes behind it."""
+    if not path.exists():
+        raise InputError("file not found", path)
+    if not path.is_file():
+        raise InputError("not a file (expected a .glb or .gltf file)", path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path) from None
+    if not data:
+        raise InputError("empty file", path)
+    if data[:4] == b"glTF":
+        text, chunk = _glb_chunks(data, path)
+    elif data.lstrip()[:1] in (b"{", b"\xef"):
+        text, chunk = data, None
+    else:
+        raise InputError("not a glTF file (neither a .glb 'glTF' header nor JSON)", path)
+    try:
+        text = bytes(text).decode("utf-8-sig")
+        tree = json.loads(text)
+    except UnicodeDecodeError:
+        raise InputError("bad JSON: not UTF-8 text", path) from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"bad JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})", path) from None
+    except RecursionError:
+        raise InputError("bad JSON: nested too deeply", path) from None
+    if not isinstance(tree, dict):
+        raise InputError("bad JSON: the top level is not an object", path)
+    asset = tree.get("asset")
+    version = asset.get("version") if isinstance(asset, dict) else None
+    if isinstance(version, str) and not version.startswith("2"):
+        raise InputError(f"glTF version {version!r}; only glTF 2.0 is read", path)
+    for key in _ARRAYS:
+        if key in tree and not (isinstance(tree[key], list) and all(isinstance(x, dict) for x in tree[key])):
+            raise InputError(f"bad glTF JSON: {key!r} must be a list of objects", path)
+    try:
+        import pygltflib
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            doc = pygltflib.GLTF2.from_json(text, infer_missing=True)
+    except Exception as exc:  # noqa: BLE001 - pygltflib raises anything on JSON of the wrong shape
+        raise InputError(f"corrupt glTF JSON: unexpected content ({exc.__class__.__name__})", path) from None
+    buffers = _Buffers(doc, path, chunk)
+    return doc, buffers, len(data) + buffers.external_bytes()
+
+
+def _glb_chunks(data: bytes, path: Path) -> tuple[memoryview, memoryview | None]:
+    """The JSON chunk and the BIN chunk (``None`` if absent) of a ``.glb``, every length checked."""
+    if len(data) < 20:
+        raise InputError(f"truncated .glb: {len(data)} bytes", path)
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise InputError(f"glTF binary version {version}; only version 2 is read", path)
+    if length > len(data):
+        raise InputError(f"truncated .glb: the header gives {length} bytes, the file has {len(data)}", path)
+    view = memoryview(data)
+    size, kind = struct.unpack_from("<II", data, 12)
+    if kind != 0x4E4F534A:
+        raise InputError("corrupt .glb: the first chunk is not JSON", path)
+    if 20 + size > length:
+        raise InputError("corrupt .glb: the JSON chunk runs past the end of the file", path)
+    text, chunk, at = view[20:20 + size], None, 20 + size
+    while at + 8 <= length:
+        size, kind = struct.unpack_from("<II", data, at)
+        if at + 8 + size > length:
+            raise InputError("corrupt .glb: a chunk runs past the end of the file", path)
+        if kind == 0x004E4942 and chunk is None:
+            chunk = view[at + 8:at + 8 + size]
+        at += 8 + size
+    return text, chunk
+
+
+class _Buffers:
+    """The document's buffers, each read when first needed: the BIN chunk, data URIs, files beside the document."""
+
+    def __init__(self, doc, path: Path, chunk):
+        self.doc, self.path, self.chunk = doc, path, chunk
+        self.cache: dict[int, memoryview] = {}
+
+    def external_bytes(self) -> int:
+        """Total size of the external buffer files that would be read (0 for those that would be refused)."""
+        total = 0
+        for i, buf in enumerate(self.doc.buffers or []):
+            uri = getattr(buf, "uri", None)
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                try:
+                    total += self._file(uri, i).stat().st_size
+                except (InputError, OSError, ValueError):
+                    pass
+        return total
+
+    def _file(self, uri: str, index: int) -> Path:
+        """The file a relative URI names, refused if it is a URL or leaves the document's folder."""
+        if _URI_SCHEME.match(uri) or uri.startswith(("//", "\\\\")):
+            raise InputError(f"buffer {index}: uri {uri[:80]!r} is a URL or a drive path; only files next to "
+                             f"the document and data: URIs are read (nothing is downloaded)", self.path)
+        if "?" in uri or "#" in uri:
+            raise InputError(f"buffer {index}: uri {uri[:80]!r} has URL parameters; only plain relative file "
+                             f"paths are read", self.path)
+        name = PurePosixPath(unquote(uri).replace("\\", "/"))
+        folder = self.path.parent.resolve()
+        if name.is_absolute() or ".." in name.parts:
+            raise InputError(f"buffer {index}: uri {uri[:80]!r} points outside the document's folder; only "
+                             f"files in it are read", self.path)
+        target = (folder / name).resolve()
+        if not target.is_relative_to(folder):
+            raise InputError(f"buffer {index}: uri {uri[:80]!r} leads outside the document's folder (a link); "
+                             f"only files in it are read", self.path)
+        return target
+
+    def __call__(self, index, what: str):
+        if isinstance(index, int) and index in self.cache:
+            return self.cache[index]
+        buffers = self.doc.buffers or []
+        if not isinstance(index, int) or not 0 <= index < len(buffers):
+            raise InputError(f"{what}: buffer {index!r} does not exist", self.path)
+        buf = buffers[index]
+        ext = buf.extensions if isinstance(buf.extensions, dict) else {}
+        used = self.doc.extensionsUsed if isinstance(self.doc.extensionsUsed, list) else []
+        meshopt = next((e for e in _MESHOPT if isinstance(ext.get(e), dict) and ext[e].get("fallback")), None)
+        if meshopt is None and buf.uri is None and not (index == 0 and self.chunk is not None):
+            meshopt = next((e for e in _MESHOPT if e in used), None)  # a buffer without data: the compressed one's
+        if meshopt is not None:
+            raise InputError(f"{what}: the data is compressed with {meshopt}, which is not decoded here; write "
+                             f"an uncompressed copy with {_DECOMPRESS}", self.path)
+        length = buf.byteLength
+        if not isinstance(length, int) or length < 0:
+            raise InputError(f"buffer {index}: bad byteLength {length!r}", self.path)
+        uri = buf.uri
+        if uri is None:
+            if index != 0 or self.chunk is None:
+                raise InputError(f"buffer {index} has no data (no uri and no .glb BIN chunk)", self.path)
+            data = self.chunk
+        elif not isinstance(uri, str):
+            raise InputError(f"buffer {index}: uri {uri!r} is not a string", self.path)
+        elif uri.startswith("data:"):
+            head, comma, payload = uri.partition(",")
+            if not comma or not head.endswith(";base64"):
+                raise InputError(f"buffer {index}: a data URI must be base64 ('data:...;base64,...')", self.path)
+            try:
+                data = memoryview(base64.b64decode(payload, validate=True))
+            except (binascii.Error, ValueError):
+                raise InputError(f"buffer {index}: the data URI is not valid base64", self.path) from None
+        else:
+            target = self._file(uri, index)
+            try:
+                with open(target, "rb") as fh:
+                    data = memoryview(fh.read(length))
+            except FileNotFoundError:
+                raise InputError(f"buffer {index}: {uri[:80]!r} not found next to the document", self.path) \
+                    from None
+            except (OSError, ValueError) as exc:
+                raise InputError(f"buffer {index}: cannot read {uri[:80]!r}: {getattr(exc, 'strerror', None) or exc}",
+                                 self.path) from None
+        if len(data) < length:
+            raise InputError(f"buffer {index} holds {len(data)} bytes, fewer than its byteLength {length}",
+                             self.path)
+        self.cache[index] = data[:length]
+        return self.cache[index]
+
+
+# ----------------------------------------------------------------------------- the scene
+
+
+def _numbers(value, n: int, what: str, path: Path) -> np.ndarray:
+    """``n`` finite numbers from the JSON, else one error."""
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        raise InputError(f"{what} must be {n} numbers", path)
+    out = np.array(value, dtype=np.float64)
+    if not np.isfinite(out).all():
+        raise InputError(f"{what} holds NaN or inf", path)
+    return out
+
+
+def _local_matrix(node, i: int, path: Path) -> np.ndarray:
+    """The node's 4x4 transform: ``matrix`` (column-major) or ``T @ R @ S``."""
+    if node.matrix is not None:
+        return _numbers(node.matrix, 16, f"node {i} matrix", path).reshape(4, 4).T
+    M = np.eye(4)
+    if node.rotation is not None:
+        q = _numbers(node.rotation, 4, f"node {i} rotation", path)
+        big = np.abs(q).max()
+        if big == 0:
+            raise InputError(f"node {i} rotation is a zero quaternion", path)
+        x, y, z, w = (q / big) / np.linalg.norm(q / big)
+        M[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    if node.scale is not None:
+        M[:3, :3] = M[:3, :3] * _numbers(node.scale, 3, f"node {i} scale", path)[None, :]
+    if node.translation is not None:
+        M[:3, 3] = _numbers(node.translation, 3, f"node {i} translation", path)
+    return M
+
+
+class _Scene:
+    """The node tree: parents checked (a tree, no cycles), world transforms on demand."""
+
+    def __init__(self, doc, path: Path):
+        self.doc, self.path = doc, path
+        self.nodes = doc.nodes or []
+        n = len(self.nodes)
+        self.parent = [-1] * n
+        for i, node in enumerate(self.nodes):
+            children = node.children or []
+            if not isinstance(children, list):
+                raise InputError(f"node {i}: children must be a list", path)
+            for c in children:
+                if not isinstance(c, int) or not 0 <= c < n:
+                    raise InputError(f"node {i}: child {c!r} does not exist", path)
+                if self.parent[c] != -1 or c == i:
+                    raise InputError(f"node {c} has more than one parent (the node hierarchy must be a tree)", path)
+                self.parent[c] = i
+        self.world_cache: dict[int, np.ndarray] = {}
+
+    def world(self, i: int) -> np.ndarray:
+        """Node ``i``'s world transform (its ancestors' and its own)."""
+        chain = []
+        j = i
+        while j != -1 and j not in self.world_cache:
+            chain.append(j)
+            if len(chain) > len(self.nodes):
+                raise InputError(f"node {i} is its own ancestor (the node hierarchy has a cycle)", self.path)
+            j = self.parent[j]
+        M = self.world_cache[j] if j != -1 else np.eye(4)
+        for k in reversed(chain):
+            M = M @ _local_matrix(self.nodes[k], k, self.path)
+            self.world_cache[k] = M
+        return self.world_cache[i]
+
+    def placed(self) -> list[tuple[int | None, int]]:
+        """``(node, mesh)`` for every mesh the default scene places, depth first (node ``None``: no nodes)."""
+        doc, path = self.doc, self.path
+        scenes = doc.scenes or []
+        if scenes:
+            s = 0 if doc.scene is None else doc.scene
+            if not isinstance(s, int) or not 0 <= s < len(scenes):
+                raise InputError(f"scene {s!r} does not exist", path)
+            roots = scenes[s].nodes or []
+            if not isinstance(roots, list):
+                raise InputError(f"scene {s}: nodes must be a list", path)
+        elif self.nodes:  # no scene: every root node
+            roots = [i for i in range(len(self.nodes)) if self.parent[i] == -1]
+        else:  # no nodes either: every mesh as it is
+            return [(None, m) for m in range(len(doc.meshes or []))]
+        out, seen = [], set()
+        stack = list(reversed(roots))
+        while stack:
+            i = stack.pop()
+            if not isinstance(i, int) or not 0 <= i < len(self.nodes):
+                raise InputError(f"the scene names node {i!r}, which does not exist", path)
+            if i in seen:
+                raise InputError(f"node {i} is reached twice from the scene (the node hierarchy must be a tree)",
+                                 path)
+            seen.add(i)
+            node = self.nodes[i]
+            if node.mesh is not None:
+                if not isinstance(node.mesh, int) or not 0 <= node.mesh < len(doc.meshes or []):
+                    raise InputError(f"node {i}: mesh {node.mesh!r} does not exist", path)
+                out.append((i, node.mesh))
+            stack.extend(reversed(node.children or []))
+        return out
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+@dataclass
+class _Geometry:
+    """One primitive in its mesh's own frame."""
+
+    V: np.ndarray                    # (n, 3)
+    F: np.ndarray                    # (m, 3)
+    targets: list                    # K entries: (n, 3) offsets or None (no POSITION offsets)
+    names: list[str]                 # K distinct names
+    label: str
+
+
+def _label(doc, mi: int, pj: int) -> str:
+    name = doc.meshes[mi].name
+    return f"mesh {mi} ({name!r}) primitive {pj}" if isinstance(name, str) and name else f"mesh {mi} primitive {pj}"
+
+
+def _primitive(doc, mi: int, pj: int, path: Path):
+    prims = doc.meshes[mi].primitives
+    if not isinstance(prims, list) or not 0 <= pj < len(prims):
+        raise InputError(f"mesh {mi} has no primitive {pj}", path)
+    return prims[pj]
+
+
+def _check_mode(doc, mi: int, pj: int, path: Path) -> int:
+    mode = _primitive(doc, mi, pj, path).mode
+    mode = 4 if mode is None else mode
+    if mode in (0, 1, 2, 3):
+        raise InputError(f"{_label(doc, mi, pj)} draws {_MODES[mode]}, not triangles; leave its mesh out by "
+                         f"naming the meshes to read (mesh=...)", path)
+    if mode not in (4, 5, 6):
+        raise InputError(f"{_label(doc, mi, pj)} has unknown mode {mode!r}", path)
+    return mode
+
+
+def _declared_count(doc, mi: int, pj: int, path: Path) -> int:
+    """The primitive's vertex count as its POSITION accessor declares it (nothing read)."""
+    pos = _get(_primitive(doc, mi, pj, path).attributes, "POSITION")
+    accessors = doc.accessors or []
+    if not isinstance(pos, int) or not 0 <= pos < len(accessors):
+        raise InputError(f"{_label(doc, mi, pj)}: no POSITION accessor", path)
+    count = accessors[pos].count
+    if not isinstance(count, int) or count < 0:
+        raise InputError(f"{_label(doc, mi, pj)} POSITION: bad accessor count {count!r}", path)
+    return count
+
+
+def _target_names(mesh, prim, K: int) -> list[str]:
+    """``targetNames`` of the mesh (or primitive) extras when there are ``K``, else ``target{k}``; made distinct."""
+    given = None
+    for holder in (mesh, prim):
+        extras = holder.extras if isinstance(holder.extras, dict) else {}
+        names = extras.get("targetNames")
+        if isinstance(names, list) and len(names) == K:
+            given = names
+            break
+    out, seen, suffix = [], set(), {}
+    for k in range(K):
+        name = given[k] if given is not None and isinstance(given[k], str) and given[k] else f"target{k}"
+        base = name
+        while name in seen:
+            suffix[base] = suffix.get(base, 0) + 1
+            name = f"{base}.{suffix[base]}"
+        seen.add(name)
+        out.append(name)
+    return out
+
+
+def _triangles(idx: np.ndarray, mode: int, label: str, path: Path) -> np.ndarray:
+    """Triangles from a primitive's vertex indices (glTF 2.0, "Topology types"); strips' degenerate ones dropped."""
+    k = idx.size
+    if mode == 4:
+        if k % 3:
+            raise InputError(f"{label}: {k} triangle indices, not a multiple of 3", path)
+        return idx.reshape(-1, 3)
+    if k < 3:
+        raise InputError(f"{label}: {_MODES[mode]} of {k} indices (at least 3 are needed)", path)
+    i = np.arange(k - 2)
+    if mode == 5:
+        odd = i % 2
+        F = np.stack([idx[i], idx[i + 1 + odd], idx[i + 2 - odd]], axis=1)
+    else:
+        F = np.stack([idx[i + 1], idx[i + 2], np.full(k - 2, idx[0])], axis=1)
+    keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])
+    return F[keep]
+
+
+def _geometry(doc, data_of, mi: int, pj: int, path: Path, budget: int) -> _Geometry:
+    """Decode one primitive: positions, triangles, morph-target offsets (its own frame)."""
+    mesh = doc.meshes[mi]
+    prim = _primitive(doc, mi, pj, path)
+    label = _label(doc, mi, pj)
+    mode = _check_mode(doc, mi, pj, path)
+    pos = _get(prim.attributes, "POSITION")
+    exts = prim.extensions if isinstance(prim.extensions, dict) else {}
+    if exts.get(_DRACO) is not None and doc.accessors[pos].bufferView is None:
+        V, F = _draco(doc, data_of, exts[_DRACO], pos, label, path, budget)
+    else:
+        V = _decode_accessor(doc, data_of, pos, path, f"{label} POSITION", kinds={"VEC3": 3},
+                             max_values=budget).astype(np.float64)
+        if prim.indices is None:
+            idx = np.arange(V.shape[0], dtype=np.int64)
+        else:
+            idx = _decode_accessor(doc, data_of, prim.indices, path, f"{label} indices", dtypes=_INDEX_DTYPES,
+                                   kinds={"SCALAR": 1}, normalize=False, max_values=budget)
+            idx = idx.reshape(-1).astype(np.int64)
+        F = _triangles(idx, mode, label, path)
+    n = V.shape[0]
+    if F.size and n == 0:
+        raise InputError(f"{label}: triangles but no vertices", path)
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise InputError(f"{label}: triangles index vertices outside 0..{n - 1}", path)
+    if not np.isfinite(V).all():
+        raise InputError(f"{label}: POSITION holds NaN or inf", path)
+    targets_json = prim.targets or []
+    if not isinstance(targets_json, list):
+        raise InputError(f"{label}: targets must be a list", path)
+    targets = []
+    for k, tgt in enumerate(targets_json):
+        index = _get(tgt, "POSITION")
+        if index is None:
+            targets.append(None)
+            continue
+        d = _decode_accessor(doc, data_of, index, path, f"{label} morph target {k}", kinds={"VEC3": 3},
+                             max_values=budget).astype(np.float64)
+        if d.shape[0] != n:
+            raise InputError(f"{label} morph target {k} has {d.shape[0]} offsets for the primitive's {n} vertices",
+                             path)
+        if not np.isfinite(d).all():
+            raise InputError(f"{label} morph target {k} holds NaN or inf", path)
+        targets.append(d)
+    return _Geometry(V, F.astype(np.int64), targets, _target_names(mesh, prim, len(targets)), label)
+
+
+def _draco(doc, data_of, ext, pos: int, label: str, path: Path, budget: int) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and triangles of a ``KHR_draco_mesh_compression`` primitive, decoded by DracoPy."""
+    try:
+        import DracoPy
+    except ImportError:
+        raise InputError(f"{label} is compressed with {_DRACO}: install the optional decoder (pip install DracoPy) "
+                         f"or write an uncompressed copy with {_DECOMPRESS}", path) from None
+    acc = doc.accessors[pos]
+    count = acc.count
+    if not isinstance(count, int) or count < 0 or 3 * count > budget:
+        raise InputError(f"{label} POSITION: bad or too large accessor count {count!r}", path)
+    attrs = ext.get("attributes") if isinstance(ext, dict) else None
+    uid = attrs.get("POSITION") if isinstance(attrs, dict) else None
+    view = ext.get("bufferView") if isinstance(ext, dict) else None
+    if not isinstance(uid, int) or not isinstance(view, int) or not 0 <= view < len(doc.bufferViews or []):
+        raise InputError(f"{label}: bad {_DRACO} extension (bufferView, attributes.POSITION)", path)
+    length = doc.bufferViews[view].byteLength
+    if not isinstance(length, int) or length <= 0:
+        raise InputError(f"{label}: the Draco buffer view is empty", path)
+    raw = _elements(doc, data_of, view, 0, length, 1, np.dtype(np.uint8), path, f"{label} Draco data", strided=False)
+    try:
+        decoded = DracoPy.decode(raw.tobytes())
+        faces = getattr(decoded, "faces", None)
+        attr = decoded.get_attribute_by_unique_id(uid)
+    except Exception:  # noqa: BLE001 - the decoder's own errors
+        raise InputError(f"{label}: the Draco data cannot be decoded", path) from None
+    if faces is None or attr is None:
+        raise InputError(f"{label}: the Draco data holds no triangle mesh with attribute {uid}", path)
+    P = np.asarray(attr.get("data"))
+    if P.ndim != 2 or P.shape != (count, 3):
+        raise InputError(f"{label}: the Draco data holds {P.shape[0] if P.ndim else 0} positions, "
+                         f"the POSITION accessor {count}", path)
+    if acc.normalized is True and acc.componentType in _NORMALIZED and np.issubdtype(P.dtype, np.integer):
+        P = np.maximum(P / _NORMALIZED[acc.componentType], -1.0)
+    return P.astype(np.float64), np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+
+
+# ----------------------------------------------------------------------------- placing
+
+
+def _skin_transform(doc, scene: _Scene, data_of, node: int, geom: _Geometry, mi: int, pj: int, path: Path,
+                    budget: int):
+    """The skinned primitive's transform at the file's pose: one 4x4, or ``(n, 4, 4)`` per vertex."""
+    skins = doc.skins or []
+    s = scene.nodes[node].skin
+    if not isinstance(s, int) or not 0 <= s < len(skins):
+        raise InputError(f"node {node}: skin {s!r} does not exist", path)
+    joints = skins[s].joints or []
+    if not isinstance(joints, list) or not joints or not all(
+            isinstance(j, int) and 0 <= j < len(scene.nodes) for j in joints):
+        raise InputError(f"skin {s}: joints must be a non-empty list of nodes", path)
+    J = len(joints)
+    if skins[s].inverseBindMatrices is None:
+        inverse = np.broadcast_to(np.eye(4), (J, 4, 4))
+    else:
+        A = _decode_accessor(doc, data_of, skins[s].inverseBindMatrices, path, f"skin {s} inverseBindMatrices",
+                             dtypes={_FLOAT: np.float32}, kinds={"MAT4": 16}, max_values=budget)
+        if A.shape[0] < J:
+            raise InputError(f"skin {s}: {A.shape[0]} inverse bind matrices for {J} joints", path)
+        inverse = A[:J].reshape(J, 4, 4).transpose(0, 2, 1)
+    S = np.stack([scene.world(j) for j in joints]) @ inverse
+    if not np.isfinite(S).all():
+        raise InputError(f"skin {s}: joint transforms are not finite", path)
+    if np.abs(S - S[0]).max() <= 1e-6 * max(1.0, np.abs(S[0]).max()):
+        return S[0]  # the bind pose: one rigid transform
+    n = geom.V.shape[0]
+    prim = _primitive(doc, mi, pj, path)
+    M = np.zeros((n, 4, 4))
+    total = np.zeros(n)
+    k = 0
+    while _get(prim.attributes, f"JOINTS_{k}") is not None:
+        what = f"{geom.label} JOINTS_{k} / WEIGHTS_{k}"
+        ji = _decode_accessor(doc, data_of, _get(prim.attributes, f"JOINTS_{k}"), path, what,
+                              dtypes={_UBYTE: np.uint8, _USHORT: np.uint16}, kinds={"VEC4": 4}, normalize=False,
+                              max_values=budget)
+        wi = _get(prim.attributes, f"WEIGHTS_{k}")
+        w = _decode_accessor(doc, data_of, wi, path, what, kinds={"VEC4": 4}, max_values=budget) \
+            if wi is not None else None
+        if w is None or ji.shape[0] != n or w.shape[0] != n:
+            raise InputError(f"{what}: joints and weights must both be given for the {n} vertices", path)
+        if ji.size and ji.max() >= J:
+            raise InputError(f"{what}: joint indices outside the skin's {J} joints", path)
+        ji = ji.astype(np.int64)
+        for c in range(4):
+            M += w[:, c, None, None] * S[ji[:, c]]
+        total += w.sum(axis=1)
+        k += 1
+    if k == 0:
+        raise InputError(f"{geom.label}: a skinned mesh away from its bind pose needs JOINTS_0 and WEIGHTS_0", path)
+    ok = total > 0
+    M[ok] /= total[ok, None, None]
+    M[~ok] = S[0]
+    return M
+
+
+def _place(geom: _Geometry, T: np.ndarray):
+    """Positions, triangles and offsets moved by ``T`` (4x4, or (n, 4, 4) per vertex); winding kept outward."""
+    if T.ndim == 2:
+        L = T[:3, :3]
+        V = geom.V @ L.T + T[:3, 3]
+        D = [None if d is None else d @ L.T for d in geom.targets]
+        det = np.linalg.det(L)
+    else:
+        L = T[:, :3, :3]
+        V = np.einsum("nij,nj->ni", L, geom.V) + T[:, :3, 3]
+        D = [None if d is None else np.einsum("nij,nj->ni", L, d) for d in geom.targets]
+        det = np.linalg.det(L.mean(axis=0))
+    F = geom.F[:, [0, 2, 1]] if det < 0 else geom.F
+    return V, F, D
+
+
+def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None) -> GltfRig:
+    budget = _BASE_VALUES + _VALUES_PER_BYTE * size
+    scene = _Scene(doc, path)
+    placed = scene.placed()
+    if wanted is not None:
+        def names_of(node, mi):
+            out = (doc.meshes[mi].name, None if node is None else scene.nodes[node].name)
+            return {x for x in out if isinstance(x, str)}
+
+        kept = [(node, mi) for node, mi in placed if names_of(node, mi) & wanted]
+        found = set().union(*(names_of(node, mi) for node, mi in kept)) if kept else set()
+        missing = sorted(wanted - found)
+        if missing:
+            have = sorted({x for node, mi in placed for x in names_of(node, mi)})
+            shown = ", ".join(repr(x) for x in have[:12]) + (", ..." if len(have) > 12 else "")
+            raise InputError(f"no mesh or node named {', '.join(repr(x) for x in missing)} in the scene "
+                             f"(it has: {shown or 'none'})", path)
+        placed = kept
+    # Plan: parts, names and sizes from the JSON alone, checked against the file's size before decoding.
+    plan, union, total = [], {}, 0
+    for node, mi in placed:
+        prims = doc.meshes[mi].primitives
+        if not isinstance(prims, list):
+            raise InputError(f"mesh {mi}: primitives must be a list", path)
+        for pj in range(len(prims)):
+            _check_mode(doc, mi, pj, path)
+            total += _declared_count(doc, mi, pj, path)
+            targets = prims[pj].targets or []
+            for name in _target_names(doc.meshes[mi], prims[pj], len(targets) if isinstance(targets, list) else 0):
+                union.setdefault(name, len(union))
+            plan.append((node, mi, pj))
+    if not plan or total == 0:
+        raise InputError("no mesh with triangles in the scene", path)
+    K = len(union)
+    if K == 0:
+        raise InputError("no blendshapes (morph targets)", path)
+    if 3 * total * (K + 1) > budget:
+        raise InputError(f"the file declares {total} vertices and {K} blendshapes, more than {size} bytes of "
+                         f"glTF data can hold", path)
+    # Decode each primitive once, place it for every node that uses it.
+    cache: dict[tuple[int, int], _Geometry] = {}
+    Vs, Fs, parts, moved, used = [], [], [], [], {}
+    nv = nf = 0
+    for node, mi, pj in plan:
+        if (mi, pj) not in cache:
+            cache[(mi, pj)] = _geometry(doc, data_of, mi, pj, path, budget)
+        geom = cache[(mi, pj)]
+        if node is None:
+            T = np.eye(4)
+        elif scene.nodes[node].skin is not None:
+            T = _skin_transform(doc, scene, data_of, node, geom, mi, pj, path, budget)
+        else:
+            T = scene.world(node)
+        V, F, D = _place(geom, T)
+        nodename = scene.nodes[node].name if node is not None else None
+        meshname = doc.meshes[mi].name
+        base = next((x for x in (nodename, meshname) if isinstance(x, str) and x), None)
+        nprims = len(doc.meshes[mi].primitives)
+        name = (base if nprims == 1 else f"{base}.prim{pj}") if base else f"mesh{mi}.prim{pj}"
+        base = name
+        while name in used:
+            used[base] = used.get(base, 0) + 1
+            name = f"{base}.{used[base]}"
+        used.setdefault(name, 0)
+        n, m = V.shape[0], F.shape[0]
+        parts.append(RigPart(name, nv, nv + n, nf, nf + m, bool(geom.targets)))
+        Vs.append(V)
+        Fs.append(F + nv)
+        moved.append((nv, D, geom.names))
+        nv, nf = nv + n, nf + m
+    if nf == 0:
+        raise InputError("no mesh with triangles in the scene", path)
+    deltas = np.zeros((K, nv, 3))
+    for start, D, names in moved:
+        for d, name in zip(D, names):
+            if d is not None:
+                deltas[union[name], start:start + d.shape[0]] = d
+    neutral = np.concatenate(Vs)
+    if not (np.isfinite(neutral).all() and np.isfinite(deltas).all()):
+        raise InputError("positions are not finite after the node transforms", path)
+    faces = np.concatenate(Fs).astype(np.int64)
+    for a in (neutral, faces, deltas):
+        a.flags.writeable = False
+    return GltfRig(neutral, faces, deltas, tuple(union), tuple(parts), path=str(path))
