@@ -198,7 +198,7 @@ def align_rigid(template, points) -> RigidAlignment:
     return RigidAlignment(best[1], best[2], best[0], min(others, default=float("inf")))
 
 
-def units_factor(points, template) -> float:
+def units_factor(points, template, powers=UNIT_POWERS) -> float:
     """The power of ten that brings the scan ``points (N,3)`` to the size of ``template (m,3)``.
 
     Size = the root mean square distance from the centroid. Units differ by
@@ -207,13 +207,16 @@ def units_factor(points, template) -> float:
     (log10 3 < 0.5), so the ratio is rounded to the nearest power of ten.
     Returns 1.0 when the scan is already in the template's units.
 
+    ``template`` may also be a positive number: the template's size itself.
+    ``powers``: the exponents allowed (default -6..6); the one nearest to the
+    size ratio on a log scale is taken (``(-1, 0, 2)``: mm, cm or m read as cm).
+
     Raises
     ------
     InputError
         A scan or template without extent (all points equal).
     """
     P = np.asarray(points, dtype=np.float64)
-    F = np.asarray(template, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] == 0 or not np.isfinite(P).all():
         raise InputError(f"the scan must be finite points of shape (N, 3), got {P.shape}")
 
@@ -224,8 +227,16 @@ def units_factor(points, template) -> float:
         r = rms_radius(X / m)  # no overflow in the squares, whatever the coordinates
         return np.log10(r) + np.log10(m) if r > 0 else float("-inf")
 
-    lp, lf = log_size(P), log_size(F)
+    if np.ndim(template) == 0:
+        size = float(template)
+        lf = np.log10(size) if size > 0 and np.isfinite(size) else float("-inf")
+    else:
+        lf = log_size(np.asarray(template, dtype=np.float64))
+    lp = log_size(P)
     if not (np.isfinite(lp) and np.isfinite(lf)):
         raise InputError("the scan has no extent (all its points coincide): its units cannot be told")
-    k = int(np.clip(np.round(lf - lp), UNIT_POWERS[0], UNIT_POWERS[-1]))
+    if tuple(powers) == UNIT_POWERS:
+        k = int(np.clip(np.round(lf - lp), UNIT_POWERS[0], UNIT_POWERS[-1]))
+    else:
+        k = min(powers, key=lambda p: abs(lf - lp - p))
     return float(10.0 ** k)

@@ -170,7 +170,7 @@ def test_obj_folder_by_hand_and_errors(tmp_path):
     assert r.names == ("a_left", "b_up")
     assert np.allclose(r.deltas[0], [-2, 0, 0]) and np.allclose(r.deltas[1], [0, 1, 0])
     with pytest.raises(InputError, match="no neutral mesh 'neutral.obj'"):
-        BlendshapeRig.from_obj_folder(tmp_path)
+        BlendshapeRig.from_obj_folder(tmp_path, neutral_name="neutral")
     V, F = NEUTRAL[:4], TRIS[:2]
     write_mesh(tmp_path / "c_small.obj", V, F)
     with pytest.raises(InputError, match=r"c_small\.obj: has 4 vertices but the neutral 'base.obj' has 5"):

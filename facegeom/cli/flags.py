@@ -32,6 +32,11 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "pass verify=False": "pass --no-verify",
     "pass partial=True": "pass --partial",
     "pass force=True": "use --force",  # pipelines.examples.write_examples(force=) / data examples --force  # model.download.build_bundle(partial=) / data build --partial  # model.download.build_bundle(verify=) / data build --no-verify
+    "neutral=NAME": "--neutral NAME",  # model.rig.find_neutral / model.load_rig(neutral=) / --neutral
+    "names=MAP.csv": "--names MAP.csv",  # model.load_rig(names=) / --names
+    "units=mm|cm|m": "--units mm|cm|m",  # model.units.rig_frame(units=) / --units
+    "up=y|z": "--up y|z",  # model.units.rig_frame(up=) / --up
+    "(rig_path=)": "(--rig)",  # model.load_rig(rig_path=) / --rig
 }
 
 

@@ -22,6 +22,7 @@ from facegeom.cli.flags import as_flags
 from facegeom.cli.identity import identity_cmd
 from facegeom.cli.single import animate, drive, fit, retarget
 from facegeom.cli.solve import solve_cmd
+from facegeom.cli.transfer import transfer_cmd
 from facegeom.cli.view import view
 from facegeom.errors import FacegeomError
 from facegeom.version import __version__
@@ -140,3 +141,4 @@ cli.add_command(batch_cmd)
 cli.add_command(data)
 cli.add_command(identity_cmd)
 cli.add_command(solve_cmd)
+cli.add_command(transfer_cmd)

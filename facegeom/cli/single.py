@@ -8,6 +8,7 @@ import click
 
 from facegeom.cli.context import TAKES_LOOKUP, Context, parse_params, take_files
 from facegeom.cli.identity import IMAGE_HELP
+from facegeom.cli.rigopts import load_cli_rig, rig_options, rig_options_given
 
 
 def _make_folder(folder) -> list[Path]:
@@ -125,8 +126,9 @@ def retarget(source, labels, output, method, params, fill_gaps):
                    ".pts annotation of the 68-point convention) or a point cloud (auto: .csv / .pts = landmarks, a "
                    "mesh with the rig's vertex count = mesh, else points).")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
-              help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs (neutral.obj + one per shape); "
-                   "default: the ICT generic face with its 53 expressions.")
+              help="Rig: a folder of OBJs (a neutral + one OBJ per shape), a glTF file (.glb/.gltf) or an .npz "
+                   "(BlendshapeRig.save_npz); default: the ICT generic face with its 53 expressions.")
+@rig_options
 @click.option("-m", "--method", default="sem-ls", show_default=True, help="A registered fitter (facegeom methods); sem-ls: SEM with least-squares coefficients where the data determine them, sem: the published algorithm.")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Method parameter, repeatable.")
 @click.option("--focal", type=float, default=None, help="Landmarks: focal length in pixels.")
@@ -147,19 +149,18 @@ def retarget(source, labels, output, method, params, fill_gaps):
               help="Meshes and point clouds: the factor into the rig's units, or auto: the power of ten that makes "
                    "the scan the size of the rig's face (a scan in mm for the ICT rig in cm gets 0.1).")
 @click.pass_context
-def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, image, output, mesh_out, identity, id_params,
-        rig_out, scale):
+def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, params, focal, cx, cy, image, output,
+        mesh_out, identity, id_params, rig_out, scale):
     """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
     import numpy as np
 
     from facegeom import registry
     from facegeom.cli.identity import camera_defaults, parse_scale
     from facegeom.io import all_or_nothing, check_outputs, write_mesh
-    from facegeom.model import load_rig
     from facegeom.pipelines.single import fit_file, write_fit
 
     obj: Context = ctx.obj
-    check_outputs([target, rig_path, image], [output, mesh_out, rig_out])
+    check_outputs([target, rig_path, image, names_map], [output, mesh_out, rig_out])
     tp = Path(target)
     scale = parse_scale(scale)
     focal, cx, cy = camera_defaults(focal, cx, cy, image)
@@ -171,27 +172,30 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, image, outpu
             raise InputError("--rig-out and --id-param go with --identity")
         if rig_path:
             raise InputError("--identity fits the rig from the face model: drop --rig")
+        if rig_options_given(neutral, names_map, units, up):
+            raise InputError("--neutral, --names, --units and --up describe --rig: drop them with --identity")
         explicit = ctx.get_parameter_source("method") != click.core.ParameterSource.DEFAULT
         r, rig, method = fit_identity_target(obj, tp, kind, focal, cx, cy, id_params, method, parse_params(params),
                                              explicit, scale)
         if rig_out:
             write_rig(rig, rig_out)
     else:
-        rig = load_rig(rig_path, obj.face_model)
+        rig = load_cli_rig(rig_path, obj.face_model, neutral, names_map, units, up)
         r = fit_file(rig, tp, lambda: registry.create("fitters", method, **parse_params(params)), kind, focal, cx, cy,
                      scale)
         for line in r.notes:
             click.echo(line)
     active = r.active
+    frame = getattr(rig, "frame", None)
     with all_or_nothing([output] + ([mesh_out] if mesh_out else [])) as tmps:  # the weights and the mesh, or neither
-        write_fit(tmps[0], rig.names, r, method, str(tp), time_s=r.seconds)
-        if mesh_out:
-            write_mesh(tmps[1], r.vertices, rig.triangles)
+        write_fit(tmps[0], rig.names, r, method, str(tp), time_s=r.seconds, rig=rig)
+        if mesh_out:  # in the rig's own units and axes, to lie on the rig it came from
+            write_mesh(tmps[1], r.vertices if frame is None else frame.to_source(r.vertices), rig.triangles)
     click.echo(f"{method}: {r.kind} target, {active.size} active shapes in {r.seconds * 1e3:.1f} ms -> {output}")
     for i in active[np.argsort(-np.abs(r.weights[active]))][:8]:
         click.echo(f"  {rig.names[i]:<20} {r.weights[i]:.3f}")
     if mesh_out:
-        click.echo(f"wrote {mesh_out}")
+        click.echo(f"wrote {mesh_out}" + ("" if frame is None else f" (the rig's own units and axes: {frame.label})"))
     if rig_out:
         click.echo(f"wrote {rig_out}")
 
@@ -209,22 +213,27 @@ def fit(ctx, target, kind, rig_path, method, params, focal, cx, cy, image, outpu
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output .npz.")
 @click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
-              help="Solve the retargeted markers on this rig (.npz, OBJ folder, or 'ict' for the generic ICT rig) "
-                   "and write weight curves (.npz) instead of driving the mesh.")
+              help="Solve the retargeted markers on this rig (an OBJ folder, .glb/.gltf or .npz with the ICT face's "
+                   "vertices, or 'ict' for the generic ICT rig) and write weight curves (.npz, .glb or a Live Link "
+                   ".csv) instead of driving the mesh.")
+@rig_options
 @click.option("--fitter", default="sem-ls", show_default=True, help="With --rig: the fitter.")
 @click.option("--smooth", default="auto", show_default=True, help="With --rig: curve smoothing (auto, off, a number).")
 @click.pass_obj
 def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir,
-            rig_path, fitter, smooth):
+            rig_path, neutral, names_map, units, up, fitter, smooth):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame.
 
     With --rig: the retargeted markers are solved on the rig -> blendshape weight curves.
     """
+    from facegeom.errors import InputError
+
     if rig_path is not None:
         _animate_rig(obj, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,
-                     rig_path, fitter, smooth)
+                     rig_path, fitter, smooth, (neutral, names_map, units, up))
         return
-    from facegeom.errors import InputError
+    if rig_options_given(neutral, names_map, units, up):
+        raise InputError("--neutral, --names, --units and --up go with --rig")
     from facegeom.io import all_or_nothing, check_outputs, write_mesh
     from facegeom.pipelines.animate import animate_take, write_animation_npz
     from facegeom.registry import parse_method
@@ -261,7 +270,7 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
 
 
 def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,
-                 rig_path, fitter, smooth):
+                 rig_path, fitter, smooth, rig_opts):
     """``animate --rig``: take -> retargeted character markers -> rig weight curves (see ``solve_take``)."""
     import numpy as np
 
@@ -269,7 +278,7 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.io.markerseq import MarkerSequence
-    from facegeom.model import load_rig
+    from facegeom.cli.flags import as_flags
     from facegeom.pipelines.animate import solve_take
     from facegeom.pipelines.solve import DEFAULT_FPS, SolvedCapture, write_curves
     from facegeom.registry import parse_method
@@ -280,14 +289,17 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
     model = obj.face_model()
     path = take_files(takes_path, take_path)[0]
     rig_file = None if rig_path == "ict" else rig_path
-    check_outputs([path, rig_file], [output])
-    rig = load_rig(rig_file, lambda: model)
+    check_outputs([path, rig_file, rig_opts[1]], [output])
+    rig = load_cli_rig(rig_file, lambda: model, *rig_opts)
     res, seq, ids, info = solve_take(model, path, start, frames, labels, seed,
                                      lambda: parse_method(retargeter).build("retargeters"), rig,
                                      lambda: parse_method(fitter).build("fitters"), amount)
     ms = MarkerSequence(np.arange(start, start + frames, dtype=np.int64), tuple(f"v{i}" for i in ids),
                         info["markers"], str(path))
-    write_curves(output, SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False, rig))
+    solved = SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False, rig)
+    write_curves(output, solved)
+    for line in solved.notes:
+        click.echo(as_flags(line))
     err = f"; weight error vs the take {info['weight_mae']:.4f}" if "weight_mae" in info else ""
     click.echo(f"{path.name} frames {start}..{start + frames - 1}: {labels} labelled frames; retarget "
                f"{info['retarget_s'] * 1e3:.1f} ms, solve {res.time_s:.2f} s on {len(res.names)} shapes{err}")

@@ -6,6 +6,8 @@ from pathlib import Path
 import click
 
 from facegeom.cli.context import Context, parse_params
+from facegeom.cli.flags import as_flags
+from facegeom.cli.rigopts import load_cli_rig, rig_options
 
 
 def parse_smooth(text: str):
@@ -46,7 +48,9 @@ class _Progress:
 @click.command("solve")
 @click.argument("capture", type=click.Path(dir_okay=False))
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
-              help="Rig: an .npz (BlendshapeRig.save_npz) or a folder of OBJs; default: the ICT generic face.")
+              help="Rig: a folder of OBJs (a neutral + one OBJ per shape), a glTF file (.glb/.gltf) or an .npz "
+                   "(BlendshapeRig.save_npz); default: the ICT generic face.")
+@rig_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Curves file: .npz (weights, head motion, solve info), .glb (the rig with named morph targets and the weights as a glTF animation) or .csv (a Live Link Face take).")
 @click.option("--fitter", default="sem-ls", show_default=True, help="A registered fitter (see `facegeom methods`).")
 @click.option("-p", "--param", "params", multiple=True, metavar="KEY=VALUE", help="Fitter parameter, repeatable.")
@@ -58,7 +62,8 @@ class _Progress:
               help="Temporal smoothing of the curves: auto (a Whittaker smoother, strength per curve by generalised "
                    "cross-validation; on 0.5 mm marker noise it halves the weight error), off, or a strength.")
 @click.pass_obj
-def solve_cmd(obj: Context, capture, rig_path, output, fitter, params, markers, smooth):
+def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, output, fitter, params, markers,
+              smooth):
     """Solve the markers of CAPTURE (a marker sequence) to weight curves of the rig, head motion removed."""
     import numpy as np
 
@@ -66,16 +71,15 @@ def solve_cmd(obj: Context, capture, rig_path, output, fitter, params, markers, 
     from facegeom.constants import CM_TO_MM  # the solve works in rig units, cm (RIG_UNIT)
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
-    from facegeom.model import load_rig
     from facegeom.pipelines.solve import CURVE_WRITERS, solve_file, write_curves
 
     amount = parse_smooth(smooth)
     map_file = markers if markers and Path(markers).suffix.lower() == ".csv" else None
-    check_outputs([capture, rig_path, map_file], [output])
+    check_outputs([capture, rig_path, map_file, names_map], [output])
     if Path(output).suffix.lower() not in CURVE_WRITERS:
         raise InputError(f"unsupported curves format {Path(output).suffix!r}; use {', '.join(CURVE_WRITERS)}",
                          output)
-    rig = load_rig(rig_path, obj.face_model)
+    rig = load_cli_rig(rig_path, obj.face_model, neutral, names_map, units, up)
     f = registry.create("fitters", fitter, **parse_params(params))
     progress = _Progress()
     try:
@@ -83,6 +87,8 @@ def solve_cmd(obj: Context, capture, rig_path, output, fitter, params, markers, 
     finally:
         progress.close()
     write_curves(output, solved)
+    for line in solved.notes:
+        click.echo(as_flags(line))
     s = solved.solve
     T = s.weights.shape[0]
     smooth_txt = "off" if not s.smoothing.any() else f"median strength {float(np.median(s.smoothing)):.3g}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import click
 
 from facegeom.cli.context import TAKES_LOOKUP, other_take_sources
+from facegeom.cli.rigopts import load_cli_rig, rig_options
 
 __all__ = ["view"]
 
@@ -157,14 +158,16 @@ def view_retarget(obj, methods, take_path, takes_path, synthetic, start, frames,
               help="Play this file instead: a .glb (a rig with a weights animation), .npz curves or a Live Link "
                    ".csv take (what `facegeom solve` writes); curves and takes play on --rig.")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
-              help="With --input curves or a take: the rig (.npz or OBJ folder); default: the ICT generic face.")
+              help="With --input curves or a take: the rig (an OBJ folder, .glb/.gltf or .npz); default: the ICT "
+                   "generic face.")
+@rig_options
 @click.option("--retargeters", default="tangent", show_default=True, help="';'-separated retargeter specs.")
 @click.option("--deformer", default="tangent", show_default=True, help="One deformer spec, e.g. 'biharmonic'.")
 @_take_options
 @_output_options
 @click.pass_obj
-def view_animate(obj, input_path, rig_path, retargeters, deformer, take_path, takes_path, synthetic, start, frames,
-                 labels, seed, frame, screenshot, size, exit_after, state_path):
+def view_animate(obj, input_path, rig_path, neutral, names_map, units, up, retargeters, deformer, take_path, takes_path,
+                 synthetic, start, frames, labels, seed, frame, screenshot, size, exit_after, state_path):
     """Play the actor beside the driven character mesh (per-vertex error) and the true character;
     or, with --input, play an animation file (.glb, curves, Live Link take)."""
     from facegeom.viewer.app import check_display
@@ -173,11 +176,10 @@ def view_animate(obj, input_path, rig_path, retargeters, deformer, take_path, ta
     _check_screenshot(screenshot, take_path, input_path)
     _size(size)
     if input_path is not None:
-        from facegeom.model import load_rig
         from facegeom.pipelines.solve import read_animation
         from facegeom.viewer.playback import CurvesView
 
-        anim = read_animation(input_path, lambda: load_rig(rig_path, obj.face_model))
+        anim = read_animation(input_path, lambda: load_cli_rig(rig_path, obj.face_model, neutral, names_map, units, up))
         _run(CurvesView(anim, frame=min(frame, anim.n_frames - 1)), screenshot, size, exit_after, state_path)
         return
     from facegeom.viewer.playback import AnimateView, load_sequence

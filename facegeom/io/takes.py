@@ -53,6 +53,9 @@ ICT names are camelCase with ``_L``/``_R``: ``EyeBlinkLeft`` -> ``eyeBlink_L``,
 ``JawRight`` are shapes of their own (``mouthLeft``...), not sided variants.
 ARKit's single ``BrowInnerUp`` and ``CheekPuff`` drive both ICT sides;
 ``TongueOut`` has no ICT counterpart. "Left" is the performer's left in both.
+The names and how they meet (also for other rigs' names, decorated exporter
+names and mapping files) live in :mod:`facegeom.io.shape_names`; this module
+re-exports :data:`ARKIT_NAMES` and :func:`arkit_to_ict_name` from there.
 
 Writing takes
 -------------
@@ -76,6 +79,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path
+from facegeom.io.shape_names import ARKIT_NAMES, ShapeMap, arkit_to_ict_name
 
 __all__ = [
     "ARKIT_NAMES",
@@ -91,25 +95,6 @@ __all__ = [
     "find_takes",
 ]
 
-#: The 52 ARKit blendshape names in the order Live Link Face writes them.
-ARKIT_NAMES: tuple[str, ...] = (
-    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft",
-    "EyeSquintLeft", "EyeWideLeft",
-    "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
-    "EyeSquintRight", "EyeWideRight",
-    "JawForward", "JawRight", "JawLeft", "JawOpen",
-    "MouthClose", "MouthFunnel", "MouthPucker", "MouthRight", "MouthLeft",
-    "MouthSmileLeft", "MouthSmileRight", "MouthFrownLeft", "MouthFrownRight",
-    "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft", "MouthStretchRight",
-    "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
-    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight",
-    "MouthUpperUpLeft", "MouthUpperUpRight",
-    "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
-    "CheekPuff", "CheekSquintLeft", "CheekSquintRight",
-    "NoseSneerLeft", "NoseSneerRight",
-    "TongueOut",
-)
-
 #: The 9 rotation columns that follow the weights (read past, not kept).
 ROTATION_NAMES: tuple[str, ...] = (
     "HeadYaw", "HeadPitch", "HeadRoll",
@@ -121,9 +106,6 @@ ROTATION_NAMES: tuple[str, ...] = (
 POLICIES: tuple[str, ...] = ("interpolate", "drop")
 
 _ARKIT_SET = frozenset(ARKIT_NAMES)
-_OWN_DIRECTION = frozenset({"MouthLeft", "MouthRight", "JawLeft", "JawRight"})
-_BOTH_SIDES = frozenset({"BrowInnerUp", "CheekPuff"})
-_NO_ICT = frozenset({"TongueOut"})
 _FRAME_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
 _DEFAULT_FPS = 30.0
 _DAY = 86400.0
@@ -414,43 +396,6 @@ def _interpolate(W_good: np.ndarray, t: np.ndarray, is_good: np.ndarray) -> np.n
 # ----------------------------------------------------------------------------- mapping
 
 
-def arkit_to_ict_name(name: str) -> list[str]:
-    """The ICT expression names that one ARKit weight drives.
-
-    Parameters
-    ----------
-    name : str
-        An ARKit blendshape name, PascalCase as in Live Link Face files
-        (``EyeBlinkLeft``) or camelCase as in ARKit's API (``eyeBlinkLeft``).
-
-    Returns
-    -------
-    list of str
-        ``['eyeBlink_L']`` for ``EyeBlinkLeft``; ``['mouthLeft']`` for
-        ``MouthLeft`` (a shape of its own, likewise ``MouthRight``, ``JawLeft``,
-        ``JawRight``); both sides for ``BrowInnerUp`` and ``CheekPuff``; ``[]``
-        for ``TongueOut``.
-
-    Raises
-    ------
-    InputError
-        ``name`` is not one of the 52 ARKit shapes.
-    """
-    pascal = name[:1].upper() + name[1:]
-    if pascal not in _ARKIT_SET:
-        raise InputError(f"not an ARKit blendshape name: {name!r}")
-    if pascal in _NO_ICT:
-        return []
-    camel = pascal[0].lower() + pascal[1:]
-    if pascal in _BOTH_SIDES:
-        return [camel + "_L", camel + "_R"]
-    if pascal not in _OWN_DIRECTION:
-        for side, suffix in (("Left", "_L"), ("Right", "_R")):
-            if camel.endswith(side):
-                return [camel[: -len(side)] + suffix]
-    return [camel]
-
-
 def ict_weights(take: Take, expression_names: Sequence[str], clip: bool = True) -> np.ndarray:
     """A take's weights as ICT expression weights.
 
@@ -467,16 +412,11 @@ def ict_weights(take: Take, expression_names: Sequence[str], clip: bool = True) 
     -------
     numpy.ndarray
         ``(T, E)`` float64, column ``e`` being the ARKit weight that drives
-        ``expression_names[e]``, or 0 for names no ARKit shape drives.
+        ``expression_names[e]``, or 0 for names no ARKit shape drives. The
+        names are matched as :class:`~facegeom.io.shape_names.ShapeMap` does
+        (ARKit-named rigs' names, decorated or not, match too).
     """
-    source: dict[str, int] = {}
-    for k, name in enumerate(take.names):
-        for target in arkit_to_ict_name(name):
-            source[target] = k
-    idx = np.array([source.get(n, -1) for n in expression_names], dtype=np.int64)
-    out = np.zeros((take.n_frames, len(idx)), dtype=np.float64)
-    has = idx >= 0
-    out[:, has] = take.weights[:, idx[has]]
+    out = ShapeMap.between(expression_names, take.names).apply(take.weights)
     if clip:
         np.clip(out, 0.0, 1.0, out=out)
     return out
@@ -523,13 +463,7 @@ def ict_to_arkit(weights, ict_names: Sequence[str]) -> tuple[np.ndarray, tuple[s
         raise InputError("ICT weights contain NaN or inf")
     if len(set(names)) != len(names):
         raise InputError("an ICT expression name repeats")
-    column = {n: k for k, n in enumerate(names)}
-    out = np.zeros((W.shape[0], len(ARKIT_NAMES)))
-    for a, name in enumerate(ARKIT_NAMES):
-        cols = [column[t] for t in arkit_to_ict_name(name) if t in column]
-        if cols:
-            out[:, a] = W[:, cols].mean(axis=1)
-    return out, ARKIT_NAMES
+    return ShapeMap.between(ARKIT_NAMES, names).apply(W), ARKIT_NAMES
 
 
 # ----------------------------------------------------------------------------- writing

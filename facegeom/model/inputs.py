@@ -16,21 +16,147 @@ from facegeom.errors import InputError
 from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
 from facegeom.model.landmarks import SIDE_CONTOUR
 
-__all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'scan_scale']
+__all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'rig_note', 'scan_scale']
 
 
-def load_rig(rig_path=None, face_model=None):
-    """The rig of ``facegeom fit``: an ``.npz`` (``BlendshapeRig.save_npz``) or a folder of OBJs.
+def load_rig(rig_path=None, face_model=None, *, neutral: str | None = None, names=None, units: str = "auto",
+             up: str = "auto", notes: list | None = None):
+    """The rig of ``facegeom fit`` / ``solve`` / ``animate``, from wherever it comes, in facegeom's frame.
 
-    With ``rig_path=None``, the ICT generic face of ``face_model()`` (a callable
-    returning a :class:`~facegeom.model.face.FaceModel`) with its expressions.
+    Parameters
+    ----------
+    rig_path : str, path or None
+        A folder of OBJs (a neutral and one OBJ per shape, the shapes named by
+        file stem; the neutral found by :func:`~facegeom.model.rig.find_neutral`),
+        a glTF file (``.glb`` / ``.gltf``: every morphed mesh of its scene,
+        :func:`facegeom.io.gltf.read_gltf_rig`; its parts are kept as the rig's
+        ``parts``), or an ``.npz`` (:meth:`BlendshapeRig.save_npz`; any other
+        file is read as one). ``None``: the ICT generic face of
+        ``face_model()`` (a callable returning a
+        :class:`~facegeom.model.face.FaceModel`) with its 53 expressions.
+    neutral : str, optional
+        The neutral's file stem in an OBJ folder (``Neutral`` or ``Neutral.obj``).
+    names : str, path or NameMapping, optional
+        A mapping CSV ``rig_shape,source_shape,gain``
+        (:func:`facegeom.io.shape_names.read_name_mapping`): how ICT / ARKit /
+        other names' weights drive the rig's shapes. The rig keeps its own shape
+        names; the mapping is kept as its ``name_map`` and used wherever weights
+        cross names (:meth:`BlendshapeRig.map_from`, :meth:`BlendshapeRig.map_to`).
+    units : {"auto", "mm", "cm", "m"}
+        The rig's length unit; ``auto``: what the file states (glTF: m;
+        facegeom's npz: cm), else found from its size (:mod:`facegeom.model.units`).
+    up : {"auto", "y", "z"}
+        The rig's up axis; ``auto``: glTF's Y, else found from where its
+        blendshapes move the face (:mod:`facegeom.model.units`).
+    notes : list, optional
+        Receives one line saying what was found (shapes, the neutral, units,
+        up axis, naming convention, unmapped shapes by name); nothing for the
+        ICT face without a mapping.
+
+    Returns
+    -------
+    BlendshapeRig
+        In cm with Y up and the face along +Z; ``rig.frame`` tells the rig's own
+        units and axes (to write results back in them).
+
+    Raises
+    ------
+    InputError
+        One line naming the file: a missing rig, no neutral or two candidates
+        in a folder (its OBJ files listed), shapes with another vertex count,
+        an unreadable file, a mapping row naming no shape of the rig (the
+        mapping file and line), ``neutral`` / ``units`` / ``up`` without a rig
+        file, a bad ``units`` or ``up``.
     """
+    from facegeom.io.shape_names import read_name_mapping
+    from facegeom.model.rig import BlendshapeRig, find_neutral
+    from facegeom.model.units import rig_frame
+
+    name_map = None if names is None else (names if not isinstance(names, (str, os.PathLike))
+                                           else read_name_mapping(names))
+    if rig_path is None:
+        given = [a for a, v in (("neutral=NAME", neutral is not None), ("units=mm|cm|m", str(units) != "auto"),
+                                ("up=y|z", str(up) != "auto")) if v]
+        if given:
+            raise InputError(f"{' and '.join(given)} describe{'s' if len(given) == 1 else ''} a rig file or folder "
+                             "(rig_path=), and none was given: the ICT face needs none of them")
+        rig = BlendshapeRig.from_face_model(face_model())
+        if name_map is not None:
+            rig = rig.with_name_map(name_map)
+            if notes is not None:
+                notes.append(rig_note(rig, None))
+        return rig
+    rp = Path(rig_path)
+    if not rp.exists():
+        raise InputError("rig not found", rp)
+    stated_units = stated_up = None
+    what = ""
+    if rp.is_dir():
+        neutral_path = find_neutral(rp, neutral)
+        raw = BlendshapeRig.from_obj_folder(rp, neutral_path.stem)
+        what = f"neutral {neutral_path.name}"
+    else:
+        if neutral is not None:
+            raise InputError("neutral=NAME names the neutral OBJ of a rig folder; this rig is a file", rp)
+        if rp.suffix.lower() in (".glb", ".gltf"):
+            raw, stated_units, stated_up = _gltf_rig(rp)
+        else:
+            raw, stated_units, stated_up = BlendshapeRig.read_npz(rp)
+        if raw.parts:
+            what = f"{len(raw.parts)} part{'s' if len(raw.parts) != 1 else ''} ({', '.join(p.name for p in raw.parts)})"
+    if name_map is not None:
+        raw = raw.with_name_map(name_map)
+    try:
+        frame = rig_frame(raw.neutral, raw.triangles, raw.deltas, units, up, stated_units, stated_up)
+    except InputError as exc:
+        raise InputError(exc.reason, rp) from None
+    rig = raw.in_frame(frame)
+    if notes is not None:
+        notes.append(rig_note(rig, rp.name, what))
+    return rig
+
+
+def _gltf_rig(path: Path):
+    """A glTF file's rig as stored -> ``(rig, units, up)`` (what the file states: glTF's metres and Y-up)."""
+    from facegeom.io.gltf import read_gltf_rig
     from facegeom.model.rig import BlendshapeRig
 
-    if rig_path is None:
-        return BlendshapeRig.from_face_model(face_model())
-    rp = Path(rig_path)
-    return BlendshapeRig.from_obj_folder(rp) if rp.is_dir() else BlendshapeRig.from_npz(rp)
+    g = read_gltf_rig(path)
+    try:
+        rig = BlendshapeRig(g.neutral, g.deltas, g.names, g.faces, None, parts=g.parts)
+    except InputError as exc:
+        raise InputError(exc.reason, path) from None
+    up = str(g.up_axis).lstrip("+").lower()
+    return rig, g.units, up if up in ("y", "z") else None
+
+
+def rig_note(rig, name: str | None, what: str = "") -> str:
+    """One line on a loaded rig (``name``: its file; None: the ICT face): shapes, ``what`` (its neutral, parts),
+    units and up axis, naming convention, and by name the shapes no ICT expression drives and the ICT expressions
+    it lacks (what solve, fit and animate speak)."""
+    from facegeom.io.shape_names import ICT_NAMES
+
+    m = rig.map_from(ICT_NAMES)
+    label = "the ICT face" if name is None else f"rig {name}"
+    parts = [f"{label}: {rig.n_shapes} shapes, {rig.n_vertices} vertices" + (f", {what}" if what else "")]
+    if rig.frame is not None and name is not None:
+        parts.append(rig.frame.describe())
+    parts.append(f"names: {m.rig_convention}")
+    if rig.name_map is not None:
+        k = len(m.from_mapping)
+        parts.append(f"{k} shape{'' if k == 1 else 's'} mapped by {rig.name_map.name}")
+        if m.unresolved:
+            parts.append(f"rows of {rig.name_map.name} naming no ICT or ARKit shape: "
+                         + ", ".join(f"{s} (line {ln})" for s, ln in m.unresolved))
+    if m.is_empty:
+        parts.append("no shape has an ICT or ARKit name: results keep the rig's names (a mapping file, "
+                     "names=MAP.csv, maps them)")
+        return "; ".join(parts)
+    if m.unmapped_rig:
+        parts.append(f"its shapes no ICT expression drives: {', '.join(m.unmapped_rig)}")
+    if m.unmapped_source:
+        parts.append(f"ICT expressions it lacks: {', '.join(m.unmapped_source)}")
+    return "; ".join(parts)
 
 
 def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None, cx=None, cy=None,

@@ -11,9 +11,20 @@ weight here).  Units are the data's (centimetres for the ICT face).
 
 A rig is built from a :class:`~facegeom.model.face.FaceModel`
 (:meth:`BlendshapeRig.from_face_model`), from a folder of OBJ meshes
-(:meth:`BlendshapeRig.from_obj_folder`) or from an ``.npz`` written by
+(:meth:`BlendshapeRig.from_obj_folder`, its neutral found whatever its case:
+:func:`find_neutral`) or from an ``.npz`` written by
 :meth:`BlendshapeRig.save_npz`; :func:`facegeom.model.inputs.load_rig` picks
-one of these for ``facegeom fit``.
+one of these (or a glTF file) for ``facegeom fit``, ``solve`` and ``animate``.
+
+A rig keeps its own shape names. Weights cross between its names and other
+names (the ICT expressions every take and solve speaks, a Live Link take's
+ARKit columns) through :meth:`BlendshapeRig.map_from` and
+:meth:`BlendshapeRig.map_to`, which build a
+:class:`~facegeom.io.shape_names.ShapeMap` with the rig's mapping file
+(``name_map``) when it has one. Optional attributes: ``parts`` (named index
+sets of a glTF rig's parts), ``name_map`` and ``frame`` (the
+:class:`~facegeom.model.units.RigFrame` the rig was brought into facegeom's
+centimetres and Y-up from).
 
 Related modules: what a rig is fitted to (mesh, 2-D landmarks, point cloud) is
 in :mod:`facegeom.model.targets`; the pinhole camera of landmark targets and its
@@ -33,12 +44,88 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.interfaces import as_faces, as_handles, as_vertices
+from facegeom.io.shape_names import MappingRow, NameMapping, ShapeMap
 from facegeom.model._checks import _first_nonfinite, _readonly
 from facegeom.model.landmarks import INNER_LANDMARKS_49
 
 __all__ = [
     "BlendshapeRig",
+    "NEUTRAL_NAMES",
+    "find_neutral",
 ]
+
+#: File stems (any case) taken for the neutral of an OBJ folder.
+NEUTRAL_NAMES: tuple[str, ...] = ("neutral", "base", "neutral_mesh", "default", "basis", "generic_neutral_mesh")
+
+
+def _obj_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".obj")
+
+
+def _listing(files: Sequence[Path]) -> str:
+    return ", ".join(p.name for p in files) if files else "none"
+
+
+def find_neutral(folder: str | os.PathLike, neutral_name: str | None = None) -> Path:
+    """The neutral OBJ of a rig folder.
+
+    ``neutral_name`` given: the OBJ of that stem (``Neutral`` or
+    ``Neutral.obj``; an exact match first, else case-insensitively). Else the
+    one OBJ whose stem is one of :data:`NEUTRAL_NAMES` in any case
+    (``neutral``, ``Neutral``, ``base``, ``Base``, ``neutral_mesh``,
+    ``default``, ``Basis``...).
+
+    Raises
+    ------
+    InputError
+        Naming the folder and listing its OBJ files: not a folder, the named
+        neutral missing, no candidate, or two candidates.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("not a folder", folder)
+    files = _obj_files(folder)
+    if neutral_name is not None:
+        stem = str(neutral_name)
+        stem = stem[:-4] if stem.lower().endswith(".obj") else stem
+        hit = [p for p in files if p.stem == stem] or [p for p in files if p.stem.lower() == stem.lower()]
+        if len(hit) != 1:
+            raise InputError(f"no neutral mesh {stem + '.obj'!r} in the folder (its OBJ files: {_listing(files)})",
+                             folder)
+        return hit[0]
+    hit = [p for p in files if p.stem.lower() in NEUTRAL_NAMES]
+    if not hit:
+        raise InputError(f"no neutral mesh among its {len(files)} OBJ files (a neutral is called "
+                         f"{', '.join(NEUTRAL_NAMES)} in any case; else pass neutral=NAME): {_listing(files)}", folder)
+    if len(hit) > 1:
+        raise InputError(f"{len(hit)} neutral candidates, {_listing(hit)}; pass neutral=NAME to choose "
+                         f"(its OBJ files: {_listing(files)})", folder)
+    return hit[0]
+
+
+_PART_FIELDS = ("vertex_start", "vertex_stop", "face_start", "face_stop")
+
+
+def _as_parts(parts, n_vertices: int, n_faces: int):
+    """Parts as a tuple of :class:`~facegeom.io.gltf.RigPart` (a glTF rig's placed primitives: a name, its slices
+    of the vertices and the triangles), checked against the rig's sizes; None stays None."""
+    if parts is None:
+        return None
+    from facegeom.io.gltf import RigPart
+
+    out = []
+    for p in parts:
+        try:
+            name = str(p.name)
+            vs, ve, fs, fe = (int(getattr(p, f)) for f in _PART_FIELDS)
+            has = bool(getattr(p, "has_targets", True))
+        except (AttributeError, TypeError, ValueError):
+            raise InputError(f"a part must have a name, {', '.join(_PART_FIELDS)}, got {p!r}") from None
+        if not (0 <= vs <= ve <= n_vertices and 0 <= fs <= fe <= n_faces):
+            raise InputError(f"part {name!r}: vertices [{vs}, {ve}) and faces [{fs}, {fe}) must lie in the rig's "
+                             f"{n_vertices} vertices and {n_faces} faces")
+        out.append(p if isinstance(p, RigPart) else RigPart(name, vs, ve, fs, fe, has))
+    return tuple(out)
 
 
 # --------------------------------------------------------------------------- the rig
@@ -59,6 +146,15 @@ class BlendshapeRig:
         Faces of the mesh (indices into the n vertices).
     landmark_ids : (68,) int array or None
         Vertex id of each Multi-PIE landmark, distinct, or ``None``.
+    parts : sequence of RigPart, optional
+        A glTF rig's placed primitives (:class:`~facegeom.io.gltf.RigPart`: a
+        name, its vertex and face slices), kept as ``parts`` (a tuple).
+    name_map : NameMapping, optional
+        A mapping file's rows (``rig_shape,source_shape,gain``): how other
+        names' weights drive this rig's shapes (:meth:`map_from`).
+    frame : RigFrame, optional
+        How the rig was brought into facegeom's frame (cm, Y up), for writing
+        results back in its own units and axes; None: unknown.
 
     All arrays are copied to float64 / int64 and made read-only, so the cached
     :meth:`delta_matrix` and :meth:`gram` stay valid.
@@ -71,9 +167,11 @@ class BlendshapeRig:
         inf anywhere, triangles or landmark ids out of range.
     """
 
-    __slots__ = ("neutral", "deltas", "names", "triangles", "landmark_ids", "_D", "_G", "_index")
+    __slots__ = ("neutral", "deltas", "names", "triangles", "landmark_ids", "parts", "name_map", "frame", "_D", "_G",
+                 "_index")
 
-    def __init__(self, neutral, deltas, names: Sequence[str], triangles, landmark_ids=None):
+    def __init__(self, neutral, deltas, names: Sequence[str], triangles, landmark_ids=None, *, parts=None,
+                 name_map: NameMapping | None = None, frame=None):
         neutral = as_vertices(neutral, "neutral")
         n = neutral.shape[0]
         d = np.asarray(deltas, dtype=np.float64)
@@ -113,6 +211,13 @@ class BlendshapeRig:
         self.names = names
         self.triangles = _readonly(tri.copy())
         self.landmark_ids = landmark_ids
+        self.parts = _as_parts(parts, n, self.triangles.shape[0])
+        if name_map is not None and not isinstance(name_map, NameMapping):
+            raise InputError(f"name_map must be a NameMapping (read_name_mapping), got {type(name_map).__name__}")
+        if name_map is not None:
+            ShapeMap.between(names, (), name_map)  # every mapped rig shape must be one of the rig's
+        self.name_map = name_map
+        self.frame = frame
         self._D = None
         self._G = None
         self._index = seen
@@ -176,6 +281,26 @@ class BlendshapeRig:
             raise InputError("weights contain NaN or inf")
         return w
 
+    # ----------------------------------------------------------------- other names
+    def map_from(self, source_names: Sequence[str]) -> ShapeMap:
+        """How weights named ``source_names`` (a take's ARKit columns, ICT curves) drive this rig's shapes.
+
+        ``map_from(names).apply(W (T, S))`` -> this rig's weights ``(T, B)``; the
+        rig's mapping file (``name_map``) first, then the automatic match of
+        :class:`~facegeom.io.shape_names.ShapeMap`.
+        """
+        return ShapeMap.between(self.names, source_names, self.name_map)
+
+    def map_to(self, target_names: Sequence[str]) -> ShapeMap:
+        """How this rig's weights give weights named ``target_names`` (the 52 ARKit columns of a Live Link take).
+
+        Without a mapping file the automatic match from the rig's names; with
+        one, the least-squares inverse of :meth:`map_from` (so both agree).
+        """
+        if self.name_map is None:
+            return ShapeMap.between(target_names, self.names)
+        return self.map_from(target_names).inverse()
+
     # ----------------------------------------------------------------- evaluation
     def evaluate(self, weights, vertex_ids=None) -> np.ndarray:
         """``neutral + tensordot(w, deltas)`` -> ``(n, 3)`` (eq. 1).
@@ -226,34 +351,41 @@ class BlendshapeRig:
         model's (identity-independent) expression deltas as float64; the
         landmark ids are ``model.landmarks``.
         """
+        from facegeom.model.units import RigFrame
+
         return cls(
             neutral=model.identity_neutral(identity),
             deltas=np.asarray(model.expression_deltas, dtype=np.float64),
             names=tuple(model.expression_names),
             triangles=model.triangles,
             landmark_ids=model.landmarks,
+            frame=RigFrame("cm", "y", "the ICT face model's", "the ICT face model's"),
         )
 
     @classmethod
-    def from_obj_folder(cls, folder: str | os.PathLike, neutral_name: str = "neutral") -> "BlendshapeRig":
-        """A rig from a folder of OBJ meshes: ``<neutral_name>.obj`` + one OBJ per shape.
+    def from_obj_folder(cls, folder: str | os.PathLike, neutral_name: str | None = None) -> "BlendshapeRig":
+        """A rig from a folder of OBJ meshes: a neutral + one OBJ per shape.
 
-        Each shape's delta is its vertices minus the neutral's; shapes are named
-        by file stem and sorted by file name.  Triangles come from the neutral.
-        No landmark ids.
+        The neutral is ``<neutral_name>.obj``, or with ``neutral_name=None`` the
+        one OBJ called neutral, base, neutral_mesh, default or basis in any case
+        (:func:`find_neutral`). Each shape's delta is its vertices minus the
+        neutral's; shapes are named by file stem and sorted by file name.
+        Triangles come from the neutral. No landmark ids.
+
+        Raises
+        ------
+        InputError
+            One line naming the folder or the file: no neutral or two
+            candidates (the OBJ files listed), no shape besides the neutral, a
+            shape with another vertex count than the neutral's, an unreadable OBJ.
         """
         from facegeom.io import read_mesh
         from facegeom.model.face import read_obj_positions
 
         folder = Path(folder)
-        if not folder.is_dir():
-            raise InputError("not a folder", folder)
-        neutral_path = folder / f"{neutral_name}.obj"
-        if not neutral_path.is_file():
-            raise InputError(f"no neutral mesh {neutral_path.name!r} in the folder", folder)
+        neutral_path = find_neutral(folder, neutral_name)
         V0, F = read_mesh(neutral_path)
-        files = sorted(p for p in folder.iterdir()
-                       if p.is_file() and p.suffix.lower() == ".obj" and p != neutral_path)
+        files = [p for p in _obj_files(folder) if p != neutral_path]
         if not files:
             raise InputError(f"no blendshape OBJ besides {neutral_path.name!r}", folder)
         deltas = np.empty((len(files), V0.shape[0], 3))
@@ -263,7 +395,10 @@ class BlendshapeRig:
                 raise InputError(
                     f"has {V.shape[0]} vertices but the neutral {neutral_path.name!r} has {V0.shape[0]}", p)
             deltas[b] = V - V0
-        return cls(V0, deltas, tuple(p.stem for p in files), F)
+        try:
+            return cls(V0, deltas, tuple(p.stem for p in files), F)
+        except InputError as exc:
+            raise InputError(exc.reason, folder) from None
 
     def write_obj_folder(self, folder: str | os.PathLike, neutral_name: str = "neutral") -> Path:
         """Write ``<neutral_name>.obj`` and ``<name>.obj`` per shape (full shapes, not deltas)."""
@@ -280,11 +415,29 @@ class BlendshapeRig:
         return folder
 
     NPZ_KEYS = ("neutral", "deltas", "names", "triangles", "landmark_ids")
+    """The keys every rig file has; optional ones: ``units`` / ``up`` (the frame of the arrays, ``cm`` / ``y`` when
+    facegeom knows it), ``part_names`` / ``part_slices`` (P, 4) / ``part_targets`` (the parts: vertex start, stop,
+    face start, stop; whether the part has targets),
+    ``map_rig`` / ``map_source`` / ``map_gain`` / ``map_line`` / ``map_path`` (the mapping file's rows)."""
 
     @classmethod
     def from_npz(cls, path: str | os.PathLike) -> "BlendshapeRig":
         """Read a rig written by :meth:`save_npz` (keys ``neutral, deltas, names, triangles, landmark_ids``;
-        an empty ``landmark_ids`` means none)."""
+        an empty ``landmark_ids`` means none; the optional keys of :data:`NPZ_KEYS`' note).
+
+        A file that states its ``units`` and ``up`` axis is brought into facegeom's frame (cm, Y up) and the
+        rig's ``frame`` says so; else the arrays are taken as they are and ``frame`` is None.
+        """
+        rig, units, up = cls.read_npz(path)
+        if units is None:
+            return rig
+        from facegeom.model.units import RigFrame
+
+        return rig.in_frame(RigFrame(units, up, "stated by the file", "stated by the file"))
+
+    @classmethod
+    def read_npz(cls, path: str | os.PathLike) -> tuple["BlendshapeRig", str | None, str | None]:
+        """A rig file's arrays as stored -> ``(rig, units, up)``: the units and up axis the file states, or None."""
         path = Path(path)
         if not path.is_file():
             raise InputError("file not found" if not path.exists() else "not a file", path)
@@ -293,20 +446,34 @@ class BlendshapeRig:
                 missing = [k for k in cls.NPZ_KEYS if k not in z.files]
                 if missing:
                     raise InputError(f"not a rig file: missing key(s) {', '.join(missing)}", path)
-                a = {k: z[k] for k in cls.NPZ_KEYS}
+                a = {k: z[k] for k in z.files}
         except InputError:
             raise
         except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
             raise InputError(f"cannot read as npz ({exc})", path) from None
         lm = a["landmark_ids"]
         try:
-            return cls(a["neutral"], a["deltas"], [str(s) for s in np.atleast_1d(a["names"])],
-                       a["triangles"], None if lm.size == 0 else lm)
+            units, up = _npz_frame(a)
+            rig = cls(a["neutral"], a["deltas"], [str(s) for s in np.atleast_1d(a["names"])],
+                      a["triangles"], None if lm.size == 0 else lm, parts=_npz_parts(a), name_map=_npz_map(a))
         except InputError as exc:
             raise InputError(exc.reason, path) from None
+        return rig, units, up
+
+    def in_frame(self, frame) -> "BlendshapeRig":
+        """This rig brought into facegeom's frame from ``frame`` (a :class:`~facegeom.model.units.RigFrame`:
+        its own units and axes) -> a new rig (cm, Y up) whose ``frame`` is ``frame``."""
+        return BlendshapeRig(frame.to_facegeom(self.neutral), frame.to_facegeom(self.deltas), self.names,
+                             self.triangles, self.landmark_ids, parts=self.parts, name_map=self.name_map,
+                             frame=frame)
+
+    def with_name_map(self, name_map: NameMapping | None) -> "BlendshapeRig":
+        """The same rig with another mapping file's rows (``None``: none)."""
+        return BlendshapeRig(self.neutral, self.deltas, self.names, self.triangles, self.landmark_ids,
+                             parts=self.parts, name_map=name_map, frame=self.frame)
 
     def save_npz(self, path: str | os.PathLike, compressed: bool = False) -> Path:
-        """Write the rig to ``path`` (npz, atomically) -> ``path``."""
+        """Write the rig to ``path`` (npz, atomically) -> ``path``; parts, mapping and frame as optional keys."""
         from facegeom.io import atomic_path
 
         path = Path(path)
@@ -317,11 +484,62 @@ class BlendshapeRig:
             triangles=self.triangles,
             landmark_ids=(np.zeros(0, np.int64) if self.landmark_ids is None else self.landmark_ids),
         )
+        arrays.update(units=np.array("cm"), up=np.array("y"))  # a rig's arrays are in facegeom's frame
+        if self.parts is not None:
+            arrays.update(part_names=np.array([p.name for p in self.parts], dtype=np.str_),
+                          part_slices=np.array([[getattr(p, f) for f in _PART_FIELDS] for p in self.parts],
+                                               dtype=np.int64).reshape(-1, 4),
+                          part_targets=np.array([p.has_targets for p in self.parts], dtype=bool))
+        if self.name_map is not None:
+            rows = self.name_map.rows
+            arrays.update(map_rig=np.array([r.rig for r in rows], dtype=np.str_),
+                          map_source=np.array([r.source for r in rows], dtype=np.str_),
+                          map_gain=np.array([r.gain for r in rows], dtype=np.float64),
+                          map_line=np.array([r.line for r in rows], dtype=np.int64),
+                          map_path=np.array(self.name_map.path))
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:  # a file object: numpy adds no ".npz" suffix
                 (np.savez_compressed if compressed else np.savez)(fh, **arrays)
         return path
 
 
+def _npz_parts(a: dict):
+    keys = ("part_names", "part_slices", "part_targets")
+    if not any(k in a for k in keys):
+        return None
+    if not all(k in a for k in keys):
+        raise InputError(f"the parts need all of {', '.join(keys)}")
+    from facegeom.io.gltf import RigPart
+
+    names = [str(n) for n in np.atleast_1d(a["part_names"])]
+    slices, targets = np.asarray(a["part_slices"]), np.atleast_1d(a["part_targets"])
+    if slices.shape != (len(names), 4) or not np.issubdtype(slices.dtype, np.integer) or len(targets) != len(names):
+        raise InputError("part_slices must be (P, 4) integers and part_targets (P,), one row per part name")
+    return [RigPart(n, *(int(x) for x in row), bool(t)) for n, row, t in zip(names, slices, targets)]
 
 
+def _npz_map(a: dict):
+    keys = ("map_rig", "map_source", "map_gain", "map_line")
+    if not any(k in a for k in keys):
+        return None
+    if not all(k in a for k in keys):
+        raise InputError(f"the shape mapping needs all of {', '.join(keys)}")
+    rig, src = np.atleast_1d(a["map_rig"]), np.atleast_1d(a["map_source"])
+    gain, line = np.atleast_1d(a["map_gain"]), np.atleast_1d(a["map_line"])
+    if not (len(rig) == len(src) == len(gain) == len(line)) or not np.isfinite(gain.astype(float)).all():
+        raise InputError("map_rig, map_source, map_gain and map_line must have one finite entry per row")
+    path = str(a["map_path"]) if "map_path" in a else ""
+    return NameMapping(tuple(MappingRow(str(r), str(s), float(g), int(n)) for r, s, g, n in zip(rig, src, gain, line)),
+                       path)
+
+
+def _npz_frame(a: dict) -> tuple[str, str]:
+    """The units and up axis an npz rig states; facegeom's own format, cm and Y up, when it states none (every
+    rig facegeom has written is in its frame, files of earlier releases too)."""
+    from facegeom.model.units import TO_CM
+
+    units = str(a["units"]) if "units" in a else "cm"
+    up = str(a["up"]).lower() if "up" in a else "y"
+    if units not in TO_CM or up not in ("y", "z"):
+        raise InputError(f"units {units!r} / up {up!r}: expected mm, cm or m / y or z")
+    return units, up

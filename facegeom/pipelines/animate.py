@@ -219,8 +219,9 @@ def solve_take(model, path, start: int, frames: int, labels: int, seed: int, ret
         The marker vertices.
     info : dict
         ``retarget_s``, ``markers`` (the retargeted ``(T, 80, 3)``); ``weight_mae``
-        against the take's weights when the rig's shape names are the face
-        model's expressions (else absent).
+        against the take's weights when the face model's expressions reach
+        every shape of the rig (``rig.map_from``: ICT names, or an ARKit-named
+        rig's, or through its mapping file), else absent.
     """
     from facegeom.methods.marker_solve import solve_markers
 
@@ -230,6 +231,7 @@ def solve_take(model, path, start: int, frames: int, labels: int, seed: int, ret
     markers = retargeter().fit(seq.source, lab, seq.target[lab]).transform()
     info = {"retarget_s": time.perf_counter() - t0, "markers": markers}
     res = solve_markers(markers, ids, rig, fitter(), smooth=smooth)
-    if tuple(rig.names) == tuple(model.expression_names):
-        info["weight_mae"] = float(np.abs(res.weights - W).mean())
+    m = rig.map_from(model.expression_names)
+    if not m.unmapped_rig:
+        info["weight_mae"] = float(np.abs(res.weights - m.apply(W)).mean())
     return res, seq, ids, info

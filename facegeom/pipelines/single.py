@@ -104,7 +104,7 @@ def fit_file(rig, path, fitter, kind: str = "auto", focal=None, cx=None, cy=None
 
 
 def write_fit(path, names: list[str], outcome: FitOutcome, method: str, target: str,
-              time_s: float | None = None) -> None:
+              time_s: float | None = None, rig=None) -> None:
     """Write fitted coefficients by shape name (``.json`` or ``.csv``) with what produced them.
 
     Parameters
@@ -119,12 +119,26 @@ def write_fit(path, names: list[str], outcome: FitOutcome, method: str, target: 
         The fitter's name and the target file, recorded in the file.
     time_s : float, optional
         The fit's time, recorded when given.
+    rig : BlendshapeRig, optional
+        The rig fitted (its shapes named ``names``). A ``.json`` file then also
+        holds ``arkit_weights``: the 52 ARKit weights of the fit
+        (``rig.map_to``; when the rig's names reach ARKit's) for anything that
+        reads ARKit / Live Link names. The pose's translation is in ``units``
+        (cm, facegeom's frame).
     """
     info = {"method": method, "target": target, "kind": outcome.kind}
     if time_s is not None:
         info["time_s"] = time_s
     if outcome.camera is not None:
         info["pose"] = {"R": np.asarray(outcome.camera.R).tolist(), "t": np.asarray(outcome.camera.t).tolist()}
+        info["units"] = "cm"
+    if rig is not None and Path(path).suffix.lower() == ".json" and tuple(rig.names) == tuple(names):
+        from facegeom.io.shape_names import ARKIT_NAMES
+
+        m = rig.map_to(ARKIT_NAMES)
+        if not m.is_empty:
+            w = m.apply(np.asarray(outcome.weights, dtype=np.float64))
+            info["arkit_weights"] = {n: float(x) for n, x in zip(ARKIT_NAMES, w)}
     write_weights(path, names, outcome.weights, info)
 
 

@@ -15,15 +15,27 @@ The steps, shared by the CLI and anything else that solves files:
    Link Face take: the 52 ARKit weights, for anything that reads those).
 
 Lengths: a capture that states its unit (C3D does) is converted to the rig's
-centimetres (facegeom's convention, the ICT face's unit); one that states none
-is taken to be in the rig's units already. glTF lengths are metres, so the
-``.glb`` writer scales the rig by :data:`GLB_SCALE`.
+centimetres (facegeom's convention, the ICT face's unit; a rig from elsewhere
+is brought into it when loaded, :func:`facegeom.model.inputs.load_rig`); one
+that states none is taken to be in the rig's own units (``rig.frame.units``:
+a capture for a rig in mm is read as mm). glTF lengths are metres, so the
+``.glb`` writer scales the rig by :data:`GLB_SCALE`; the ``.npz`` says its
+unit (``units``: cm).
+
+Names: the curves are the rig's own shapes (the ``.npz`` and ``.glb`` carry
+its names). The Live Link ``.csv`` needs the 52 ARKit columns, which the rig's
+shapes give through :meth:`~facegeom.model.rig.BlendshapeRig.map_to` (an
+ARKit-named rig's ``eyeBlinkLeft`` goes to ``EyeBlinkLeft``, an ICT rig's
+``browInnerUp_L`` / ``_R`` to the mean ``BrowInnerUp``, a mapping file's gains
+inverted); columns no shape reaches are written as 0 and named in a note.
+Curves and takes played on a rig (:func:`read_animation`) cross names the
+other way (:meth:`~facegeom.model.rig.BlendshapeRig.map_from`).
 """
 from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -32,11 +44,13 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.interfaces import as_handles
 from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.shape_names import ARKIT_NAMES, ShapeMap
 from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
 from facegeom.methods.marker_solve import MarkerSolve, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
-__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "marker_vertices", "read_animation", "solve_file",
+__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "arkit_map", "marker_vertices", "read_animation",
+           "solve_file",
            "take_fps",
            "write_curves", "write_curves_glb", "write_curves_livelink", "write_curves_npz"]
 
@@ -64,6 +78,8 @@ class SolvedCapture:
     fps_known: bool
     rig: object = None
     """The :class:`~facegeom.model.rig.BlendshapeRig` solved for (the ``.glb`` writer needs its mesh)."""
+    notes: list = field(default_factory=list)
+    """What was done to the inputs and outputs (a capture read in the rig's units, ARKit columns left at 0)."""
 
 
 MAP_HEADERS = (("marker", "vertex"), ("marker", "vertex_id"))
@@ -148,6 +164,11 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
     is called as chunks finish. Errors name the capture file.
     """
     seq = read_marker_sequence(capture)
+    notes = []
+    own = getattr(getattr(rig, "frame", None), "units", RIG_UNIT)
+    if getattr(seq, "unit", None) is None and own != RIG_UNIT:
+        seq = replace(seq, unit=own)
+        notes.append(f"{Path(capture).name}: states no length unit; read in the rig's own unit, {own}")
     if getattr(seq, "unit", None) is not None:
         seq = seq.in_unit(RIG_UNIT)
     try:
@@ -164,11 +185,12 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
         raise InputError(exc.reason, capture) from None
     fps = getattr(seq, "fps", None)
     known = fps is not None and np.isfinite(fps) and fps > 0
-    return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known), rig)
+    return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known), rig, notes)
 
 
 def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
-    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid motion, solve info."""
+    """The curves as ``.npz`` (atomically): weights (T,K), names, fps, frames, per-frame rigid motion (``units``:
+    cm), solve info."""
     s = solved.solve
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(
@@ -176,7 +198,7 @@ def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
             fps_known=np.bool_(solved.fps_known), frames=solved.sequence.frames,
             rotations=s.rotations, translations=s.translations, poses=s.poses, raw_weights=s.raw_weights,
             smoothing=s.smoothing, rms=s.rms, lost=s.lost, marker_names=np.array(solved.sequence.names),
-            vertex_ids=solved.vertex_ids, fitter=np.array(solved.fitter),
+            vertex_ids=solved.vertex_ids, fitter=np.array(solved.fitter), units=np.array(RIG_UNIT),
             source=np.array(str(solved.sequence.path)), time_s=np.float64(s.time_s))
     return path
 
@@ -192,15 +214,30 @@ def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
                          solved.solve.names, solved.solve.weights, solved.fps)
 
 
-def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
-    """The weights as a Live Link Face CSV take (the 52 ARKit shapes; see :func:`~facegeom.io.takes.ict_to_arkit`)."""
-    from facegeom.io.takes import ict_to_arkit, write_livelink_csv
+def arkit_map(solved: SolvedCapture) -> ShapeMap:
+    """The map from the solve's shapes to the 52 ARKit columns of a Live Link take (the rig's, see the notes above)."""
+    rig = solved.rig
+    if rig is not None and hasattr(rig, "map_to") and tuple(rig.names) == tuple(solved.solve.names):
+        return rig.map_to(ARKIT_NAMES)
+    return ShapeMap.between(ARKIT_NAMES, solved.solve.names)
 
-    W, names = ict_to_arkit(solved.solve.weights, solved.solve.names)
-    if not W.any() and solved.solve.weights.any():
-        raise InputError("none of the rig's shape names is an ICT/ARKit expression; a Live Link take "
-                         "cannot carry these weights (write .npz or .glb)", path)
-    return write_livelink_csv(path, W, names, solved.fps)
+
+def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
+    """The weights as a Live Link Face CSV take: the 52 ARKit columns from the rig's shapes (:func:`arkit_map`)."""
+    from facegeom.io.takes import write_livelink_csv
+
+    m = arkit_map(solved)
+    if m.is_empty:
+        raise InputError("none of the rig's shape names is an ICT or ARKit expression; a Live Link take cannot carry "
+                         "these weights (map them with names=MAP.csv, or write .npz or .glb)", path)
+    W = m.apply(solved.solve.weights)
+    if m.unmapped_rig:
+        solved.notes.append(f"{path.name}: ARKit columns no shape of the rig reaches, written as 0: "
+                            f"{', '.join(m.unmapped_rig)}")
+    if m.unmapped_source:
+        solved.notes.append(f"{path.name}: rig shapes a Live Link take has no column for (not written): "
+                            f"{', '.join(m.unmapped_source)}")
+    return write_livelink_csv(path, W, ARKIT_NAMES, solved.fps)
 
 
 CURVE_WRITERS = {
@@ -266,13 +303,16 @@ def take_fps(take) -> float:
     return float(1.0 / np.median(step)) if step.size else DEFAULT_FPS
 
 
-def _rig_columns(path: Path, rig, names) -> np.ndarray:
-    """Column of each rig shape in ``names`` (-1: absent); an error when no name matches."""
-    where = {str(n): k for k, n in enumerate(names)}
-    cols = np.array([where.get(str(n), -1) for n in rig.names])
-    if (cols < 0).all():
+def _onto_rig(path: Path, rig, names, W) -> np.ndarray:
+    """Weights ``W (T, len(names))`` named ``names`` as the rig's weights (``rig.map_from``); an error when no name
+    reaches a shape of the rig."""
+    try:
+        m = rig.map_from(names) if hasattr(rig, "map_from") else ShapeMap.between(rig.names, names)
+    except InputError as exc:
+        raise InputError(exc.reason, exc.path or path) from None
+    if m.is_empty:
         raise InputError("none of the curves' shape names is a shape of the rig", path)
-    return cols
+    return m.apply(W)
 
 
 def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
@@ -282,7 +322,8 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
     self-contained; ``rig`` is not used). ``.npz`` curves (``weights``, ``names``)
     and Live Link ``.csv`` takes carry weights only: they play on ``rig`` (a
     :class:`~facegeom.model.rig.BlendshapeRig`, or a callable returning one),
-    matched by shape name; rig shapes the file lacks stay at 0.
+    through ``rig.map_from`` (names matched across ICT, ARKit and the rig's
+    mapping file); rig shapes the file does not reach stay at 0.
 
     Raises
     ------
@@ -303,10 +344,10 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
                          "Live Link .csv take", path)
     rig = rig() if callable(rig) else rig
     if suffix == ".csv":
-        from facegeom.io.takes import ict_weights, read_take
+        from facegeom.io.takes import read_take
 
         take = read_take(path)
-        W = ict_weights(take, rig.names, clip=False)
+        W = _onto_rig(path, rig, take.names, take.weights)
         fps = take_fps(take)
         return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))
     try:
@@ -327,6 +368,5 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
         raise InputError("the weights contain NaN or inf", path)
     if not (np.isfinite(fps) and fps > 0):
         fps = DEFAULT_FPS
-    cols = _rig_columns(path, rig, names)
-    W = np.where(cols >= 0, Wf[:, np.maximum(cols, 0)], 0.0)
+    W = _onto_rig(path, rig, names, Wf)
     return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))

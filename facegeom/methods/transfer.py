@@ -1,0 +1,729 @@
+"""Expression transfer: a bare head mesh of any topology, units and orientation gets the ICT expressions.
+
+Two steps, :func:`register_head` then :func:`transfer_expressions`
+(:func:`transfer_head` runs both and returns a
+:class:`~facegeom.model.rig.BlendshapeRig` in the head's topology and units).
+
+Registration (the ICT face posed and shaped onto the head)
+----------------------------------------------------------
+1. **Units**: the power of ten that makes the head the size of the ICT
+   template (:func:`~facegeom.registration.units_factor`; a head and the
+   ICT face differ by less than 3x, units by powers of ten), or given.
+2. **Rigid + scale**: the generic face area posed on points sampled
+   uniformly on the head's surface from any orientation
+   (:func:`~facegeom.registration.align_rigid`: trimmed ICP from the 60
+   icosahedral rotations; no up axis assumed), or from the 68 landmarks when
+   given; then a few rounds of trimmed similarity ICP (template -> head only:
+   a head shows much more than a face) for the scale. The identity model
+   covers the sizes of real faces; only the part of the scale outside
+   ``[1 / SIZE_RANGE, SIZE_RANGE]`` is kept as a similarity (a child's or a
+   character's head), the rest is left to the identity fit (see
+   :data:`SIZE_RANGE`).
+3. **Identity**: :class:`~facegeom.methods.identity.IdentityFitter` (a
+   neutral target: ``expressions=False``; its trimmed ICP and annealing, pose
+   refined) on the sampled points brought into the model's frame, over the
+   whole template (every third vertex, not only the face area: the forehead,
+   temples, jaw line and neck pin where the eyes and brows sit), with the
+   head's points past the template's outline dropped (their closest template
+   vertex within :data:`BAND_CM` of its outer edge: they would pull the
+   outline outwards); the landmarks as a weighted vertex target when given.
+   Measured on remeshed ICT identities in mm, turned 30 degrees: vertex
+   correspondence error (template vertex -> the identity's same vertex)
+   median 0.7-0.9 mm over the face area; with the fitter's default face-area
+   region 3.2 mm (the face slid along the head: eyes 6 mm, brows 8 mm off).
+4. **Non-rigid refinement** beyond the identity space: a few rounds of
+   non-rigid ICP (each template vertex pulled to its closest point on the
+   head, ``igl.point_mesh_squared_distance``; pairs trimmed as outliers; a
+   membrane smoothness term on the displacement with the cotangent
+   Laplacian, ``igl.cotmatrix``; one sparse SPD solve per round; the
+   smoothing length :data:`NONRIGID_LENGTHS_CM` shrinking round after round).
+
+The fit is reported as the median and 95th percentile of the template ->
+head distance over the face area after each step (head units and mm).
+Refused with one line: an empty mesh, NaN/inf, a mesh that is not a head,
+judged after the identity fit (the non-rigid step can bend the face onto
+anything): its median distance above :data:`NOT_A_HEAD_MM`, or its identity
+coefficients' root mean square above :data:`IDENTITY_RMS_MAX` -- the
+identity space is rich enough to lay the face onto a sphere of head size
+within 1.1-1.2 mm (median), but only with coefficients of 3.5-3.7 standard
+deviations on average, against 1.33-1.34 for the remeshed ICT identities of
+the tests (their true rms about 1; the prior is N(0, 1)), and 5.9-6.2 mm
+against 1.1-1.2 mm for the generic face after the rigid step; no face
+area found (fewer than :data:`MIN_COVERED` of the face area's vertices
+within :data:`COVER_MM` of the head after the refinement).
+
+Transfer (two engines)
+----------------------
+Both carry the motion of the template's triangles that lie on the head
+(within :data:`COVER_MM`; ``region="template"``, the default: the whole ICT
+face mesh, whose neck and jaw line move with the jaw; ``region="face"``: the
+face area only, as first planned: 0.13-0.17 median relative error for
+``nearest`` against 0.09-0.10 with the whole template).
+
+- ``deformation`` (Sumner & Popovic 2004, deformation transfer; the
+  default): per template triangle the deformation gradient ``G`` of each
+  expression (the registered template -> template + the expression's delta;
+  the triangle's frame completed by its normal scaled by 1/sqrt of its
+  length), carried to the head's triangles through the registration (a head
+  triangle takes the gradient of the template triangle its centroid projects
+  to; triangles off the region take the identity), then for all shapes at
+  once the displacement ``U`` of the head minimising
+  ``sum_t area_t |grad_t U - (G_t - I) grad_t X|^2`` (``igl.grad``) plus an
+  anchor term holding the vertices far from the region (:data:`ANCHOR_CM`)
+  and a soft pull of every vertex towards the template's own motion at its
+  closest point (weight ``area / SOFT_CM^2``; ``soft_cm=None``: off); one
+  prefactorised matrix (:func:`~facegeom.linalg.factorize_spd`), 3 x 53
+  right-hand sides. The gradients give the shape of the motion on the head's
+  own geometry, the soft positions where it sits: pure gradients (integrated
+  from far anchors) drift over the head (median relative error 0.093-0.099
+  on the test heads), the soft positions alone are ``nearest`` (0.087-0.101),
+  both together 0.075-0.078 (``SOFT_CM`` 0.25-2 cm all within 0.003).
+- ``nearest`` (the common shortcut, the baseline): each head vertex copies
+  the delta of its closest point on the registered template (barycentric),
+  zero off the region.
+- ``tangent``: the tangent-framework deformer
+  (:class:`~facegeom.methods.tangent.TangentDeformer`) fitted on the head,
+  driven by ``nearest``'s motion at :data:`TANGENT_MARKERS` farthest points of
+  the region (and :data:`TANGENT_ANCHORS` still ones off it): median relative
+  error 0.196 with 300 markers, 0.103 with 1,000 (nearest 0.101; the eyelids
+  are lost between markers: eyeBlink 0.40-0.72). Kept as an option.
+
+Measured (``tests/test_transfer.py``'s head: ICT identity 3 remeshed to 9,645
+vertices, mm, turned 30 degrees; ``OPENBLAS_NUM_THREADS=1``): registration
+about 10 s (rigid 1.2 s, identity 8.6 s, non-rigid 0.5 s), face-area
+distance median 0.031 mm / 95 % 0.46 mm, vertex correspondence 0.89 mm median;
+median relative error / cosine per shape: ``deformation`` 0.075 / 0.997
+(1.5 s), ``nearest`` 0.101 / 0.995 (0.07 s). Identity 5: 0.078 against 0.087.
+With 68 landmarks (identity 3): correspondence 0.56 mm, 0.056 against
+0.067. A 57,807-vertex head: ``deformation`` 3.3 s for the 53 shapes.
+
+The deltas are in the head's units and frame (the ICT deltas, cm, turned and
+scaled by the registration's similarity and units).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from facegeom.constants import CM_TO_MM, FACE_AREA
+from facegeom.errors import InputError
+from facegeom.linalg import factorize_spd
+from facegeom.methods.identity import IdentityFitter
+from facegeom.model import BlendshapeRig, MeshTarget, PointCloudTarget
+from facegeom.native import quiet_native
+from facegeom.registration import align_rigid, kabsch, rms_radius, trim_outliers, units_factor
+
+__all__ = ["ENGINES", "REGIONS", "HeadRegistration", "TransferResult", "register_head", "transfer_expressions",
+           "transfer_head", "read_head_landmarks"]
+
+ENGINES = ("deformation", "nearest", "tangent")
+REGIONS = ("template", "face")  # the template triangles whose motion is carried (see "Transfer")
+UNITS = {"mm": 0.1, "cm": 1.0, "m": 100.0}  # head units -> cm (the model's units)
+HEAD_SAMPLES = 30000  # points sampled on the head's surface for the rigid and identity steps
+START_SCALES = (1.0, 0.8, 1.25)  # the rigid search's template sizes (the similarity ICP refines the best)
+RIGID_RETRY_MM = 3.0  # the next size is tried while the best pose's median distance (model mm) is above this
+SIMILARITY_ROUNDS = 20  # trimmed similarity ICP rounds at most (the scale)
+SIZE_RANGE = 1.15  # scales within [1/SIZE_RANGE, SIZE_RANGE] of the generic face are left to the identity modes
+NONRIGID_LENGTHS_CM = (2.0, 1.0, 0.5, 0.25, 0.12)  # non-rigid ICP: smoothing length per round (model cm)
+NOT_A_HEAD_MM = 5.0  # the identity fit's median face-area distance above this: not a head
+IDENTITY_RMS_MAX = 2.5  # the identity fit's coefficients (~ N(0, 1) for people) above this rms: not a head
+COVER_MM = 5.0  # a face-area vertex / head triangle within this of the other surface is on the face
+MIN_COVERED = 0.5  # at least this fraction of the face area must lie on the head
+ANCHOR_CM = 3.0  # deformation transfer: head vertices farther than this from the region's triangles are held
+TANGENT_MARKERS = 1000  # engine "tangent": markers on the face region (farthest points), their motion the template's
+TANGENT_ANCHORS = 60  # engine "tangent": markers held still off the region (farthest points)
+SOFT_CM = 1.0  # deformation transfer: the template's own motion as soft positions, weight area / SOFT_CM^2
+IDENTITY_STRIDE = 3  # the identity fit's data term: every third template vertex (as the fitter's own clouds)
+BAND_CM = 1.0  # head points whose closest template vertex is within this of the template's outline are dropped
+CROP_CM = 3.0  # head points farther than this from the rigidly posed template are dropped from the identity fit
+
+
+@dataclass
+class HeadRegistration:
+    """The ICT template registered onto a head mesh (what :func:`register_head` returns).
+
+    Attributes
+    ----------
+    head_vertices : (n, 3) float64
+        The head's vertices as given (its units and frame).
+    head_faces : (m, 3) int64
+        The head's triangles.
+    template : (N, 3) float64
+        The fitted ICT template (the model's topology, ``N`` = 9,409) in the
+        head's frame and units: identity fit, then the non-rigid refinement.
+    scale : float
+        The similarity's scale from the model's frame (cm) to the head's
+        units: ``head ~ scale * R x + t`` (includes the units).
+    R : (3, 3) float64
+    t : (3,) float64
+    units : float
+        Head units -> cm (``units_factor`` or the units given).
+    mm_per_unit : float
+        Millimetres per head unit.
+    identity : (I,) float64
+        The identity coefficients fitted.
+    report : dict
+        Per step (``units``, ``rigid``, ``identity``, ``nonrigid``) what was
+        found and the template -> head distances over the face area
+        (``median`` / ``p95`` in head units, ``median_mm`` / ``p95_mm``), the
+        times (``time_s``).
+    """
+
+    head_vertices: np.ndarray
+    head_faces: np.ndarray
+    template: np.ndarray
+    scale: float
+    R: np.ndarray
+    t: np.ndarray
+    units: float
+    mm_per_unit: float
+    identity: np.ndarray
+    report: dict = field(default_factory=dict)
+
+    def delta_in_head(self, deltas) -> np.ndarray:
+        """Model-frame deltas ``(..., 3)`` (cm) -> the head's frame and units (turned and scaled)."""
+        return self.scale * (np.asarray(deltas, dtype=np.float64) @ self.R.T)
+
+
+@dataclass
+class TransferResult:
+    """Deltas transferred onto a head (what :func:`transfer_expressions` returns).
+
+    Attributes
+    ----------
+    deltas : (K, n, 3) float64
+        Per expression the displacement of every head vertex, head units.
+    names : tuple of K str
+        The expressions' names (ICT / ARKit).
+    engine : str
+    time_s : float
+    info : dict
+        ``on_face`` (head vertices or triangles that took the face's motion), ``anchored`` (vertices).
+    """
+
+    deltas: np.ndarray
+    names: tuple
+    engine: str
+    time_s: float
+    info: dict = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _check_mesh(V, F, path):
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] < 3:
+        raise InputError(f"the head mesh has no vertices to register (shape {V.shape})", path)
+    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0:
+        raise InputError(f"the head mesh has no triangles (shape {F.shape})", path)
+    if not np.isfinite(V).all():
+        raise InputError("the head mesh has NaN or inf coordinates", path)
+    if not np.issubdtype(F.dtype, np.integer) or F.min() < 0 or F.max() >= V.shape[0]:
+        raise InputError("the head mesh's triangles index past its vertices", path)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    area = 0.5 * igl.doublearea(V, F)
+    if not (area > 0).any():
+        raise InputError("the head mesh has no triangle of positive area", path)
+    return V, F
+
+
+def sample_surface(V, F, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` points uniformly distributed over the area of the mesh ``(V (n,3), F (m,3))`` -> ``(count, 3)``."""
+    rng = np.random.default_rng(seed)
+    a = igl.doublearea(V, F)
+    tri = rng.choice(F.shape[0], size=count, p=a / a.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    b = np.c_[1.0 - s, s * (1.0 - r2), s * r2]
+    return np.einsum("ij,ijk->ik", b, V[F[tri]])
+
+
+def _similarity(P, Q, weights=None):
+    """Umeyama: ``s, R, t`` minimising ``sum w ||s R P + t - Q||^2``."""
+    w = np.ones(len(P)) if weights is None else weights
+    w = w / w.sum()
+    mp, mq = w @ P, w @ Q
+    Pc, Qc = P - mp, Q - mq
+    R, _ = kabsch(Pc, Qc, w)
+    s = float((w * ((Pc @ R.T) * Qc).sum(axis=1)).sum() / max((w * (Pc * Pc).sum(axis=1)).sum(), 1e-300))
+    return s, R, mq - s * R @ mp
+
+
+def _similarity_icp(X, tree, points, s, R, t, rounds=SIMILARITY_ROUNDS, landmarks=None):
+    """Trimmed template -> points similarity ICP from ``s, R, t``; optional ``(template ids, positions)`` pairs."""
+    for _ in range(rounds):
+        Y = s * X @ R.T + t
+        d, j = tree.query(Y)
+        ok = trim_outliers(d)
+        P, Q = X[ok], points[j[ok]]
+        wts = np.ones(len(P))
+        if landmarks is not None:  # the landmarks weigh as much as the surface pairs
+            P = np.r_[P, landmarks[0]]
+            Q = np.r_[Q, landmarks[1]]
+            wts = np.r_[wts, np.full(len(landmarks[0]), len(wts) / len(landmarks[0]))]
+        s1, R1, t1 = _similarity(P, Q, wts)
+        step = abs(s1 - s) / s + float(np.abs(R1 - R).max())
+        s, R, t = s1, R1, t1
+        if step < 1e-6:
+            break
+    return s, R, t
+
+
+def _distances(points, V, F):
+    """Distance of each point to the surface ``(V, F)`` -> ``(d (p,), closest triangle (p,), closest point (p, 3))``."""
+    with quiet_native():
+        d2, tri, C = igl.point_mesh_squared_distance(np.ascontiguousarray(points, dtype=np.float64), V, F)
+    return np.sqrt(np.maximum(d2, 0.0)), tri, C
+
+
+def _stats(d, mm_per_unit):
+    med, p95 = float(np.median(d)), float(np.percentile(d, 95))
+    return {"median": med, "p95": p95, "median_mm": med * mm_per_unit, "p95_mm": p95 * mm_per_unit}
+
+
+def read_head_landmarks(path, n_vertices: int) -> np.ndarray:
+    """A ``landmark,vertex_id`` CSV (iBUG 0-67 -> head vertex id) -> ``(68,)`` int64, -1 where not given.
+
+    Raises
+    ------
+    InputError
+        No ``landmark`` column, a landmark not an integer in ``[0, 68)`` or
+        repeated, a vertex id out of range, fewer than 4 landmarks. The
+        message names the file.
+    """
+    from facegeom.io.vertex_csv import read_vertex_csv
+
+    csv = read_vertex_csv(path, n_vertices)
+    header = [h.lower() for h in csv.header]
+    if "landmark" not in header:
+        raise InputError("a landmark file needs the header landmark,vertex_id", path)
+    col = header.index("landmark")
+    out = np.full(68, -1, dtype=np.int64)
+    for row, line, vid in zip(csv.rows, csv.lines, csv.ids):
+        try:
+            k = int(row[col])
+        except ValueError:
+            raise InputError(f"line {line}: landmark {row[col]!r} is not an integer", path) from None
+        if not 0 <= k < 68:
+            raise InputError(f"line {line}: landmark {k} is out of range [0, 68)", path)
+        if out[k] >= 0:
+            raise InputError(f"line {line}: landmark {k} is repeated", path)
+        out[k] = vid
+    if np.count_nonzero(out >= 0) < 4:
+        raise InputError("at least 4 landmarks are needed", path)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- registration
+_BANDS: dict = {}
+
+
+def _template_band(model) -> np.ndarray:
+    """The template's vertices within ``BAND_CM`` (along edges) of its outer edge (the longest boundary loop).
+
+    Head points whose closest template vertex is in this band lie past the
+    template's outline (scalp, back of the head, neck): left out of the
+    identity fit, whose scan -> face pairs would otherwise pull the outline
+    outwards (see "Head scans" in :mod:`facegeom.methods.identity`). The eye
+    and mouth openings are kept: their points tell where the eyes and lips are.
+    """
+    key = id(model)
+    if key not in _BANDS:
+        from scipy.sparse.csgraph import dijkstra
+
+        V = np.asarray(model.neutral, dtype=np.float64)
+        T = np.asarray(model.triangles, dtype=np.int64)
+        loops = igl.boundary_loop_all(T)
+        outer = np.asarray(max(loops, key=len), dtype=np.int64)
+        E = np.r_[T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]
+        w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+        graph = sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(len(V), len(V))).tocsr()
+        d = dijkstra(graph, directed=False, indices=outer, min_only=True, limit=BAND_CM)
+        _BANDS.clear()
+        _BANDS[key] = np.isfinite(d)
+    return _BANDS[key]
+
+
+def _nonrigid(Y, T, VH, FH, face, lengths, mm_per_y):
+    """Non-rigid ICP of the template ``Y (N,3)`` (triangles ``T``) onto the head ``(VH, FH)`` (same frame).
+
+    Data: face-area vertices ``face`` pulled to their closest head points,
+    weighted by their Voronoi area, outliers trimmed; smoothness: the
+    membrane energy of the displacement, ``l^2 U' K U`` (``K`` the negated
+    cotangent Laplacian of the template, ``l`` the round's length), over
+    every template vertex.
+    """
+    n = Y.shape[0]
+    K = -igl.cotmatrix(Y, T)
+    M = igl.massmatrix(Y, T, igl.MASSMATRIX_TYPE_VORONOI).diagonal()
+    eps = 1e-8 * float(M.mean())
+    X = Y.copy()
+    for ell in lengths:
+        d, _, C = _distances(X[face], VH, FH)
+        keep = trim_outliers(d) & (d * mm_per_y <= 4 * COVER_MM)
+        w = np.zeros(n)
+        w[face[keep]] = M[face[keep]]
+        target = np.zeros((n, 3))
+        target[face[keep]] = C[keep] - Y[face[keep]]  # the displacement from the identity fit that reaches the head
+        A = sp.diags(w + eps) + (ell * ell) * K
+        U = factorize_spd(A).solve(w[:, None] * target)
+        X = Y + U
+    return X
+
+
+def register_head(model, V, F, *, landmarks=None, units="auto", path=None, samples: int = HEAD_SAMPLES,
+                  fitter_params=None, progress=None) -> HeadRegistration:
+    """Register the ICT face onto the head mesh ``(V (n,3), F (m,3))`` in any units and orientation.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The ICT face model (cm).
+    V, F : arrays
+        The head's vertices (its units) and triangles.
+    landmarks : (68,) int array or None
+        Head vertex id per iBUG landmark, -1 where unknown
+        (:func:`read_head_landmarks`); used in the rigid and identity steps.
+    units : "auto", "mm", "cm" or "m"
+        The head's units (auto: the power of ten that makes it face-sized).
+    path : str or PathLike, optional
+        The head's file: named in the errors.
+    samples : int
+        Points sampled on the head's surface for the rigid and identity steps.
+    fitter_params : dict, optional
+        Extra :class:`~facegeom.methods.identity.IdentityFitter` parameters.
+    progress : callable(str), optional
+        Called with one line per step.
+
+    Returns
+    -------
+    HeadRegistration
+
+    Raises
+    ------
+    InputError
+        An empty mesh, NaN/inf, unknown units, landmarks of another mesh, a
+        mesh that is not a head, no face area found on it.
+    """
+    say = progress or (lambda line: None)
+    V, F = _check_mesh(V, F, path)
+    report: dict = {}
+    t_all = time.perf_counter()
+    N = model.n_vertices
+    face = np.arange(min(FACE_AREA, N))
+    T = np.asarray(model.triangles, dtype=np.int64)
+    # 1. units
+    if units == "auto":
+        su = units_factor(V, model.neutral)
+    elif units in UNITS:
+        su = UNITS[units]
+    else:
+        raise InputError(f"units must be auto, mm, cm or m, got {units!r}")
+    mm_per_unit = CM_TO_MM * su
+    names = {0.1: "mm", 1.0: "cm", 100.0: "m"}
+    report["units"] = {"to_cm": su, "name": names.get(su, f"x{su:g} cm"), "given": units != "auto"}
+    say(f"units: {report['units']['name']} ({'given' if units != 'auto' else 'found'}; x{su:g} to cm)")
+    Xc = V * su  # the head in cm
+    P = sample_surface(Xc, F, samples)
+    lm = None
+    if landmarks is not None:
+        lm_ids = np.asarray(landmarks, dtype=np.int64)
+        if lm_ids.shape != (68,) or lm_ids.max() >= V.shape[0]:
+            raise InputError("the landmarks must be 68 head vertex ids (-1 where unknown)", path)
+        known = np.flatnonzero(lm_ids >= 0)
+        lm = (known, Xc[lm_ids[known]])  # iBUG index, head position (cm)
+    # 2. rigid + scale
+    t0 = time.perf_counter()
+    G = np.asarray(model.neutral, dtype=np.float64)
+    tree = cKDTree(P)
+    if lm is not None:
+        s, R, t = _similarity(G[model.landmarks[lm[0]]], lm[1])
+        lm_pairs = (G[model.landmarks[lm[0]]], lm[1])
+        s, R, t = _similarity_icp(G[face][::2], tree, P, s, R, t, landmarks=lm_pairs)
+    else:  # the global search at a few sizes (it poses a rigid face: a head 1.3x the face misled it: 6.5 mm
+        # median after the similarity ICP, against 1.1-1.2 mm for faces of ordinary size), best kept
+        lm_pairs = None
+        best = None
+        for s0 in START_SCALES:
+            if best is not None and best[0] * CM_TO_MM <= RIGID_RETRY_MM:
+                break  # the face's size was near enough: no other size tried
+            found = align_rigid(s0 * G[face], P)
+            s1, R1, t1 = _similarity_icp(G[face][::2], tree, P, s0, found.R, found.t)
+            d, _ = tree.query(s1 * G[face][::4] @ R1.T + t1)
+            score = float(np.median(d)) / s1
+            if best is None or score < best[0]:
+                best = (score, s1, R1, t1)
+        _, s, R, t = best
+    if not (np.isfinite(s) and s > 0):
+        raise InputError("the rigid registration failed (no scale found): is it a head mesh?", path)
+    s_pre = s / min(max(s, 1.0 / SIZE_RANGE), SIZE_RANGE)  # the scale the identity modes cannot explain
+    d, _, _ = _distances(s * G[face] @ R.T + t, Xc, F)
+    report["rigid"] = {"scale": s, "similarity_scale": s_pre, "time_s": time.perf_counter() - t0,
+                       **_stats(d / su, mm_per_unit)}
+    say(f"rigid fit: scale {s:.3f} of the generic face; face-area distance median "
+        f"{report['rigid']['median_mm']:.2f} mm, 95% {report['rigid']['p95_mm']:.2f} mm "
+        f"({report['rigid']['time_s']:.1f} s)")
+    # 3. identity, in the model frame (the points brought there by the similarity's inverse, scale s_pre), on
+    # the whole template (every third vertex), from the head's points over the template but off its open edges
+    t0 = time.perf_counter()
+    to_model = lambda X: ((X - t) @ R) / s_pre  # noqa: E731 - the head (cm) -> the pre-scaled model frame
+    Pm = to_model(P)
+    d_t, v_t = cKDTree(G * (s / s_pre)).query(Pm)
+    band = _template_band(model)
+    Pm = Pm[(~band[v_t]) & (d_t <= CROP_CM)]
+    if Pm.shape[0] < 100:
+        raise InputError("no face found on the mesh: too few of its points lie near the face model after the rigid "
+                         "fit", path)
+    targets = [PointCloudTarget(Pm)]
+    if lm is not None:
+        wts = np.zeros(N)
+        pos = np.zeros((N, 3))
+        ids = model.landmarks[lm[0]]
+        wts[ids] = 1.0
+        pos[ids] = to_model(lm[1])
+        pos[wts == 0] = G[wts == 0]
+        targets.append(MeshTarget(pos, wts))
+    params = {"expressions": False, "region": np.arange(0, N, IDENTITY_STRIDE), **(fitter_params or {})}
+    fit = IdentityFitter(**params).fit(model, targets)
+    Rf, tf = fit.rotations[0], fit.translations[0]
+    Y = fit.vertices(0)  # the identity's neutral, model frame
+    # head ~ s_pre R (Rf y + tf) + t  (cm)  -> head units: / su
+    Rt = R @ Rf
+    scale_cm = s_pre
+    tt = s_pre * R @ tf + t
+    H_y = ((Xc - tt) @ Rt) / scale_cm  # the head in the fitted face's frame (model cm, pre-scaled)
+    mm_per_y = CM_TO_MM * scale_cm
+    d, _, _ = _distances(Y[face], H_y, F)
+    report["identity"] = {"rms_mm": float(np.asarray(fit.info["rms"]).ravel()[0]), "rounds": fit.info["rounds"],
+                          "time_s": time.perf_counter() - t0, **_stats(d * scale_cm / su, mm_per_unit)}
+    say(f"identity fit: face-area distance median {report['identity']['median_mm']:.2f} mm, 95% "
+        f"{report['identity']['p95_mm']:.2f} mm ({report['identity']['time_s']:.1f} s)")
+    id_rms = float(np.sqrt(np.mean(np.asarray(fit.identity, dtype=np.float64) ** 2)))
+    report["identity"]["coefficient_rms"] = id_rms
+    if not report["identity"]["median_mm"] <= NOT_A_HEAD_MM:
+        raise InputError(f"not a head: the face model's surface lies {report['identity']['median_mm']:.1f} mm "
+                         f"(median) from the mesh after the fit (a head: about 0.3 mm; at most {NOT_A_HEAD_MM:g})",
+                         path)
+    if not id_rms <= IDENTITY_RMS_MAX:
+        raise InputError(f"not a head: the face model fits the mesh only far outside the faces it knows (identity "
+                         f"coefficients {id_rms:.1f} standard deviations on average; a head: about 1.3; at most "
+                         f"{IDENTITY_RMS_MAX:g})", path)
+    # 4. non-rigid refinement: every template vertex pulled to the head (trimmed), a membrane term between
+    t0 = time.perf_counter()
+    X = _nonrigid(Y, T, H_y, F, np.arange(N), tuple(ell / scale_cm for ell in NONRIGID_LENGTHS_CM), mm_per_y)
+    d, _, _ = _distances(X[face], H_y, F)
+    covered = float(np.mean(d * mm_per_y <= COVER_MM))
+    report["nonrigid"] = {"time_s": time.perf_counter() - t0, "covered": covered,
+                          **_stats(d * scale_cm / su, mm_per_unit)}
+    say(f"non-rigid fit: face-area distance median {report['nonrigid']['median_mm']:.3f} mm, 95% "
+        f"{report['nonrigid']['p95_mm']:.3f} mm, {100 * covered:.0f}% of the face on the mesh "
+        f"({report['nonrigid']['time_s']:.1f} s)")
+    if covered < MIN_COVERED or not np.isfinite(X).all():
+        raise InputError(f"no face area found: only {100 * covered:.0f}% of the face model lies within "
+                         f"{COVER_MM:g} mm of the mesh", path)
+    report["time_s"] = time.perf_counter() - t_all
+    scale = scale_cm / su
+    return HeadRegistration(V, F, (X @ Rt.T * scale_cm + tt) / su, scale, Rt, tt / su, su, mm_per_unit,
+                            fit.identity, report)
+
+
+# ---------------------------------------------------------------------------------------------- transfer
+def _frames(A, B, C):
+    """Per triangle ``[e1 e2 n]`` (columns; ``n`` the normal scaled by 1/sqrt of its length, Sumner's 4th vertex)."""
+    e1, e2 = B - A, C - A
+    n = np.cross(e1, e2)
+    n = n / np.sqrt(np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300))
+    return np.stack([e1, e2, n], axis=-1)
+
+
+def _face_triangles(model):
+    T = np.asarray(model.triangles, dtype=np.int64)
+    return (T < FACE_AREA).all(axis=1)
+
+
+def _on_face(reg: HeadRegistration, model, points, region="face"):
+    """Closest template triangle of each point and whether it lies on the region within ``COVER_MM``.
+
+    ``region``: ``"face"`` (the face area) or ``"template"`` (every template triangle).
+    """
+    T = np.asarray(model.triangles, dtype=np.int64)
+    d, tri, C = _distances(points, reg.template, T)
+    on = d * reg.mm_per_unit <= COVER_MM
+    if region == "face":
+        on &= _face_triangles(model)[tri]
+    return tri, C, on
+
+
+def transfer_expressions(model, reg: HeadRegistration, engine: str = "deformation", region: str = "template",
+                         soft_cm: float | None = SOFT_CM) -> TransferResult:
+    """Every expression of ``model`` carried onto the head of ``reg`` -> :class:`TransferResult`.
+
+    Parameters
+    ----------
+    model : FaceModel
+        The model registered (its expression deltas, cm).
+    reg : HeadRegistration
+        From :func:`register_head`.
+    engine : "deformation", "nearest" or "tangent"
+        See the module docstring.
+    region : "template" or "face"
+        The template triangles whose motion is carried: every one that lies
+        on the head (within ``COVER_MM``), or the face area's only.
+    soft_cm : float or None
+        ``deformation``: the soft pull towards the template's own motion,
+        weight ``area / soft_cm^2`` (``soft_cm`` in model cm); None: pure
+        gradients anchored far from the region.
+
+    Returns
+    -------
+    TransferResult
+        Deltas ``(K, n, 3)`` in the head's units and frame.
+
+    Raises
+    ------
+    InputError
+        An unknown engine or region, a soft_cm that is not a positive number.
+    """
+    if engine not in ENGINES:
+        raise InputError(f"unknown transfer engine {engine!r}; use one of {', '.join(ENGINES)}")
+    if region not in REGIONS:
+        raise InputError(f"unknown region {region!r}; use one of {', '.join(REGIONS)}")
+    if soft_cm is not None and not (isinstance(soft_cm, (int, float)) and np.isfinite(soft_cm) and soft_cm > 0):
+        raise InputError(f"soft_cm must be a positive number or None, got {soft_cm!r}")
+    t0 = time.perf_counter()
+    Dm = np.asarray(model.expression_deltas, dtype=np.float64)
+    Dh = reg.delta_in_head(Dm)  # (K, N, 3) head units and frame
+    V, F = reg.head_vertices, reg.head_faces
+    T = np.asarray(model.triangles, dtype=np.int64)
+    if engine == "nearest":
+        tri, C, on = _on_face(reg, model, V, region)
+        S = reg.template
+        with quiet_native():
+            b = igl.barycentric_coordinates(C, S[T[tri, 0]], S[T[tri, 1]], S[T[tri, 2]])
+        b = np.where(np.isfinite(b), b, 1.0 / 3.0)
+        out = np.einsum("vj,kvjc->kvc", b, Dh[:, T[tri]]) * on[None, :, None]
+        return TransferResult(out, tuple(model.expression_names), engine, time.perf_counter() - t0,
+                              {"on_face": int(on.sum())})
+    if engine == "tangent":
+        return _tangent(model, reg, region, t0)
+    # deformation transfer
+    cent = V[F].mean(axis=1)
+    tri, _, on = _on_face(reg, model, cent, region)
+    S = reg.template
+    used = np.unique(tri[on])
+    A0 = _frames(S[T[used, 0]], S[T[used, 1]], S[T[used, 2]])  # (u, 3, 3)
+    inv = np.linalg.inv(A0)
+    Sd = S[None] + Dh  # (K, N, 3)
+    A1 = _frames(Sd[:, T[used, 0]], Sd[:, T[used, 1]], Sd[:, T[used, 2]])  # (K, u, 3, 3)
+    Gm = A1 @ inv[None] - np.eye(3)  # (K, u, 3, 3): G - I
+    slot = np.full(T.shape[0], -1)
+    slot[used] = np.arange(used.size)
+    m, n, K = F.shape[0], V.shape[0], Dm.shape[0]
+    area = 0.5 * igl.doublearea(V, F)
+    good = area > 1e-12 * max(float(area.max()), 1e-300)
+    with quiet_native():
+        Gr = sp.csr_matrix(igl.grad(V, F))  # (3m, n): rows x of all faces, then y, then z
+    Gr.data[~np.isfinite(Gr.data)] = 0.0
+    keep = np.tile(good, 3).astype(np.float64)
+    Gr = sp.diags(keep) @ Gr
+    J = (Gr @ V).reshape(3, m, 3).transpose(1, 2, 0)  # J[t, c, :] = gradient of coordinate c on face t
+    rows = np.flatnonzero(on & good)
+    # right-hand sides B[:, 3k + c] = Gr' Mf vec_d(sum_e (G_k - I)[c, e] J[:, e, d]) for every shape k and
+    # coordinate c, gathered on the template's triangles: B = sum_e H_e S (G - I)[:, :, :, e] with
+    # H_e = sum_d Gr_d' diag(area J[:, e, d]) (head faces) and S picking each face's template triangle
+    W = np.tile(area * good, 3)
+    GrT = Gr.T.tocsr()
+    src = slot[tri[rows]]
+    S = sp.csr_matrix((np.ones(rows.size), (np.arange(rows.size), src)), shape=(rows.size, used.size))
+    GrT_d = [GrT[:, d * m + rows] for d in range(3)]
+    B = np.zeros((n, 3 * K))
+    for e in range(3):
+        H = sum(GrT_d[d] @ sp.diags(area[rows] * J[rows, e, d]) for d in range(3))
+        B += (H @ S) @ Gm[..., e].transpose(1, 0, 2).reshape(used.size, 3 * K)
+    L = (Gr.T @ sp.diags(W) @ Gr).tocsr()
+    # anchors: head vertices far from the face's triangles (their motion is none)
+    face_v = np.unique(F[rows])
+    size = rms_radius(V)
+    Mv = np.zeros(n)
+    np.add.at(Mv, F.ravel(), np.repeat(area / 3.0, 3))
+    if face_v.size:
+        dist, _ = cKDTree(V[face_v]).query(V)
+        far = dist * reg.mm_per_unit > ANCHOR_CM * CM_TO_MM
+    else:
+        far = np.ones(n, dtype=bool)
+    anchor = np.zeros(n)
+    target = np.zeros((n, 3 * K))
+    if far.any():
+        anchor[far] = Mv[far] / size ** 2
+    if soft_cm or not far.any():  # the template's motion at the closest points, softly (see SOFT_CM)
+        near = transfer_expressions(model, reg, "nearest", region).deltas  # (K, n, 3)
+        w_soft = Mv / (soft_cm * reg.scale) ** 2 if soft_cm else 1e-2 * Mv / size ** 2
+        target = near.transpose(1, 0, 2).reshape(n, 3 * K) * (w_soft / np.maximum(anchor + w_soft, 1e-300))[:, None]
+        anchor = anchor + w_soft
+    eps = 1e-9 * float(Mv.mean()) / size ** 2
+    A = L + sp.diags(anchor + eps)
+    Usol = factorize_spd(A).solve(B + anchor[:, None] * target)  # (n, 3K), column (k, c)
+    out = Usol.reshape(n, K, 3).transpose(1, 0, 2)
+    return TransferResult(np.ascontiguousarray(out), tuple(model.expression_names), engine,
+                          time.perf_counter() - t0, {"on_face": int(rows.size), "anchored": int(far.sum())})
+
+
+def _farthest(X, candidates, count, start=None):
+    """``count`` of the ``candidates`` rows of ``X`` by Euclidean farthest-point sampling -> ids into ``X``."""
+    if candidates.size == 0 or count <= 0:
+        return np.zeros(0, dtype=np.int64)
+    P = X[candidates]
+    d = np.full(len(P), np.inf) if start is None else cKDTree(start).query(P)[0]
+    out = []
+    j = int(np.argmax(np.linalg.norm(P - P.mean(axis=0), axis=1))) if start is None else int(np.argmax(d))
+    for _ in range(min(count, len(P))):
+        out.append(j)
+        d = np.minimum(d, np.linalg.norm(P - P[j], axis=1))
+        j = int(np.argmax(d))
+    return candidates[np.array(out, dtype=np.int64)]
+
+
+def _tangent(model, reg: HeadRegistration, region, t0) -> TransferResult:
+    """Engine ``tangent``: the tangent-framework deformer on the head, driven by the template's motion at markers.
+
+    ``TANGENT_MARKERS`` farthest points among the head vertices on the region
+    (their displacement: the ``nearest`` engine's), ``TANGENT_ANCHORS``
+    farthest points off it held still; the head is brought to the model's
+    size (cm) for the deformer's defaults, and back.
+    """
+    from facegeom.methods.tangent import TangentDeformer
+
+    V, F = reg.head_vertices, reg.head_faces
+    near = transfer_expressions(model, reg, "nearest", region).deltas
+    _, _, on = _on_face(reg, model, V, region)
+    Vc = V / reg.scale
+    markers = _farthest(Vc, np.flatnonzero(on), TANGENT_MARKERS)
+    anchors = _farthest(Vc, np.flatnonzero(~on), TANGENT_ANCHORS, start=Vc[markers])
+    handles = np.r_[markers, anchors]
+    deformer = TangentDeformer().fit(Vc, F, handles)
+    pos = Vc[handles][None] + near[:, handles] / reg.scale  # anchors: zero motion (off the region)
+    out = (deformer.deform_many(pos) - Vc[None]) * reg.scale
+    return TransferResult(out, tuple(model.expression_names), "tangent", time.perf_counter() - t0,
+                          {"markers": int(markers.size), "anchors": int(anchors.size)})
+
+
+def transfer_head(model, V, F, *, engine: str = "deformation", landmarks=None, units="auto", path=None,
+                  progress=None) -> tuple[BlendshapeRig, HeadRegistration, TransferResult]:
+    """Register the head ``(V, F)`` and transfer every expression -> ``(rig, registration, transfer)``.
+
+    The rig has the head's vertices, triangles and units; its deltas are the
+    transferred expressions (:func:`register_head`, :func:`transfer_expressions`).
+    """
+    say = progress or (lambda line: None)
+    if engine not in ENGINES:
+        raise InputError(f"unknown transfer engine {engine!r}; use one of {', '.join(ENGINES)}")
+    reg = register_head(model, V, F, landmarks=landmarks, units=units, path=path, progress=progress)
+    res = transfer_expressions(model, reg, engine)
+    say(f"transfer ({engine}): {len(res.names)} shapes onto {V.shape[0]} vertices in {res.time_s:.2f} s")
+    rig = BlendshapeRig(reg.head_vertices, res.deltas, res.names, reg.head_faces)
+    return rig, reg, res
