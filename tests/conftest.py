@@ -86,6 +86,24 @@ def face_mesh(face_model):
     return face_model.neutral.copy(), face_model.triangles.copy()
 
 
+@pytest.fixture(scope="module")
+def headless():
+    """Polyscope started headless (EGL on Mesa's software renderer) -> the backend name; skips where it cannot
+    start, or only the mock backend (black images) is there; the scene is emptied after the module."""
+    ps = pytest.importorskip("polyscope")
+    from facegeom.viewer.app import init_polyscope
+
+    try:
+        backend = init_polyscope(headless=True)
+    except Exception as exc:  # noqa: BLE001
+        pytest.skip(f"headless rendering unavailable here (polyscope could not start EGL): {exc}")
+    if backend == "openGL_mock":
+        pytest.skip("only polyscope's mock backend is available: images would be black")
+    yield backend
+    ps.clear_user_callback()
+    ps.remove_all_structures()
+
+
 def two_grids():
     """Two disjoint bumped 5x5 grids (vertices 0-24 and 25-49): a mesh with two components."""
     V1, F1 = grid_mesh(5, 5, bump=0.2)

@@ -169,27 +169,11 @@ def test_demo_ends_with_where_its_results_are(tmp_path, monkeypatch, face_model)
 # --------------------------------------------------------------------------- viewer: one colour scale
 
 
-@pytest.fixture(scope="module")
-def headless():
-    ps = pytest.importorskip("polyscope")
-    from facegeom.viewer.app import init_polyscope
-
-    try:
-        backend = init_polyscope(headless=True)
-    except Exception as exc:  # noqa: BLE001
-        pytest.skip(f"headless rendering unavailable here (polyscope could not start EGL): {exc}")
-    if backend == "openGL_mock":
-        pytest.skip("only polyscope's mock backend is available")
-    yield ps
-    ps.clear_user_callback()
-    ps.remove_all_structures()
-
-
 def test_retarget_view_slider_and_colour_bar_show_the_same_maximum(headless, face_model):
     from facegeom.viewer.app import COLOR_MAX_LABEL
     from facegeom.viewer.playback import RetargetView, load_sequence
 
-    ps = headless
+    ps = pytest.importorskip("polyscope")
     ps.remove_all_structures()
     seq = load_sequence(face_model, synthetic=True, frames=40, seed=3)
     v = RetargetView(face_model, seq, "copy;rbf;tangent", labels=5)

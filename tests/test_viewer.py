@@ -19,21 +19,6 @@ from facegeom.errors import InputError  # noqa: E402
 from facegeom.viewer.app import NO_DISPLAY, check_display, display_available  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def headless():
-    from facegeom.viewer.app import init_polyscope
-
-    try:
-        backend = init_polyscope(headless=True)
-    except Exception as exc:  # noqa: BLE001
-        pytest.skip(f"headless rendering unavailable here (polyscope could not start EGL): {exc}")
-    if backend == "openGL_mock":
-        pytest.skip("only polyscope's mock backend is available: images would be black")
-    yield backend
-    ps.clear_user_callback()
-    ps.remove_all_structures()
-
-
 @pytest.fixture
 def scene(headless):
     ps.remove_all_structures()
