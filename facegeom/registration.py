@@ -13,6 +13,11 @@ finds a pose within ~30-45 degrees of its start, so:
   them, inside the ICP's basin, measured below), a few rounds each on
   sub-samples, then the best starts refined; the pose with the smallest
   trimmed template -> scan distance wins;
+- :func:`align_on_surface` -- the same question when the scan shows much more
+  than the template (a face template on a whole head, scalp and neck
+  included): the starts are placed *on* the scan's surface, facing outwards,
+  and the ICP pairs template -> scan only (see its docstring for why
+  :func:`align_rigid` fails there);
 - :func:`icp_rigid` -- trimmed symmetric ICP (template -> closest scan point and
   scan -> closest template point; pairs farther than the median plus
   ``TRIM_MADS`` scaled MADs dropped, :func:`trim_outliers`), the local step;
@@ -35,7 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
 
-__all__ = ["RigidAlignment", "align_rigid", "icp_rigid", "kabsch", "rms_radius", "trim_outliers", "units_factor"]
+__all__ = ["RigidAlignment", "align_on_surface", "align_rigid", "icp_rigid", "kabsch", "rms_radius", "trim_outliers", "units_factor"]
 
 TRIM_MADS = 3.0  # pairs farther than median + this many scaled MADs are outliers
 COARSE_TEMPLATE = 250  # global search: template points per start
@@ -46,6 +51,10 @@ REFINE_STARTS = 3  # global search: the best starts refined
 REFINE_TEMPLATE = 1200  # refinement: template points
 REFINE_SCAN = 2000  # refinement: scan points of the scan -> template direction
 REFINE_ROUNDS = 40  # refinement: ICP rounds at most
+SURFACE_DIRECTIONS = 80  # align_on_surface: the template's facing directions tried (a Fibonacci sphere)
+SURFACE_ROLLS = 12  # align_on_surface: turns about each direction (30 degrees apart)
+SURFACE_ICP_STARTS = 120  # align_on_surface: the best placements by their score that get a coarse ICP
+SURFACE_REFINE = 10  # align_on_surface: the best coarse poses refined
 KEEP_FRACTION = 0.75  # the score: mean of the smallest 75 % of template -> scan distances
 UNIT_POWERS = tuple(range(-6, 7))  # units_factor: 1e-6 ... 1e6
 
@@ -196,6 +205,93 @@ def align_rigid(template, points) -> RigidAlignment:
     others = [s for s, R, _ in refined[1:] + starts[REFINE_STARTS:]
               if Rotation.from_matrix(R.T @ best[1]).magnitude() > np.radians(20.0)]
     return RigidAlignment(best[1], best[2], best[0], min(others, default=float("inf")))
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` nearly evenly spread unit vectors ``(n, 3)``."""
+    i = np.arange(n) + 0.5
+    polar = np.arccos(1.0 - 2.0 * i / n)
+    azimuth = np.pi * (1.0 + 5.0 ** 0.5) * i
+    return np.c_[np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)]
+
+
+def _turn_z_to(d: np.ndarray) -> np.ndarray:
+    """The shortest rotation taking +z to the unit vector ``d``."""
+    axis = np.cross([0.0, 0.0, 1.0], d)
+    s, c = float(np.linalg.norm(axis)), float(d[2])
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def align_on_surface(template, points, facing=(0.0, 0.0, 1.0)) -> RigidAlignment:
+    """Pose ``template (m,3)`` -- one side of an object, facing ``facing`` -- on a scan showing all of it.
+
+    A face template on a whole head (scalp, ears, neck): :func:`align_rigid`
+    starts each rotation at the scan's centroid, inside the head, and its
+    symmetric pairs (the head's many points beyond the face pull the face
+    towards them) settle the face on a cheek or the scalp -- measured on a
+    MakeHuman head (CC0) under 8 random rotations: 75-178 degrees off, every
+    time. Here each start is a facing direction (:data:`SURFACE_DIRECTIONS`
+    on a Fibonacci sphere) times a turn about it (:data:`SURFACE_ROLLS`), the
+    template moved out along that direction until its foremost point meets the
+    scan's farthest extent there (the face on the head's surface, looking
+    out); the placements are scored as they stand (the mean of the smallest
+    75 % of template -> scan distances), the :data:`SURFACE_ICP_STARTS` best
+    get a coarse ICP and the :data:`SURFACE_REFINE` best of those a full one,
+    template -> scan pairs only (:func:`icp_rigid` with ``both=False``). On
+    the same head under 24 random rotations: 1.2-5.7 degrees from the pose of
+    the unturned head (whose face itself differs from the template's by about
+    4 degrees), 1.4 s at 30,000 points. Both must be in the same units.
+
+    Raises
+    ------
+    InputError
+        Fewer than 3 template or scan points, non-finite coordinates, a zero ``facing``.
+    """
+    F0 = np.asarray(template, dtype=np.float64)
+    P = np.asarray(points, dtype=np.float64)
+    for name, X in (("template", F0), ("scan", P)):
+        if X.ndim != 2 or X.shape[1] != 3 or X.shape[0] < 3:
+            raise InputError(f"{name} must have shape (m, 3) with m >= 3, got {X.shape}")
+        if not np.isfinite(X).all():
+            raise InputError(f"{name} has NaN or inf coordinates")
+    fz = np.asarray(facing, dtype=np.float64)
+    if fz.shape != (3,) or not np.isfinite(fz).all() or not np.linalg.norm(fz) > 0:
+        raise InputError(f"facing must be a non-zero 3-vector, got {facing!r}")
+    fz = fz / np.linalg.norm(fz)
+    to_z = _turn_z_to(fz).T  # the template turned so that it faces +z
+    Fc, Pc = _every(F0, COARSE_TEMPLATE) @ to_z.T, _every(P, COARSE_TREE)
+    tree_c = cKDTree(Pc)
+    cf, cp = Fc.mean(axis=0), Pc.mean(axis=0)
+    depth = float((Fc[:, 2] - cf[2]).max())
+    rolls = [Rotation.from_rotvec([0.0, 0.0, 2.0 * np.pi * k / SURFACE_ROLLS]).as_matrix()
+             for k in range(SURFACE_ROLLS)]
+    placed = []
+    for d in _fibonacci_sphere(SURFACE_DIRECTIONS):
+        B = _turn_z_to(d)
+        reach = float(((Pc - cp) @ d).max())
+        for roll in rolls:
+            R = B @ roll
+            t = cp + d * (reach - depth) - R @ cf
+            placed.append((_score(tree_c, Fc @ R.T + t), R, t))
+    placed.sort(key=lambda s: s[0])
+    coarse = []
+    for _, R, t in placed[:SURFACE_ICP_STARTS]:
+        R, t, _ = icp_rigid(Fc, Pc, R, t, COARSE_ROUNDS, tree_c, both=False)
+        coarse.append((_score(tree_c, Fc @ R.T + t), R, t))
+    coarse.sort(key=lambda s: s[0])
+    tree = cKDTree(P)
+    Ff = _every(F0, REFINE_TEMPLATE) @ to_z.T
+    refined = []
+    for _, R, t in coarse[:SURFACE_REFINE]:
+        R, t, _ = icp_rigid(Ff, P, R, t, REFINE_ROUNDS, tree, both=False, tol=1e-5)
+        refined.append((_score(tree, Ff @ R.T + t), R, t))
+    refined.sort(key=lambda s: s[0])
+    best = refined[0]
+    others = [s for s, R, _ in refined[1:] + coarse[SURFACE_REFINE:]
+              if Rotation.from_matrix(R.T @ best[1]).magnitude() > np.radians(20.0)]
+    return RigidAlignment(best[1] @ to_z, best[2], best[0], min(others, default=float("inf")))
 
 
 def units_factor(points, template, powers=UNIT_POWERS) -> float:

@@ -48,25 +48,67 @@ def write_transfer_rig(rig, path, metres_per_unit: float) -> Path:
                    "used as extra correspondences in the rigid and identity steps.")
 @click.option("--units", type=click.Choice(["auto", "mm", "cm", "m"]), default="auto", show_default=True,
               help="The head's units (auto: the power of ten that makes it face-sized).")
+@click.option("--piece", "pieces", multiple=True, metavar="NAME=ROLE",
+              help="How a separate piece moves: eye (turns for the eye looks), jaw (follows the jaw), stay, follow "
+                   "(copies the skin's motion) or skin (the surface transferred onto). NAME: the part's name in a "
+                   "glTF or rig file, else 'piece N' as the command lists them. Repeatable; the rest are found.")
+@click.option("--arkit-names", is_flag=True,
+              help="Name the shapes as ARKit's 52 (camelCase; browInnerUp and cheekPuff one shape each) instead "
+                   "of the 53 ICT names.")
 @click.pass_obj
-def transfer_cmd(obj: Context, head, output, engine, landmarks, units):
-    """Give the bare head mesh HEAD (any topology, units, orientation) the 53 ICT expressions as a rig."""
+def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, arkit_names):
+    """Give the head HEAD (any topology, units, orientation) the 53 ICT expressions as a rig.
+
+    HEAD: a mesh (.obj, .ply, .off), a glTF scene (.glb / .gltf: every mesh, kept as parts) or a rig file
+    (.npz: its neutral). Separate pieces (eyes, teeth, tongue, lashes) are found and move as their role says.
+    """
     from facegeom.cli.flags import as_flags
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
-    from facegeom.io.mesh import read_mesh
     from facegeom.methods.transfer import read_head_landmarks, transfer_head
 
     check_outputs([head, landmarks], [output])
     suffix = Path(output).suffix.lower()
     if suffix and suffix not in (".npz", ".glb"):
         raise InputError(f"unsupported rig format {suffix!r}; use .npz, .glb or a folder name (OBJ folder)", output)
+    roles = {}
+    for item in pieces:
+        name, sep, role = item.rpartition("=")
+        if not sep or not name:
+            raise InputError(f"--piece takes NAME=ROLE, got {item!r}")
+        roles[name] = role
     model = obj.face_model()
-    V, F = read_mesh(head)
-    click.echo(f"{Path(head).name}: {V.shape[0]} vertices, {F.shape[0]} triangles")
+    V, F, parts = read_head(head)
+    click.echo(f"{Path(head).name}: {V.shape[0]} vertices, {F.shape[0]} triangles"
+               + (f", {len(parts)} parts" if parts else ""))
     lm = read_head_landmarks(landmarks, V.shape[0]) if landmarks else None
     rig, reg, res = transfer_head(model, V, F, engine=engine, landmarks=lm, units=units, path=head,
-                                  progress=lambda line: click.echo(as_flags(line)))
+                                  progress=lambda line: click.echo(as_flags(line)), parts=parts, roles=roles)
+    if arkit_names:
+        from facegeom.io.shape_names import ARKIT_CAMEL_NAMES
+
+        rig, missing = rig.renamed(ARKIT_CAMEL_NAMES)
+        if missing:
+            click.echo(f"ARKit names: {', '.join(missing)} left out (no ICT expression)")
     write_transfer_rig(rig, output, reg.units / 100.0)
     click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, "
                f"{'metres' if suffix == '.glb' else reg.report['units']['name']})")
+
+
+def read_head(path):
+    """A head for ``facegeom transfer`` -> ``(V, F, parts or None)``: a mesh, a glTF scene or a rig file's neutral."""
+    from facegeom.io.mesh import read_mesh
+
+    suffix = Path(path).suffix.lower()
+    if suffix in (".glb", ".gltf"):
+        from facegeom.io.gltf import read_gltf_rig
+
+        g = read_gltf_rig(path, require_targets=False)
+        return g.neutral, g.faces, (g.parts if len(g.parts) > 1 else None)
+    if suffix == ".npz":
+        from facegeom.model.rig import BlendshapeRig
+
+        rig, _, _ = BlendshapeRig.read_npz(path)
+        return rig.neutral, rig.triangles, rig.parts
+    V, F = read_mesh(path)
+    return V, F, None

@@ -756,7 +756,8 @@ class GltfRig:
         raise KeyError(name)
 
 
-def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None) -> GltfRig:
+def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None, *,
+                  require_targets: bool = True) -> GltfRig:
     """Read a blendshape rig from a glTF 2.0 file (``.glb``, or ``.gltf`` with external or embedded buffers).
 
     Every mesh placed by the default scene's nodes is read, with the node's
@@ -777,6 +778,9 @@ def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None) 
     mesh : str or list of str, optional
         Read only the meshes with these names (mesh or node names), e.g. to
         leave out hair or clothes.
+    require_targets : bool
+        False: a scene without morph targets is read too (a bare head for
+        ``facegeom transfer``; its ``deltas`` are then ``(0, n, 3)``).
 
     Returns
     -------
@@ -790,7 +794,7 @@ def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None) 
         chunks, accessors outside their buffers or larger than the file can
         describe, counts that disagree, NaN or inf positions, points or lines
         primitives, no mesh with triangles, no morph targets ("no blendshapes
-        (morph targets)"), a buffer outside the folder, compressed geometry
+        (morph targets)", unless ``require_targets`` is False), a buffer outside the folder, compressed geometry
         that cannot be decoded here (``EXT_meshopt_compression``; Draco
         without the optional ``DracoPy`` package), an unknown ``mesh`` name.
 
@@ -809,7 +813,7 @@ def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None) 
     doc, buffers, size = _load_gltf(path)
     try:
         with np.errstate(all="ignore"):  # overflow in a transform ends as inf, refused below
-            return _build_rig(doc, buffers, size, path, wanted)
+            return _build_rig(doc, buffers, size, path, wanted, require_targets)
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - a field of the wrong type deep in the JSON
@@ -1343,7 +1347,7 @@ def _place(geom: _Geometry, T: np.ndarray):
     return V, F, D
 
 
-def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None) -> GltfRig:
+def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None, require_targets: bool = True) -> GltfRig:
     budget = _BASE_VALUES + _VALUES_PER_BYTE * size
     scene = _Scene(doc, path)
     placed = scene.placed()
@@ -1377,7 +1381,7 @@ def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None) -> 
     if not plan or total == 0:
         raise InputError("no mesh with triangles in the scene", path)
     K = len(union)
-    if K == 0:
+    if K == 0 and require_targets:
         raise InputError("no blendshapes (morph targets)", path)
     if 3 * total * (K + 1) > budget:
         raise InputError(f"the file declares {total} vertices and {K} blendshapes, more than {size} bytes of "

@@ -467,6 +467,24 @@ class BlendshapeRig:
                              self.triangles, self.landmark_ids, parts=self.parts, name_map=self.name_map,
                              frame=frame)
 
+    def renamed(self, target_names: Sequence[str]) -> tuple["BlendshapeRig", tuple[str, ...]]:
+        """The same expressions as shapes named ``target_names`` (e.g. ARKit's 52) -> ``(rig, names not reached)``.
+
+        Each target shape is what weight 1 on it does through the name map
+        (:meth:`map_from`): ARKit's ``browInnerUp`` is the sum of the ICT
+        ``browInnerUp_L`` and ``_R`` shapes. Target names the rig's shapes do
+        not reach (``tongueOut`` from the ICT set) are left out and returned.
+        """
+        W = self.map_from(target_names).apply(np.eye(len(target_names)))  # (targets, own shapes)
+        keep = [i for i in range(len(target_names)) if np.any(W[i])]
+        missing = tuple(str(target_names[i]) for i in range(len(target_names)) if i not in keep)
+        if not keep:
+            raise InputError("none of the names reaches a shape of the rig")
+        deltas = np.tensordot(W[keep], self.deltas, axes=1)
+        rig = BlendshapeRig(self.neutral, deltas, [str(target_names[i]) for i in keep], self.triangles,
+                            self.landmark_ids, parts=self.parts, frame=self.frame)
+        return rig, missing
+
     def with_name_map(self, name_map: NameMapping | None) -> "BlendshapeRig":
         """The same rig with another mapping file's rows (``None``: none)."""
         return BlendshapeRig(self.neutral, self.deltas, self.names, self.triangles, self.landmark_ids,

@@ -1,0 +1,277 @@
+"""A character's separate pieces -- eyes, teeth, tongue, lashes -- and how each moves with the transferred face.
+
+A head rarely comes as one surface: the skin, two eyeballs, upper and lower
+teeth, a tongue, lash and brow cards. Expression transfer
+(:mod:`facegeom.methods.transfer`) carries the ICT face's motion onto the
+skin; the other pieces must not be smeared by it (an eyeball copying the
+eyelid's motion, teeth stretching with the lips). Each piece gets one role:
+
+``skin``
+    The surface registered and transferred onto: the piece of largest area
+    (or the one given).
+``eye``
+    Turns rigidly about its fitted centre for the eye-look shapes
+    (``eyeLookUp/Down/In/Out_L/_R``, its own side only) by
+    :data:`EYE_YAW_DEGREES` (in, out) or :data:`EYE_PITCH_DEGREES` (up,
+    down) at weight 1; still for every other shape.
+``jaw``
+    Follows the jaw: per shape, the rigid motion that best carries the
+    template's chin patch (:func:`_chin_patch`) -- ``jawOpen`` turns the
+    lower teeth and tongue down, ``mouthSmile`` leaves them.
+``stay``
+    Still in every shape (the upper teeth, fixed to the skull; a hat).
+``follow``
+    Each vertex copies the transferred motion of its closest skin vertex
+    (lashes and brow cards riding on the lids and brows).
+
+Found from the registration (the template's landmarks posed on the head, in
+the model's frame): an ``eye`` is a piece that a sphere fits (rms below
+:data:`EYE_SPHERE_RMS` of its radius), of an eyeball's radius
+(:data:`EYE_RADIUS_CM`), centred within :data:`EYE_CENTRE_CM` of the
+template's eye (the eye landmarks' centroid set back by the radius); a piece
+whose centroid lies in the mouth (:data:`MOUTH_BOX_CM` about the inner lips'
+midpoint) is ``jaw`` below the lips' meeting line and ``stay`` above; any other
+piece lying on the skin (median distance within :data:`FOLLOW_MM`) is
+``follow``; the rest ``stay``. Each can be given instead (``roles``: piece
+name -> role).
+
+:data:`EYE_YAW_DEGREES` = 34, :data:`EYE_PITCH_DEGREES` = 29: ARKit's own
+convention. Live Link Face writes each eye's yaw and pitch beside the weights,
+and on the four real takes at hand they are exact linear functions of them
+(correlation -1.00): yaw = -0.60 (eyeLookOut - eyeLookIn) and pitch = -0.48 to
+-0.56 (eyeLookUp - eyeLookDown), radians -- weight 1 is the eye turned by 34
+and 29 degrees (checked in ``tests/test_pieces.py`` on the take at hand). An
+artist may choose less: the MakeHuman face units (CC0, the test rig) turn
+their eyes by 10-15 degrees.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import igl
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from facegeom.constants import FACE_AREA
+from facegeom.errors import InputError
+from facegeom.registration import kabsch
+
+__all__ = ["ROLES", "Piece", "split_pieces", "classify_pieces", "piece_deltas", "EYE_YAW_DEGREES",
+           "EYE_PITCH_DEGREES"]
+
+ROLES = ("skin", "eye", "jaw", "stay", "follow")
+EYE_YAW_DEGREES = 34.0  # eyeLookIn / eyeLookOut at weight 1 turn the eye by this much (see the module's note)
+EYE_PITCH_DEGREES = 29.0  # eyeLookUp / eyeLookDown at weight 1
+EYE_RADIUS_CM = (0.8, 1.8)  # an eyeball's radius (people: about 1.2 cm), model cm
+EYE_SPHERE_RMS = 0.1  # a sphere fits an eye within this fraction of its radius (rms)
+EYE_CENTRE_CM = 2.0  # an eye's centre lies within this of the template's eye centre, model cm
+MOUTH_BOX_CM = (3.5, 3.0, 2.0, 6.0, 1.0)  # |x| <= a, y in [-b, +c] about the lips' line, z in [-d, +e] about the lips
+FOLLOW_MM = 10.0  # a piece whose median distance to the skin is within this follows the skin
+CHIN_CM = 3.0  # the chin patch: template vertices within this of the chin landmarks, below the lower lip
+EYE_LOOKS = {"eyeLookUp": (0.0, 1.0, 0.0), "eyeLookDown": (0.0, -1.0, 0.0),
+             "eyeLookOut": (1.0, 0.0, 0.0), "eyeLookIn": (-1.0, 0.0, 0.0)}  # the left eye's look directions
+
+
+@dataclass
+class Piece:
+    """One separate piece of a head mesh.
+
+    Attributes
+    ----------
+    name : str
+        The rig part's name, else ``piece N`` (N from 1, largest area first).
+    vertices : (k,) int64
+        Its vertex ids in the head.
+    faces : (f,) int64
+        Its triangle ids in the head.
+    area : float
+        Its surface area (head units squared).
+    role : str
+        One of :data:`ROLES` (``""`` until classified).
+    how : str
+        Why: ``given`` or what was found.
+    centre : (3,) float64 or None
+        An eye's fitted centre (head units).
+    side : str or None
+        An eye's side, ``"L"`` or ``"R"`` (the performer's left: the model's +x).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    area: float
+    role: str = ""
+    how: str = ""
+    centre: np.ndarray | None = None
+    side: str | None = None
+
+
+def split_pieces(V, F, parts=None) -> list[Piece]:
+    """The head's pieces: its rig parts when given (name, vertex and face slices), else its connected components.
+
+    Vertices no triangle uses belong to no piece (they keep a zero motion).
+    Sorted by area, largest first; the first is the skin.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    area = 0.5 * igl.doublearea(V, F)
+    out = []
+    if parts:
+        for p in parts:
+            fid = np.arange(p.face_start, p.face_stop, dtype=np.int64)
+            if fid.size == 0:
+                continue
+            out.append(Piece(str(p.name), np.unique(F[fid]), fid, float(area[fid].sum())))
+    else:
+        labels = np.asarray(igl.vertex_components(F, V.shape[0]) if _vc_takes_n() else igl.vertex_components(F))
+        flab = labels[F[:, 0]]
+        order = np.argsort(flab, kind="stable")
+        bounds = np.flatnonzero(np.diff(flab[order])) + 1
+        for fid in np.split(order, bounds):
+            if fid.size:
+                out.append(Piece("", np.unique(F[fid]), fid, float(area[fid].sum())))
+    out.sort(key=lambda p: -p.area)
+    if not parts:
+        for i, p in enumerate(out):
+            p.name = f"piece {i + 1}"
+    return out
+
+
+def _vc_takes_n() -> bool:
+    import inspect
+
+    try:
+        return len(inspect.signature(igl.vertex_components).parameters) > 1
+    except (TypeError, ValueError):  # pragma: no cover - a compiled signature not introspectable
+        return False
+
+
+def _fit_sphere(X):
+    """Least-squares sphere through points ``X (k, 3)`` -> ``(centre, radius, rms / radius)``."""
+    A = np.c_[2.0 * X, np.ones(len(X))]
+    b = (X * X).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c = sol[:3]
+    r2 = sol[3] + c @ c
+    if not r2 > 0:
+        return c, 0.0, np.inf
+    r = float(np.sqrt(r2))
+    return c, r, float(np.sqrt(np.mean((np.linalg.norm(X - c, axis=1) - r) ** 2)) / r)
+
+
+def classify_pieces(model, reg, V, pieces: list[Piece], roles: dict | None = None) -> list[Piece]:
+    """Give every piece its role (see the module docstring); ``roles`` (name -> role) overrides what is found.
+
+    ``reg``: the :class:`~facegeom.methods.transfer.HeadRegistration` of the
+    skin; ``V (n, 3)``: the whole head's vertices (the pieces' ids index it). Raises :class:`InputError` for a role not in :data:`ROLES`, a name
+    that is not a piece, or a skin given to another piece than the largest.
+    """
+    roles = dict(roles or {})
+    names = [p.name for p in pieces]
+    for name, role in roles.items():
+        if role not in ROLES:
+            raise InputError(f"piece {name!r}: unknown role {role!r}; use one of {', '.join(ROLES)}")
+        if name not in names:
+            raise InputError(f"no piece called {name!r}; the pieces are {', '.join(names)}")
+        if role == "skin" and name != names[0]:
+            raise InputError(f"piece {name!r}: only one piece is the skin ({names[0]!r})")
+    V = np.asarray(V, dtype=np.float64)
+    lm = np.asarray(model.landmarks)
+    to_model = lambda X: ((np.asarray(X) - reg.t) @ reg.R) / reg.scale  # noqa: E731 - head -> model cm
+    Tm = to_model(reg.template)  # the fitted template in the model's frame (the person's own face, model cm)
+    lips = Tm[lm[[62, 66]]].mean(axis=0)
+    skin = pieces[0]
+    skin_tree = cKDTree(V[skin.vertices])
+    for i, p in enumerate(pieces):
+        p.centre, p.side = None, None
+        if i == 0:
+            p.role, p.how = "skin", "the largest piece: registered and transferred onto"
+            continue
+        X = to_model(V[p.vertices])
+        c, r, rms = _fit_sphere(X) if len(X) >= 8 else (X.mean(axis=0), 0.0, np.inf)
+        found, how = None, ""
+        if rms <= EYE_SPHERE_RMS and EYE_RADIUS_CM[0] <= r <= EYE_RADIUS_CM[1]:
+            for side, ids in (("L", lm[42:48]), ("R", lm[36:42])):
+                eye = Tm[ids].mean(axis=0) - np.array([0.0, 0.0, r])
+                if np.linalg.norm(c - eye) <= EYE_CENTRE_CM:
+                    found, how = "eye", f"a sphere of radius {r:.2f} cm at the {'left' if side == 'L' else 'right'} eye"
+                    p.centre, p.side = reg.scale * (reg.R @ c) + reg.t, side
+        if found is None:
+            m = X.mean(axis=0) - lips
+            a, below, above, back, front = MOUTH_BOX_CM
+            if abs(m[0]) <= a and -below <= m[1] <= above and -back <= m[2] <= front:
+                found, how = ("jaw", "in the mouth, below the lips' line") if m[1] < 0 else \
+                    ("stay", "in the mouth, above the lips' line")
+        if found is None:
+            d, _ = skin_tree.query(V[p.vertices])
+            dmm = float(np.median(d)) * reg.mm_per_unit
+            found, how = ("follow", f"on the skin ({dmm:.1f} mm)") if dmm <= FOLLOW_MM else \
+                ("stay", f"away from the skin ({dmm:.0f} mm)")
+        p.role, p.how = found, how
+        if p.name in roles:
+            p.role, p.how = roles[p.name], "given"
+            if p.role == "eye" and p.side is None:  # an eye given: its centre fitted, its side from the model's x
+                cw = reg.scale * (reg.R @ c) + reg.t if np.isfinite(rms) else V[p.vertices].mean(0)
+                p.centre, p.side = cw, ("L" if c[0] >= 0 else "R")
+    return pieces
+
+
+def _chin_patch(model) -> np.ndarray:
+    """Template vertices of the chin: face area, within ``CHIN_CM`` of landmarks 7-9, below the lower lip (57)."""
+    G = np.asarray(model.neutral, dtype=np.float64)
+    lm = np.asarray(model.landmarks)
+    ids = np.arange(min(FACE_AREA, G.shape[0]))
+    d, _ = cKDTree(G[lm[7:10]]).query(G[ids])
+    return ids[(d <= CHIN_CM) & (G[ids, 1] < G[lm[57], 1] - 0.5)]
+
+
+def piece_deltas(model, reg, V, pieces: list[Piece], skin_deltas, names) -> np.ndarray:
+    """Every piece's motion per shape -> ``(K, n, 3)`` over the whole head (the skin's from ``skin_deltas``).
+
+    ``V (n, 3)``: the whole head; ``skin_deltas (K, s, 3)``: the transferred motion of the skin's vertices
+    (``pieces[0].vertices`` order); ``names``: the K shapes' ICT names.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    K = len(names)
+    out = np.zeros((K,) + V.shape)
+    skin = pieces[0]
+    out[:, skin.vertices] = skin_deltas
+    jaw = None
+    Dh = None
+    for p in pieces[1:]:
+        X = V[p.vertices]
+        if p.role in ("follow", "skin"):
+            _, j = cKDTree(V[skin.vertices]).query(X)
+            out[:, p.vertices] = skin_deltas[:, j]
+        elif p.role == "jaw":
+            if jaw is None:
+                chin = _chin_patch(model)
+                if Dh is None:
+                    Dh = reg.delta_in_head(np.asarray(model.expression_deltas, dtype=np.float64)[:, chin])
+                P = reg.template[chin]
+                jaw = [kabsch(P, P + Dh[k]) for k in range(K)]
+            for k, (R, t) in enumerate(jaw):
+                out[k, p.vertices] = X @ R.T + t - X
+        elif p.role == "eye":
+            for k, name in enumerate(names):
+                look = _eye_look(name, p.side)
+                if look is None:
+                    continue
+                R = reg.R @ look @ reg.R.T  # the model frame's turn, in the head's frame
+                out[k, p.vertices] = (X - p.centre) @ R.T + p.centre - X
+    return out
+
+
+def _eye_look(name: str, side: str | None):
+    """The turn (model frame) of the eye on ``side`` for the shape ``name`` at weight 1, or None."""
+    for base, direction in EYE_LOOKS.items():
+        for s in ("L", "R"):
+            if name == f"{base}_{s}" and s == side:
+                d = np.array(direction)
+                if s == "R" and base in ("eyeLookOut", "eyeLookIn"):
+                    d = -d  # the right eye looks out towards -x
+                axis = np.cross([0.0, 0.0, 1.0], d)
+                deg = EYE_PITCH_DEGREES if base in ("eyeLookUp", "eyeLookDown") else EYE_YAW_DEGREES
+                return Rotation.from_rotvec(np.radians(deg) * axis / np.linalg.norm(axis)).as_matrix()
+    return None
