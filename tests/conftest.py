@@ -2,6 +2,12 @@
 synthetic meshes. `make test` fetches the data first when none is found (`facegeom data fetch --if-missing`)."""
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -125,3 +131,39 @@ def grid_mesh(nx: int = 8, ny: int = 8, bump: float = 0.0):
 @pytest.fixture
 def grid():
     return grid_mesh()
+
+
+# ----------------------------------------------------------------------------- Khronos glTF-Validator
+VALIDATOR = "gltf-validator@2.0.0-dev.3.10"
+VALIDATE_SCRIPT = Path(__file__).with_name("gltf_validate.js")
+
+
+@pytest.fixture(scope="session")
+def validator_env():
+    """NODE_PATH holding the npm package gltf-validator, installed once into the user cache."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if not node or not npm:
+        pytest.skip("the Khronos glTF-Validator check needs node and npm on PATH")
+    cache = Path(os.environ.get("FACEGEOM_CACHE", Path.home() / ".cache" / "facegeom")) / "node"
+    modules = cache / "node_modules"
+    if not (modules / "gltf-validator" / "package.json").exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        try:
+            r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--prefix", str(cache), VALIDATOR],
+                               capture_output=True, text=True, timeout=300)
+        except subprocess.TimeoutExpired:
+            pytest.skip("npm could not install gltf-validator within 5 minutes (no network?)")
+        if r.returncode != 0:
+            pytest.skip(f"npm could not install gltf-validator (no network?): {r.stderr.strip()[-200:]}")
+    return dict(os.environ, NODE_PATH=str(modules))
+
+
+def validate(env, path):
+    """Run the Khronos glTF-Validator on ``path`` -> its ``issues`` dict (every message printed)."""
+    r = subprocess.run(["node", str(VALIDATE_SCRIPT), str(path)], capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    issues = report["issues"]
+    for m in issues["messages"]:
+        print(f"validator {m['severity']} {m['code']} {m.get('pointer', '')}: {m['message']}")
+    return issues

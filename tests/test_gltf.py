@@ -1,10 +1,4 @@
 """glTF 2.0 out: rigs and vertex sequences as morph targets, read back to the same numbers, Khronos-validated."""
-import json
-import os
-import shutil
-import subprocess
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -12,9 +6,7 @@ pytest.importorskip("pygltflib")
 
 from facegeom.errors import InputError  # noqa: E402
 from facegeom.io.gltf import read_glb_animation, write_rig_glb, write_sequence_glb  # noqa: E402
-
-VALIDATOR = "gltf-validator@2.0.0-dev.3.10"
-SCRIPT = Path(__file__).with_name("gltf_validate.js")
+from tests.conftest import validate  # noqa: E402
 
 
 def grid(nx=6, ny=5):
@@ -145,36 +137,6 @@ def test_reader_rejects_bad_files_with_one_error(tmp_path):
 
 
 # ----------------------------------------------------------------------------- Khronos glTF-Validator
-
-
-@pytest.fixture(scope="module")
-def validator_env():
-    """NODE_PATH holding the npm package gltf-validator, installed once into the user cache."""
-    node, npm = shutil.which("node"), shutil.which("npm")
-    if not node or not npm:
-        pytest.skip("the Khronos glTF-Validator check needs node and npm on PATH")
-    cache = Path(os.environ.get("FACEGEOM_CACHE", Path.home() / ".cache" / "facegeom")) / "node"
-    modules = cache / "node_modules"
-    if not (modules / "gltf-validator" / "package.json").exists():
-        cache.mkdir(parents=True, exist_ok=True)
-        try:
-            r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--prefix", str(cache), VALIDATOR],
-                               capture_output=True, text=True, timeout=300)
-        except subprocess.TimeoutExpired:
-            pytest.skip("npm could not install gltf-validator within 5 minutes (no network?)")
-        if r.returncode != 0:
-            pytest.skip(f"npm could not install gltf-validator (no network?): {r.stderr.strip()[-200:]}")
-    return dict(os.environ, NODE_PATH=str(modules))
-
-
-def validate(env, path):
-    r = subprocess.run(["node", str(SCRIPT), str(path)], capture_output=True, text=True, env=env, timeout=300)
-    assert r.returncode == 0, r.stderr
-    report = json.loads(r.stdout)
-    issues = report["issues"]
-    for m in issues["messages"]:
-        print(f"validator {m['severity']} {m['code']} {m.get('pointer', '')}: {m['message']}")
-    return issues
 
 
 def test_validator_rejects_a_broken_file(tmp_path, validator_env):

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
 HEAD = Path(__file__).parent / "data" / "heads" / "makehuman_arkit.npz"
@@ -35,10 +34,10 @@ def measured(face_model, artist):
 
 
 @pytest.fixture(scope="module")
-def character(face_model, artist):
-    from facegeom.methods.transfer import register_character, transfer_character
+def character(face_model, measured):
+    from facegeom.methods.transfer import transfer_character
 
-    ch = register_character(face_model, artist.neutral, artist.triangles, parts=artist.parts)
+    ch = measured[0]["character"]  # the artist's neutral as registered for the measurement
     return ch, transfer_character(face_model, ch)
 
 
@@ -61,6 +60,16 @@ def test_default_beats_the_nearest_copy_against_the_artist(measured):
     assert better >= 40
 
 
+def test_default_beats_the_nearest_copy_on_the_stylised_character(face_model):
+    """The same rig on MakeHuman's head pushed to a cartoon's proportions: the target holds there too."""
+    from facegeom.bench.transfer_artist import compare, summarize
+    from facegeom.model.rig import BlendshapeRig
+
+    s = summarize(compare(face_model, BlendshapeRig.from_npz(HEAD.with_name("makehuman_stylised_arkit.npz"))))
+    print({e: round(v["skin_median"], 3) for e, v in s.items()})
+    assert s["deformation"]["skin_median"] <= 0.95 * s["nearest"]["skin_median"]
+
+
 def test_the_face_is_found_on_a_whole_head(measured):
     """The MakeHuman head is a whole head (scalp, ears, neck): the face lands on the face, not a cheek."""
     result, _ = measured
@@ -70,12 +79,11 @@ def test_the_face_is_found_on_a_whole_head(measured):
     assert reg["nonrigid"]["covered"] > 0.9
 
 
-@pytest.mark.parametrize("seed,scale", [(1, 10.0), (7, 0.01)])
-def test_turned_and_rescaled_head_gives_the_same_transfer(face_model, artist, measured, seed, scale):
-    """Turned by a random rotation and in mm or m: the registration is told neither, the transfer holds."""
+def test_turned_and_rescaled_head_gives_the_same_transfer(face_model, artist, measured):
+    """Turned by a random rotation and in mm: the registration is told neither, the transfer holds."""
     from facegeom.bench.transfer_artist import compare, summarize
 
-    s = summarize(compare(face_model, artist, seed=seed, units_scale=scale))
+    s = summarize(compare(face_model, artist, seed=1, units_scale=10.0))
     s0 = measured[1]
     assert s["deformation"]["skin_median"] <= s["nearest"]["skin_median"]
     assert abs(s["deformation"]["skin_median"] - s0["deformation"]["skin_median"]) < 0.05
@@ -179,25 +187,3 @@ def test_connected_components_are_the_pieces_without_parts(artist):
     assert pieces[0].name == "piece 1"
     assert pieces[0].vertices.size == 4311  # the skin, largest
     assert sum(p.vertices.size for p in pieces) == artist.n_vertices
-
-
-def test_cli_transfers_a_rig_file_with_parts_to_arkit_names(face_model, tmp_path, capsys):
-    from facegeom.cli.main import cli, main
-    from facegeom.model.rig import BlendshapeRig
-
-    out = tmp_path / "mh.npz"
-    r = CliRunner().invoke(cli, ["transfer", str(HEAD), "-o", str(out), "--arkit-names", "--engine", "nearest",
-                                 "--piece", "tongue=stay"])
-    assert r.exit_code == 0, r.output
-    assert "6 parts" in r.output and "tongue: stay (given" in r.output and "eye_L: eye" in r.output
-    assert "tongueOut left out" in r.output
-    rig = BlendshapeRig.from_npz(out)
-    assert len(rig.names) == 51 and "browInnerUp" in rig.names and "eyeBlinkLeft" in rig.names
-    assert [p.name for p in rig.parts] == ["skin", "eye_L", "eye_R", "teeth_upper", "teeth_lower", "tongue"]
-    for piece, words in (("nose", "NAME=ROLE"), ("nose=stay", "no piece called 'nose'"),
-                         ("tongue=wobble", "unknown role 'wobble'")):
-        with pytest.raises(SystemExit) as exc:
-            main(["transfer", str(HEAD), "-o", str(tmp_path / "x.npz"), "--piece", piece])
-        err = capsys.readouterr().err
-        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
-        assert not (tmp_path / "x.npz").exists()

@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.bench.report import Report, format_table, machine_note
 
-__all__ = ["compare", "summarize", "run", "MOVES_MM"]
+__all__ = ["compare", "summarize", "figure", "run", "MOVES_MM"]
 
 MOVES_MM = 0.5  # a piece moved by less than this (max over its vertices) in a shape is not scored on it
 
@@ -44,7 +44,7 @@ def _pose(seed, units_scale):
 
 
 def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_scale: float = 1.0,
-            progress=None) -> dict:
+            progress=None, character=None) -> dict:
     """Transfer onto the artist's neutral and compare with the artist's shapes -> a result dict (see module).
 
     Parameters
@@ -59,6 +59,10 @@ def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_
     units_scale : float
         Multiply the head's coordinates by this first (10: millimetres).
     progress : callable(str), optional
+    character : Character, optional
+        The artist's neutral already registered (as this function would: same
+        ``seed`` and ``units_scale``); its registration is then not repeated.
+        The result's ``character`` holds the one used.
     """
     from facegeom.io.shape_names import ShapeMap
     from facegeom.methods.transfer import register_character, transfer_character
@@ -68,7 +72,7 @@ def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_
     V = (np.asarray(artist.neutral, dtype=np.float64) @ R.T) * k + t
     A = (np.asarray(artist.deltas, dtype=np.float64) @ R.T) * k  # the artist's shapes in the same frame
     t0 = time.perf_counter()
-    ch = register_character(model, V, artist.triangles, parts=artist.parts, progress=say)
+    ch = character or register_character(model, V, artist.triangles, parts=artist.parts, progress=say)
     t_reg = time.perf_counter() - t0
     smap = ShapeMap.between(model.expression_names, artist.names)
     W = smap.apply(np.eye(len(artist.names)))  # (A shapes, ICT shapes): the ICT weights of each artist shape
@@ -76,7 +80,10 @@ def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_
     regions = [(p.name, p.vertices, p.role) for p in ch.pieces]
     out = {"registration": ch.registration.report, "registration_s": t_reg, "engines": {},
            "pieces": [(p.name, p.role, p.how) for p in ch.pieces], "names": list(artist.names),
-           "not_transferred": [n for n, w in zip(artist.names, W) if not np.any(w)], "mm_per_unit": mm}
+           "not_transferred": [n for n, w in zip(artist.names, W) if not np.any(w)], "mm_per_unit": mm,
+           "vertices": V, "faces": np.asarray(artist.triangles), "artist_deltas": A,
+           "view": (ch.registration.R, ch.registration.t, ch.registration.scale),
+           "character": ch, "shown_faces": np.concatenate([p.faces for p in ch.pieces if p.role in ("skin", "eye", "follow")])}
     for engine in engines:
         res = transfer_character(model, ch, engine)
         D = np.tensordot(W, res.deltas, axes=1)  # (A, n, 3)
@@ -95,7 +102,7 @@ def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_
                              "cosine": float(ref @ got / (nr * ng)) if ng > 0 else 0.0,
                              "oracle": float(np.linalg.norm(gain * got - ref) / nr), "gain": gain,
                              "artist_max_mm": float(np.abs(A[a, ids]).max() * mm)})
-        out["engines"][engine] = {"rows": rows, "time_s": res.time_s}
+        out["engines"][engine] = {"rows": rows, "time_s": res.time_s, "deltas": D}
         say(f"{engine}: {len(rows)} shape x piece pairs scored ({res.time_s:.2f} s)")
     return out
 
@@ -124,9 +131,87 @@ def summarize(result: dict) -> dict:
     return summary
 
 
+def _raster(X, F, value, size: int):
+    """A z-buffered front view of the mesh ``(X, F)`` (x right, y up, z to the viewer) -> ``(value image, shade)``.
+
+    Per pixel: the nearest triangle's ``value`` (its vertices' mean) and its
+    Lambert shade; NaN where no triangle covers the pixel.
+    """
+    lo, hi = X[:, :2].min(axis=0), X[:, :2].max(axis=0)
+    k = (size - 1) / float(max(hi - lo))
+    P = (X[:, :2] - lo) * k
+    h, w = int(np.ceil((hi[1] - lo[1]) * k)) + 1, int(np.ceil((hi[0] - lo[0]) * k)) + 1
+    depth = np.full((h, w), -np.inf)
+    img = np.full((h, w), np.nan)
+    shade = np.zeros((h, w))
+    tri = X[F]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    fval = value[F].mean(axis=1)
+    for f in np.flatnonzero(n[:, 2] > 0):
+        a, b, c = P[F[f]]
+        x0, x1 = int(np.floor(min(a[0], b[0], c[0]))), int(np.ceil(max(a[0], b[0], c[0])))
+        y0, y1 = int(np.floor(min(a[1], b[1], c[1]))), int(np.ceil(max(a[1], b[1], c[1])))
+        xs, ys = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1))
+        d = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
+        if abs(d) < 1e-12:
+            continue
+        l1 = ((b[1] - c[1]) * (xs - c[0]) + (c[0] - b[0]) * (ys - c[1])) / d
+        l2 = ((c[1] - a[1]) * (xs - c[0]) + (a[0] - c[0]) * (ys - c[1])) / d
+        l3 = 1.0 - l1 - l2
+        inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l3 >= -1e-9) & (xs < w) & (ys < h)
+        if not inside.any():
+            continue
+        z = l1 * tri[f, 0, 2] + l2 * tri[f, 1, 2] + l3 * tri[f, 2, 2]
+        yy, xx, zz = ys[inside], xs[inside], z[inside]
+        closer = zz > depth[yy, xx]
+        yy, xx = yy[closer], xx[closer]
+        depth[yy, xx] = zz[closer]
+        img[yy, xx] = fval[f]
+        shade[yy, xx] = 0.35 + 0.65 * n[f, 2]
+    return img[::-1], shade[::-1]
+
+
+def _front(ax, V, F, value, vmax, view, size: int = 320):
+    """Draw the mesh ``(V, F)`` seen from the front of the registered face, coloured by ``value`` (per vertex)."""
+    import matplotlib.pyplot as plt
+
+    R, t, s = view
+    X = ((np.asarray(V) - t) @ R) / s  # the model's frame: y up, z towards the viewer
+    img, shade = _raster(X, F, np.asarray(value, dtype=np.float64), size)
+    rgb = plt.get_cmap("viridis")(np.clip(np.nan_to_num(img) / vmax, 0, 1))[..., :3] * shade[..., None]
+    rgba = np.dstack([rgb, np.isfinite(img).astype(float)])
+    ax.imshow(rgba, interpolation="nearest")
+    ax.axis("off")
+
+
+def figure(result, engine: str, shapes, columns: int = 5):
+    """The artist's shape (top) and the transfer's (bottom) side by side for ``shapes``, coloured by motion (mm)."""
+    import matplotlib.pyplot as plt
+
+    names = result["names"]
+    shapes = list(shapes)[:columns]
+    fig, axes = plt.subplots(2, len(shapes), figsize=(3.2 * len(shapes), 7.0), squeeze=False)
+    V, mm = result["vertices"], result["mm_per_unit"]
+    F = result["faces"][result["shown_faces"]]  # the skin, eyes and cards (the mouth's inner pieces are hidden)
+    D = result["engines"][engine]["deltas"]
+    for j, name in enumerate(shapes):
+        a = names.index(name)
+        pair = (result["artist_deltas"][a], D[a])
+        vmax = max(float(np.linalg.norm(d, axis=1).max()) * mm for d in pair) or 1.0
+        for i, (d, who) in enumerate(zip(pair, ("artist", f"facegeom ({engine})"))):
+            _front(axes[i, j], V + d, F, np.linalg.norm(d, axis=1) * mm, vmax, result["view"])
+            axes[i, j].set_title(f"{name}\n{who}" if i == 0 else who, fontsize=9)
+        axes[1, j].text(0.5, -0.04, f"colour 0-{vmax:.1f} mm", transform=axes[1, j].transAxes, ha="center",
+                        fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def run(model, artist, out=None, engines=("deformation", "nearest"), seed=None, units_scale: float = 1.0,
         name: str = "transfer-artist", echo=print, progress=None) -> dict:
-    """Measure, then write ``<name>.csv`` (every shape x piece x engine), the summary and the figure of the worst."""
+    """Measure, then write ``<name>.csv`` (every shape x piece x engine), the summary and ``<name>.png``: the five
+    shapes the first engine gets worst, the artist's above the transfer's."""
     result = compare(model, artist, engines, seed, units_scale, progress)
     summary = summarize(result)
     rep = Report(out, name, echo)
@@ -156,4 +241,5 @@ def run(model, artist, out=None, engines=("deformation", "nearest"), seed=None, 
             + f". Head turned by a random rotation (seed {seed})" * (seed is not None)
             + f"; coordinates x{units_scale:g}" * (units_scale != 1.0) + f". {machine_note()}.")
     rep.summary("\n\n".join(x for x in (format_table(head, table_rows), worst, pieces) if x), note)
+    rep.plot(lambda: figure(result, first, [n for n, _, _ in summary[first]["worst"]]))
     return {"summary": summary, "result": result, "files": rep.written}

@@ -6,6 +6,7 @@ from pathlib import Path
 import click
 
 from facegeom.cli.context import TAKES_LOOKUP, Context
+from facegeom.cli.rigopts import load_cli_rig, rig_options
 
 
 @click.group()
@@ -314,6 +315,36 @@ def bench_scaling(obj: Context, levels, methods):
         raise InputError("--levels must lie in 0..3")
     specs = parse_methods(methods, "deformers", LINEUPS["scaling"])
     bs.main(obj.face_model(), specs, lv, echo=click.echo)
+
+
+@bench.command("transfer")
+@click.option("--artist", "artist_path", required=True, type=click.Path(),
+              help="An artist's rig (OBJ folder, .glb/.gltf or .npz) with ARKit or ICT shape names: its neutral goes "
+                   "in, its shapes are the reference.")
+@rig_options
+@click.option("--engines", default="deformation,nearest", show_default=True,
+              help="Comma-separated transfer engines (deformation, nearest, tangent); the first is the headline.")
+@click.option("--seed", default=None, type=int,
+              help="Turn and move the head by a random rotation of this seed first (the registration is not told).")
+@click.option("--units-scale", default=1.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="Multiply the head's coordinates by this first (10: as if in millimetres).")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/transfer", show_default=True,
+              help="Folder for transfer-artist.csv, transfer-artist-summary.md and transfer-artist.png.")
+@click.pass_obj
+def bench_transfer(obj: Context, artist_path, neutral, names_map, units, up, engines, seed, units_scale, out):
+    """Expression transfer against an artist's own rig, shape by shape (relative error, cosine, best-gain oracle)."""
+    from facegeom.bench import transfer_artist as ta
+    from facegeom.errors import InputError
+    from facegeom.methods.transfer import ENGINES
+
+    names = [e.strip() for e in engines.split(",") if e.strip()]
+    bad = [e for e in names if e not in ENGINES]
+    if not names or bad:
+        raise InputError(f"--engines: unknown engine {bad[0] if bad else engines!r}; use {', '.join(ENGINES)}")
+    artist = load_cli_rig(artist_path, obj.face_model, neutral, names_map, units, up)
+    r = ta.run(obj.face_model(), artist, out, names, seed, units_scale, echo=click.echo, progress=click.echo)
+    for path in r["files"]:
+        click.echo(f"wrote {path}")
 
 
 @bench.command("retarget-scaling")
