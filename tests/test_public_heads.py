@@ -54,3 +54,19 @@ def test_transfer_writes_a_valid_glb_rig(face_model, validator_env, tmp_path, ca
     assert 0.002 < b.max() < 0.03  # a lid's travel: millimetres, not the head's size
     # the left eye is the performer's left: +x in these files (each faces +z)
     assert lids[:, 0].mean() > V[:, 0].mean()
+
+
+def test_a_second_head_is_refused_and_nothing_written(face_model, tmp_path, capsys):
+    """Two heads side by side in one file: one line naming the file and the piece; no rig written."""
+    from facegeom.cli.main import main
+    from facegeom.io.mesh import read_mesh, write_mesh
+
+    V, F = read_mesh(HEADS / "lee_perry_smith.ply")
+    two = tmp_path / "two.obj"
+    write_mesh(two, np.r_[V, V + [0.6, 0.0, 0.0]], np.r_[F, F + len(V)])
+    with pytest.raises(SystemExit) as exc:
+        main(["transfer", str(two), "-o", str(tmp_path / "rig.glb")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2, err
+    assert "two.obj" in err and "a second head? 'piece 2'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "rig.glb").exists()

@@ -32,7 +32,9 @@ template's eye (the eye landmarks' centroid set back by the radius); a piece
 whose centroid lies in the mouth (:data:`MOUTH_BOX_CM` about the inner lips'
 midpoint) is ``jaw`` below the lips' meeting line and ``stay`` above; any other
 piece lying on the skin (median distance within :data:`FOLLOW_MM`) is
-``follow``; the rest ``stay``. Each can be given instead (``roles``: piece
+``follow``; the rest ``stay`` -- but a piece away from the skin with at least
+:data:`SECOND_HEAD` of its area is taken for a second head and refused unless
+its role is given. Each can be given instead (``roles``: piece
 name -> role).
 
 :data:`EYE_YAW_DEGREES` = 34, :data:`EYE_PITCH_DEGREES` = 29: ARKit's own
@@ -68,6 +70,7 @@ EYE_SPHERE_RMS = 0.1  # a sphere fits an eye within this fraction of its radius 
 EYE_CENTRE_CM = 2.0  # an eye's centre lies within this of the template's eye centre, model cm
 MOUTH_BOX_CM = (3.5, 3.0, 2.0, 6.0, 1.0)  # |x| <= a, y in [-b, +c] about the lips' line, z in [-d, +e] about the lips
 FOLLOW_MM = 10.0  # a piece whose median distance to the skin is within this follows the skin
+SECOND_HEAD = 0.5  # a piece away from the skin with at least this fraction of its area: a second head, refused
 CHIN_CM = 3.0  # the chin patch: template vertices within this of the chin landmarks, below the lower lip
 EYE_LOOKS = {"eyeLookUp": (0.0, 1.0, 0.0), "eyeLookDown": (0.0, -1.0, 0.0),
              "eyeLookOut": (1.0, 0.0, 0.0), "eyeLookIn": (-1.0, 0.0, 0.0)}  # the left eye's look directions
@@ -209,6 +212,10 @@ def classify_pieces(model, reg, V, pieces: list[Piece], roles: dict | None = Non
             found, how = ("follow", f"on the skin ({dmm:.1f} mm)") if dmm <= FOLLOW_MM else \
                 ("stay", f"away from the skin ({dmm:.0f} mm)")
         p.role, p.how = found, how
+        if found == "stay" and p.area >= SECOND_HEAD * skin.area and p.name not in roles:
+            raise InputError(f"a second head? {p.name!r} is {100 * p.area / skin.area:.0f}% of the skin's area and "
+                             f"lies away from it; keep one head per file, or say what it is with --piece "
+                             f"'{p.name}=stay' (or =skin to transfer onto it instead)")
         if p.name in roles:
             p.role, p.how = roles[p.name], "given"
             if p.role == "eye" and p.side is None:  # an eye given: its centre fitted, its side from the model's x

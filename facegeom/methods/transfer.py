@@ -792,7 +792,10 @@ def register_character(model, V, F, *, landmarks=None, units="auto", path=None, 
         say(f"{len(pieces)} pieces: the skin is {skin.name!r} ({ids.size} of {V.shape[0]} vertices)")
     reg = register_head(model, V[ids], remap[F[skin.faces]], landmarks=lm, units=units, path=path,
                         progress=progress)
-    classify_pieces(model, reg, V, pieces, roles)
+    try:
+        classify_pieces(model, reg, V, pieces, roles)
+    except InputError as exc:
+        raise InputError(exc.reason, path) from None
     for p in pieces[1:]:
         say(f"  {p.name}: {p.role} ({p.how}; {p.vertices.size} vertices)")
     return Character(V, F, pieces, reg, None if parts is None else tuple(parts))
