@@ -70,3 +70,27 @@ def test_a_second_head_is_refused_and_nothing_written(face_model, tmp_path, caps
     assert exc.value.code == 2, err
     assert "two.obj" in err and "a second head? 'piece 2'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "rig.glb").exists()
+
+
+def test_a_head_with_a_hole_and_a_non_manifold_fin_transfers(face_model, tmp_path, capsys):
+    """Scans arrive with holes and stray faces: the skull opened at the back, a fin on a shared edge, a face twice."""
+    from facegeom.cli.main import main
+    from facegeom.io.mesh import read_mesh, write_mesh
+    from facegeom.model.rig import BlendshapeRig
+
+    V, F = read_mesh(HEADS / "lee_perry_smith.ply")
+    c = V[F].mean(axis=1)
+    F = F[~((c[:, 2] < -0.05) & (c[:, 1] > 0.0) & (np.abs(c[:, 0]) < 0.04))]
+    e = F[0, :2]
+    V = np.r_[V, [V[e].mean(axis=0) + [0.0, 0.01, 0.0]]]
+    F = np.r_[F, [[e[0], e[1], len(V) - 1], [e[1], e[0], len(V) - 1]], F[:1]]
+    path = tmp_path / "scan.obj"
+    write_mesh(path, V, F)
+    main(["transfer", str(path), "-o", str(tmp_path / "rig.npz")])
+    text = capsys.readouterr().out
+    assert "of the face on the mesh" in text
+    rig = BlendshapeRig.from_npz(tmp_path / "rig.npz")
+    assert rig.n_vertices == len(V) and np.isfinite(rig.deltas).all()
+    jaw = rig.deltas[list(rig.names).index("jawOpen")]
+    assert 1.0 < np.linalg.norm(jaw, axis=1).max() < 5.0  # centimetres: the rig file is in facegeom's cm
+    np.testing.assert_allclose(rig.neutral, V * 100.0, atol=1e-9)  # the scan is metres, Y up, facing +Z

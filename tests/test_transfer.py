@@ -197,7 +197,11 @@ def test_cli_writes_npz_and_glb(face_model, head, tmp_path):
         assert word in out.output
     rig = BlendshapeRig.from_npz(tmp_path / "rig.npz")
     assert rig.n_vertices == Vh.shape[0] and rig.n_shapes == 53
-    rel, _ = _scores(rig.deltas, head[2])
+    # the .npz is in facegeom's rig frame: centimetres, the head's axes turned by a signed axis permutation
+    S = np.linalg.lstsq(Vh * 0.1, rig.neutral, rcond=None)[0].T
+    assert np.allclose(np.abs(S).sum(axis=1), 1.0) and np.allclose(np.abs(S).max(axis=1), 1.0)
+    np.testing.assert_allclose(rig.neutral, Vh @ S.T * 0.1, atol=1e-9)
+    rel, _ = _scores(rig.deltas, head[2] @ S.T * 0.1)
     assert np.median(rel) < 0.2
     out = runner.invoke(cli, ["transfer", str(src), "-o", str(tmp_path / "rig.glb")])
     assert out.exit_code == 0, out.output

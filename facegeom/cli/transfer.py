@@ -2,7 +2,8 @@
 
 See :mod:`facegeom.methods.transfer` (registration, then deformation transfer
 or the nearest-point shortcut). The rig is written by its suffix: ``.npz``
-(:meth:`~facegeom.model.rig.BlendshapeRig.save_npz`, the head's units),
+(:meth:`~facegeom.model.rig.BlendshapeRig.save_npz`, facegeom's rig frame: centimetres, the head's axes
+turned by the signed axis permutation nearest the registration's so that Y is up),
 ``.glb`` (glTF, metres: converted from the head's units; its animation shows
 each shape in turn) or a new folder of OBJs (the head's units).
 """
@@ -17,14 +18,44 @@ from facegeom.cli.context import Context
 GLB_FPS = 2.0  # the .glb's preview animation: one shape per half second
 
 
-def write_transfer_rig(rig, path, metres_per_unit: float) -> Path:
-    """Write ``rig`` to ``path`` by suffix: ``.npz``, ``.glb`` (metres) or a new OBJ folder; atomically."""
+def axis_turn(R):
+    """The signed axis permutation (a rotation, det +1) nearest ``R (3, 3)``: ``argmax trace(S' R)``."""
+    import itertools
+
+    import numpy as np
+
+    best, score = None, -np.inf
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            S = np.zeros((3, 3))
+            S[np.arange(3), perm] = signs
+            if np.linalg.det(S) > 0 and np.trace(S.T @ R) > score:
+                best, score = S, float(np.trace(S.T @ R))
+    return best
+
+
+def in_facegeom_frame(rig, reg):
+    """The rig in facegeom's frame for its own ``.npz``: centimetres, and the axes turned by the signed axis
+    permutation nearest the registration's (a Z-up head becomes Y-up exactly; a Y-up head keeps its axes)."""
+    from facegeom.model.rig import BlendshapeRig
+
+    S = axis_turn(reg.R.T)  # head -> model axes, snapped
+    k = reg.units  # head units -> cm
+    return BlendshapeRig(rig.neutral @ S.T * k, rig.deltas @ S.T * k, rig.names, rig.triangles, rig.landmark_ids,
+                         parts=rig.parts)
+
+
+def write_transfer_rig(rig, path, metres_per_unit: float, reg=None) -> Path:
+    """Write ``rig`` to ``path`` by suffix: ``.npz`` (facegeom's frame: :func:`in_facegeom_frame`, given ``reg``),
+    ``.glb`` (metres) or a new OBJ folder (the head's units and axes); atomically."""
     import numpy as np
 
     from facegeom.cli.identity import write_rig
     from facegeom.io.gltf import write_rig_glb
 
     path = Path(path)
+    if path.suffix.lower() == ".npz" and reg is not None:
+        return write_rig(in_facegeom_frame(rig, reg), path)
     if path.suffix.lower() == ".glb":
         K = rig.n_shapes
         weights = np.r_[np.zeros((1, K)), np.eye(K), np.zeros((1, K))]  # neutral, each shape, neutral
@@ -36,8 +67,8 @@ def write_transfer_rig(rig, path, metres_per_unit: float) -> Path:
 @click.command("transfer")
 @click.argument("head", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(),
-              help="The rig: .npz (head units), .glb (glTF, metres) or a new folder of OBJs (neutral.obj + one per "
-                   "expression, head units).")
+              help="The rig: .npz (facegeom's rig frame: cm, Y up), .glb (glTF, metres) or a new folder of OBJs "
+                   "(neutral.obj + one per expression, the head's units and axes).")
 @click.option("--engine", type=click.Choice(["deformation", "nearest", "tangent"]), default="deformation",
               show_default=True,
               help="deformation: deformation transfer (per-triangle gradients of each expression, one Poisson solve "
@@ -90,9 +121,10 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
         rig, missing = rig.renamed(ARKIT_CAMEL_NAMES)
         if missing:
             click.echo(f"ARKit names: {', '.join(missing)} left out (no ICT expression)")
-    write_transfer_rig(rig, output, reg.units / 100.0)
-    click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, "
-               f"{'metres' if suffix == '.glb' else reg.report['units']['name']})")
+    write_transfer_rig(rig, output, reg.units / 100.0, reg)
+    frame = {".glb": "metres", ".npz": "cm, Y up, facing +Z: facegeom's rig frame"}.get(
+        suffix, f"{reg.report['units']['name']}, the head's axes")
+    click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, {frame})")
 
 
 def read_head(path):
