@@ -40,7 +40,8 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
 
-__all__ = ["RigidAlignment", "align_on_surface", "align_rigid", "icp_rigid", "kabsch", "rms_radius", "trim_outliers", "units_factor"]
+__all__ = ["RigidAlignment", "align_on_surface", "align_rigid", "icp_rigid", "kabsch", "rms_radius", "trim_outliers",
+           "units_factor"]
 
 TRIM_MADS = 3.0  # pairs farther than median + this many scaled MADs are outliers
 COARSE_TEMPLATE = 250  # global search: template points per start

@@ -83,7 +83,8 @@ def compare(model, artist, engines=("deformation", "nearest"), seed=None, units_
            "not_transferred": [n for n, w in zip(artist.names, W) if not np.any(w)], "mm_per_unit": mm,
            "vertices": V, "faces": np.asarray(artist.triangles), "artist_deltas": A,
            "view": (ch.registration.R, ch.registration.t, ch.registration.scale),
-           "character": ch, "shown_faces": np.concatenate([p.faces for p in ch.pieces if p.role in ("skin", "eye", "follow")])}
+           "character": ch,
+           "shown_faces": np.concatenate([p.faces for p in ch.pieces if p.role in ("skin", "eye", "follow")])}
     for engine in engines:
         res = transfer_character(model, ch, engine)
         D = np.tensordot(W, res.deltas, axes=1)  # (A, n, 3)

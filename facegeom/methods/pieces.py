@@ -32,9 +32,9 @@ template's eye (the eye landmarks' centroid set back by the radius); a piece
 whose centroid lies in the mouth (:data:`MOUTH_BOX_CM` about the inner lips'
 midpoint) is ``jaw`` below the lips' meeting line and ``stay`` above; any other
 piece lying on the skin (median distance within :data:`FOLLOW_MM`) is
-``follow``; the rest ``stay`` -- but a piece away from the skin with at least
-:data:`SECOND_HEAD` of its area is taken for a second head and refused unless
-its role is given. Each can be given instead (``roles``: piece
+``follow``; the rest ``stay``. Before any of this (:func:`second_head`), a
+piece away from the skin with at least :data:`SECOND_HEAD` of its area is
+taken for a second head and refused unless its role is given. Each can be given instead (``roles``: piece
 name -> role).
 
 :data:`EYE_YAW_DEGREES` = 34, :data:`EYE_PITCH_DEGREES` = 29: ARKit's own
@@ -59,8 +59,8 @@ from facegeom.constants import FACE_AREA
 from facegeom.errors import InputError
 from facegeom.registration import kabsch
 
-__all__ = ["ROLES", "Piece", "split_pieces", "classify_pieces", "piece_deltas", "EYE_YAW_DEGREES",
-           "EYE_PITCH_DEGREES"]
+__all__ = ["ROLES", "Piece", "split_pieces", "second_head", "classify_pieces", "piece_deltas",
+           "EYE_YAW_DEGREES", "EYE_PITCH_DEGREES"]
 
 ROLES = ("skin", "eye", "jaw", "stay", "follow")
 EYE_YAW_DEGREES = 34.0  # eyeLookIn / eyeLookOut at weight 1 turn the eye by this much (see the module's note)
@@ -150,6 +150,27 @@ def _vc_takes_n() -> bool:
         return False
 
 
+def second_head(V, pieces: list[Piece], roles=None) -> Piece | None:
+    """The first piece (not the skin, no role given) with at least :data:`SECOND_HEAD` of the skin's area whose
+    vertices lie, by their median, farther from the skin than a tenth of the skin's size; else None.
+
+    Judged before any registration (sizes relative to the skin, no units needed).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    skin = pieces[0]
+    S = V[skin.vertices]
+    size = float(np.linalg.norm(S.max(axis=0) - S.min(axis=0)))
+    tree = None
+    for p in pieces[1:]:
+        if p.area < SECOND_HEAD * skin.area or p.name in (roles or {}):
+            continue
+        tree = tree or cKDTree(S)
+        d, _ = tree.query(V[p.vertices])
+        if float(np.median(d)) > 0.1 * size:
+            return p
+    return None
+
+
 def _fit_sphere(X):
     """Least-squares sphere through points ``X (k, 3)`` -> ``(centre, radius, rms / radius)``."""
     A = np.c_[2.0 * X, np.ones(len(X))]
@@ -167,8 +188,9 @@ def classify_pieces(model, reg, V, pieces: list[Piece], roles: dict | None = Non
     """Give every piece its role (see the module docstring); ``roles`` (name -> role) overrides what is found.
 
     ``reg``: the :class:`~facegeom.methods.transfer.HeadRegistration` of the
-    skin; ``V (n, 3)``: the whole head's vertices (the pieces' ids index it). Raises :class:`InputError` for a role not in :data:`ROLES`, a name
-    that is not a piece, or a skin given to another piece than the largest.
+    skin; ``V (n, 3)``: the whole head's vertices (the pieces' ids index it).
+    Raises :class:`InputError` for a role not in :data:`ROLES`, a name that
+    is not a piece, or a skin given to another piece than the first.
     """
     roles = dict(roles or {})
     names = [p.name for p in pieces]
@@ -212,10 +234,6 @@ def classify_pieces(model, reg, V, pieces: list[Piece], roles: dict | None = Non
             found, how = ("follow", f"on the skin ({dmm:.1f} mm)") if dmm <= FOLLOW_MM else \
                 ("stay", f"away from the skin ({dmm:.0f} mm)")
         p.role, p.how = found, how
-        if found == "stay" and p.area >= SECOND_HEAD * skin.area and p.name not in roles:
-            raise InputError(f"a second head? {p.name!r} is {100 * p.area / skin.area:.0f}% of the skin's area and "
-                             f"lies away from it; keep one head per file, or say what it is with --piece "
-                             f"'{p.name}=stay' (or =skin to transfer onto it instead)")
         if p.name in roles:
             p.role, p.how = roles[p.name], "given"
             if p.role == "eye" and p.side is None:  # an eye given: its centre fitted, its side from the model's x

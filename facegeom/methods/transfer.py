@@ -753,7 +753,7 @@ def register_character(model, V, F, *, landmarks=None, units="auto", path=None, 
     :mod:`facegeom.methods.pieces` finds or ``roles`` (piece name -> role)
     says. ``landmarks``: head vertex ids (on the skin).
     """
-    from facegeom.methods.pieces import ROLES, classify_pieces, split_pieces
+    from facegeom.methods.pieces import ROLES, classify_pieces, second_head, split_pieces
 
     say = progress or (lambda line: None)
     V, F = _check_mesh(V, F, path)
@@ -771,6 +771,11 @@ def register_character(model, V, F, *, landmarks=None, units="auto", path=None, 
         at = [i for i, p in enumerate(pieces) if p.name == chosen[0]]  # it exists: checked above
         pieces.insert(0, pieces.pop(at[0]))
     skin = pieces[0]
+    other = second_head(V, pieces, roles)
+    if other is not None:
+        raise InputError(f"a second head? {other.name!r} is {100 * other.area / skin.area:.0f}% of the skin's area "
+                         f"and lies away from it; keep one head per file, or say what it is with --piece "
+                         f"'{other.name}=stay' (or =skin to transfer onto it instead)", path)
     if len(pieces) == 1:
         bad = [n for n, r in (roles or {}).items() if n != skin.name or r != "skin"]
         if bad:
