@@ -7,7 +7,11 @@ Views (each behind ``facegeom view <name>``; ``--screenshot PATH`` renders headl
 - :class:`facegeom.viewer.playback.RetargetView` / :class:`facegeom.viewer.playback.AnimateView`: an
   actor's take beside the retargeted (and driven) character, play/pause, per-frame errors;
 - :class:`facegeom.viewer.fit.FitView`: a landmark or mesh target beside every fitter's face,
-  with the coefficients by blendshape name.
+  with the coefficients by blendshape name;
+- :class:`facegeom.viewer.rig.RigView`: any blendshape rig posed with one slider per shape;
+- :class:`facegeom.viewer.rig.TransferView`: the ICT template beside a character after
+  ``facegeom transfer``'s registration, one set of sliders for both, the template drawn over the
+  character, its 68 landmarks dragged, saved and used for a new registration.
 
 Methods come from the plugin registry (:mod:`facegeom.registry`), cases from the
 benchmark protocols (:mod:`facegeom.bench`). ``python -m facegeom.viewer.make_images``

@@ -37,8 +37,7 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "units=mm|cm|m": "--units mm|cm|m",  # model.units.rig_frame(units=) / --units
     "up=y|z": "--up y|z",  # model.units.rig_frame(up=) / --up
     "(rig_path=)": "(--rig)",  # model.load_rig(rig_path=) / --rig
-    "say what it is with roles={'": "say what it is with --piece '",  # methods.transfer(roles=) / --piece
-    "': 'stay'} (or 'skin'": "=stay' (or =skin",  # the same
+    "give it a role with roles= (": "give it a role with --piece NAME=ROLE (",  # methods.transfer(roles=) / --piece
 }
 
 

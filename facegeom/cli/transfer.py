@@ -102,12 +102,7 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
     suffix = Path(output).suffix.lower()
     if suffix and suffix not in (".npz", ".glb"):
         raise InputError(f"unsupported rig format {suffix!r}; use .npz, .glb or a folder name (OBJ folder)", output)
-    roles = {}
-    for item in pieces:
-        name, sep, role = item.rpartition("=")
-        if not sep or not name:
-            raise InputError(f"--piece takes NAME=ROLE, got {item!r}")
-        roles[name] = role
+    roles = parse_pieces(pieces)
     model = obj.face_model()
     V, F, parts = read_head(head)
     click.echo(f"{Path(head).name}: {V.shape[0]} vertices, {F.shape[0]} triangles"
@@ -125,6 +120,19 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
     frame = {".glb": "metres", ".npz": "cm, Y up, facing +Z: facegeom's rig frame"}.get(
         suffix, f"{reg.report['units']['name']}, the head's axes")
     click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, {frame})")
+
+
+def parse_pieces(items) -> dict:
+    """``--piece NAME=ROLE`` options -> ``{name: role}`` (the role checked later, with the pieces)."""
+    from facegeom.errors import InputError
+
+    roles = {}
+    for item in items:
+        name, sep, role = item.rpartition("=")
+        if not sep or not name:
+            raise InputError(f"--piece takes NAME=ROLE, got {item!r}")
+        roles[name] = role
+    return roles
 
 
 def read_head(path):

@@ -8,6 +8,8 @@ does not need polyscope at import time.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from facegeom.cli.context import TAKES_LOOKUP, other_take_sources
@@ -226,3 +228,99 @@ def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, 
                              f"it must be in vertex correspondence", target_path)
     _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh,
                  background=screenshot is None), screenshot, size, exit_after, state_path)
+
+
+@view.command("rig")
+@click.argument("rig_path", metavar="RIG", type=click.Path())
+@rig_options
+@click.option("--shape", default=None, metavar="NAME", help="Set this shape's slider at start (e.g. jawOpen).")
+@click.option("--weight", type=click.FloatRange(0, 1), default=None, metavar="W",
+              help="The weight --shape starts at, in [0, 1]; default 1.")
+@_output_options
+@click.pass_obj
+def view_rig(obj, rig_path, neutral, names_map, units, up, shape, weight, screenshot, size, exit_after, state_path):
+    """Pose a blendshape rig with one slider per shape, coloured by the displacement from its neutral (mm).
+
+    RIG: an OBJ folder, a .glb / .gltf or an .npz (as --rig elsewhere); it is shown in facegeom's frame
+    (cm, Y up) whatever its own units and axes.
+    """
+    from facegeom.errors import InputError
+    from facegeom.viewer.app import check_display
+
+    check_display(screenshot)
+    _check_screenshot(screenshot, rig_path, names_map)
+    _size(size)
+    if weight is not None and shape is None:
+        raise InputError("--weight W sets the weight of --shape NAME: give the shape too")
+    rig = load_cli_rig(rig_path, obj.face_model, neutral, names_map, units, up)
+    from facegeom.viewer.rig import RigView
+
+    v = RigView(rig, path=rig_path)
+    if shape is not None:
+        v.set_weight(shape, 1.0 if weight is None else weight)
+    _run(v, screenshot, size, exit_after, state_path)
+
+
+@view.command("transfer")
+@click.argument("head", type=click.Path(dir_okay=False))
+@click.option("--engine", type=click.Choice(["deformation", "nearest", "tangent"]), default="deformation",
+              show_default=True, help="The transfer engine (as `facegeom transfer --engine`).")
+@click.option("--landmarks", type=click.Path(dir_okay=False), default=None, metavar="CSV",
+              help="A CSV landmark,vertex_id (head vertex ids of iBUG landmarks, 4 or more): used in the registration "
+                   "and shown as given; the others start at the head vertex closest to the registered template's.")
+@click.option("--units", type=click.Choice(["auto", "mm", "cm", "m"]), default="auto", show_default=True,
+              help="The head's units (auto: the power of ten that makes it face-sized).")
+@click.option("--piece", "pieces", multiple=True, metavar="NAME=ROLE",
+              help="How a separate piece moves (eye, jaw, stay, follow, skin), as `facegeom transfer --piece`.")
+@click.option("--shape", default=None, metavar="NAME", help="Set this ICT shape's slider at start (e.g. jawOpen).")
+@click.option("--weight", type=click.FloatRange(0, 1), default=None, metavar="W",
+              help="The weight --shape starts at, in [0, 1]; default 1.")
+@click.option("--save-landmarks", "save_landmarks", type=click.Path(dir_okay=False), default=None, metavar="CSV",
+              help="Where the panel's 'save landmarks' button writes the 68 landmarks (landmark,vertex_id, what "
+                   "--landmarks and `facegeom transfer --landmarks` read); without it they cannot be saved.")
+@_output_options
+@click.pass_obj
+def view_transfer(obj, head, engine, landmarks, units, pieces, shape, weight, save_landmarks, screenshot, size,
+                  exit_after, state_path):
+    """Register HEAD, transfer the ICT expressions, and show the ICT template beside the character.
+
+    One set of sliders (the 53 ICT names) drives both; the registered template is drawn over the character
+    (a checkbox hides it). The 68 landmarks can be dragged over the head, saved (--save-landmarks) and used
+    for a new registration from the panel. HEAD: as `facegeom transfer` (a mesh, a glTF scene, a rig .npz).
+    """
+    from facegeom.cli.flags import as_flags
+    from facegeom.cli.transfer import parse_pieces, read_head
+    from facegeom.errors import InputError
+    from facegeom.viewer.app import check_display
+
+    check_display(screenshot)
+    _check_screenshot(screenshot, head, landmarks)
+    _size(size)
+    if save_landmarks is not None:
+        from facegeom.io import check_outputs, check_writable_folder
+
+        check_outputs([head], [save_landmarks, screenshot])
+        check_writable_folder(save_landmarks)
+    if weight is not None and shape is None:
+        raise InputError("--weight W sets the weight of --shape NAME: give the shape too")
+    roles = parse_pieces(pieces)
+    from facegeom.methods.transfer import read_head_landmarks
+    from facegeom.viewer.rig import TransferView, find_shape, register_and_transfer
+
+    model = obj.face_model()
+    if shape is not None:
+        i = find_shape(model.expression_names, shape, "ICT expression")
+        start = {model.expression_names[i]: 1.0 if weight is None else weight}
+    else:
+        start = None
+    V, F, parts = read_head(head)
+    click.echo(f"{Path(head).name}: {V.shape[0]} vertices, {F.shape[0]} triangles"
+               + (f", {len(parts)} parts" if parts else ""))
+    lm = read_head_landmarks(landmarks, V.shape[0]) if landmarks else None
+    character, result = register_and_transfer(model, V, F, engine=engine, landmarks=lm, units=units, path=head,
+                                              parts=parts, roles=roles,
+                                              progress=lambda line: click.echo(as_flags(line)))
+    v = TransferView(model, character, result, head_path=head, engine=engine, units=units, roles=roles,
+                     landmarks=lm, save_path=save_landmarks, weights=start,
+                     background=screenshot is None)  # a window: re-registration in a worker process
+    _run(v, screenshot, size, exit_after, state_path)

@@ -774,8 +774,8 @@ def register_character(model, V, F, *, landmarks=None, units="auto", path=None, 
     other = second_head(V, pieces, roles)
     if other is not None:
         raise InputError(f"a second head? {other.name!r} is {100 * other.area / skin.area:.0f}% of the skin's area "
-                         f"and lies away from it; keep one head per file, or say what it is with roles="
-                         f"{{'{other.name}': 'stay'}} (or 'skin' to transfer onto it instead)", path)
+                         f"and lies away from it; keep one head per file, or give it a role with roles= ('stay', or 'skin' "
+                         f"to transfer onto it instead)", path)
     if len(pieces) == 1:
         bad = [n for n, r in (roles or {}).items() if n != skin.name or r != "skin"]
         if bad:
