@@ -205,12 +205,14 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
               help="A Live Link Face CSV take (default: the first take of --takes, else of the takes lookup).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None, help=f"Folder of takes (for the default take; default: {TAKES_LOOKUP}).")
 @click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the window.")
-@click.option("--frames", default=100, show_default=True, type=click.IntRange(2, 100000))
+@click.option("--frames", default=None, type=click.IntRange(2, 100000),
+              help="Frames of the window (default 100; with --character: the rest of the take).")
 @click.option("--labels", default=10, show_default=True, type=click.IntRange(2), help="Known character frames.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the actor and the character.")
 @click.option("--retargeter", default="tangent", show_default=True, help="Retargeter spec, e.g. 'rbf'.")
 @click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output .npz.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Output .npz (with --rig or --character also .glb or a Live Link .csv).")
 @click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Solve the retargeted markers on this rig (an OBJ folder, .glb/.gltf or .npz with the ICT face's "
@@ -219,15 +221,30 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
 @rig_options
 @click.option("--fitter", default="sem-ls", show_default=True, help="With --rig: the fitter.")
 @click.option("--smooth", default="auto", show_default=True, help="With --rig: curve smoothing (auto, off, a number).")
+@click.option("--character", "character_path", type=click.Path(), default=None,
+              help="Play the take on this character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from `facegeom "
+                   "transfer`): its shapes driven by name from the take's ARKit weights, the take's head rotation "
+                   "carried over; -o: .glb (the character's mesh, shapes and animation), .csv or .npz.")
+@click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
+              help="With --character: a mapping CSV rig_shape,source_shape,gain from ARKit names to the "
+                   "character's shapes (gains per shape).")
 @click.pass_obj
 def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir,
-            rig_path, neutral, names_map, units, up, fitter, smooth):
+            rig_path, neutral, names_map, units, up, fitter, smooth, character_path, character_map):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame.
 
     With --rig: the retargeted markers are solved on the rig -> blendshape weight curves.
+    With --character: the take plays on your character's rig -> its animated .glb (or curves).
     """
     from facegeom.errors import InputError
 
+    if character_path is not None:
+        _animate_character(obj, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
+                           character_map, (neutral, names_map, units, up))
+        return
+    if character_map is not None:
+        raise InputError("--character-names goes with --character")
+    frames = 100 if frames is None else frames
     if rig_path is not None:
         _animate_rig(obj, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,
                      rig_path, fitter, smooth, (neutral, names_map, units, up))
@@ -267,6 +284,31 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     if obj_dir:
         click.echo(f"wrote {frames} OBJ files to {Path(obj_dir)}")
 
+
+
+def _animate_character(obj: Context, take_path, takes_path, start, frames, output, obj_dir, rig_path,
+                       character_path, character_map, rig_opts):
+    """``animate --character``: the take's ARKit weights -> the character's rig (the industry route)."""
+    from facegeom.cli.flags import as_flags
+    from facegeom.errors import InputError
+    from facegeom.io import check_outputs
+    from facegeom.pipelines.character import take_onto_character
+    from facegeom.pipelines.solve import write_curves
+
+    if obj_dir or rig_path is not None or rig_options_given(*rig_opts):
+        raise InputError("--character plays the take on the character's rig: --obj-dir, --rig and its options do not "
+                         "go with it")
+    path = take_files(takes_path, take_path)[0]
+    check_outputs([path, character_path, character_map], [output])
+    character = load_cli_rig(character_path, obj.face_model, names_map=character_map)
+    played = take_onto_character(path, character, start, frames)
+    write_curves(output, played)
+    for line in played.notes:
+        click.echo(as_flags(line))
+    T = played.solve.weights.shape[0]
+    click.echo(f"{path.name} frames {start}..{start + T - 1} ({T / played.fps:.1f} s at {played.fps:g} fps) on "
+               f"{Path(character_path).name}: {len(character.names)} shapes, {character.n_vertices} vertices")
+    click.echo(f"wrote {output}")
 
 
 def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,

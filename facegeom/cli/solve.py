@@ -61,9 +61,16 @@ class _Progress:
 @click.option("--smooth", default="auto", show_default=True,
               help="Temporal smoothing of the curves: auto (a Whittaker smoother, strength per curve by generalised "
                    "cross-validation; on 0.5 mm marker noise it halves the weight error), off, or a strength.")
+@click.option("--character", "character_path", type=click.Path(), default=None,
+              help="Play the solved performance on this character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from "
+                   "`facegeom transfer`): its shapes driven by name from the actor's, the head's motion scaled to "
+                   "it; -o then holds the character (.glb: its mesh, shapes and animation).")
+@click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
+              help="With --character: a mapping CSV rig_shape,source_shape,gain from the actor's names to the "
+                   "character's shapes (gains per shape).")
 @click.pass_obj
 def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, output, fitter, params, markers,
-              smooth):
+              smooth, character_path, character_map):
     """Solve the markers of CAPTURE (a marker sequence) to weight curves of the rig, head motion removed."""
     import numpy as np
 
@@ -75,7 +82,9 @@ def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, ou
 
     amount = parse_smooth(smooth)
     map_file = markers if markers and Path(markers).suffix.lower() == ".csv" else None
-    check_outputs([capture, rig_path, map_file, names_map], [output])
+    check_outputs([capture, rig_path, map_file, names_map, character_path, character_map], [output])
+    if character_map and not character_path:
+        raise InputError("--character-names goes with --character")
     if Path(output).suffix.lower() not in CURVE_WRITERS:
         raise InputError(f"unsupported curves format {Path(output).suffix!r}; use {', '.join(CURVE_WRITERS)}",
                          output)
@@ -86,6 +95,11 @@ def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, ou
         solved = solve_file(capture, rig, f, fitter, markers, amount, progress)
     finally:
         progress.close()
+    if character_path:
+        from facegeom.pipelines.character import onto_character
+
+        solved = onto_character(solved, load_cli_rig(character_path, obj.face_model, names_map=character_map),
+                                actor=rig)
     write_curves(output, solved)
     for line in solved.notes:
         click.echo(as_flags(line))

@@ -179,8 +179,9 @@ class _Blob:
 
 
 def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, names, weights: np.ndarray,
-               fps: float, generator: str) -> Path:
-    """Build and write the document (arrays already checked)."""
+               fps: float, generator: str, motion=None) -> Path:
+    """Build and write the document (arrays already checked); ``motion``: ``(quaternions (T, 4) xyzw,
+    translations (T, 3))`` animating the node, or None."""
     try:
         import pygltflib as g
     except ImportError:  # pragma: no cover - a declared dependency
@@ -202,6 +203,14 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
     i_w = blob.add(weights.astype(np.float32).reshape(-1), "SCALAR", _FLOAT)
     prim = g.Primitive(attributes=g.Attributes(POSITION=i_pos, NORMAL=i_nrm), indices=i_idx, mode=g.TRIANGLES,
                        targets=targets)
+    samplers = [g.AnimationSampler(input=i_t, output=i_w, interpolation="LINEAR")]
+    channels = [g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))]
+    if motion is not None:  # the head's motion: the node turns (slerp) and moves
+        for out, what in ((blob.add(motion[0].astype(np.float32), "VEC4", _FLOAT), "rotation"),
+                          (blob.add(motion[1].astype(np.float32), "VEC3", _FLOAT), "translation")):
+            samplers.append(g.AnimationSampler(input=i_t, output=out, interpolation="LINEAR"))
+            channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
+                                               target=g.AnimationChannelTarget(node=0, path=what)))
     doc = g.GLTF2(
         asset=g.Asset(version="2.0", generator=generator),
         scene=0,
@@ -209,11 +218,7 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
         nodes=[g.Node(mesh=0, name="face")],
         meshes=[g.Mesh(primitives=[prim], weights=[0.0] * K, name="face",
                        extras={"targetNames": [str(n) for n in names]})],
-        animations=[g.Animation(
-            name="weights",
-            samplers=[g.AnimationSampler(input=i_t, output=i_w, interpolation="LINEAR")],
-            channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))],
-            extras={"fps": fps})],
+        animations=[g.Animation(name="weights", samplers=samplers, channels=channels, extras={"fps": fps})],
         accessors=blob.accessors,
         bufferViews=blob.views,
         buffers=[g.Buffer(byteLength=blob.size)],
@@ -231,7 +236,8 @@ def _check_suffix(path: Path) -> None:
         raise InputError(f"a glTF binary file must end in .glb, got {path.suffix or 'no suffix'!r}", path)
 
 
-def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, weights, fps: float) -> Path:
+def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, weights, fps: float,
+                  rotations=None, translations=None) -> Path:
     """Write a blendshape rig and its weight curves as a glTF 2.0 binary (``.glb``), atomically.
 
     Parameters
@@ -250,6 +256,11 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
         ``(T, K)`` weights, one row per frame; sampled ``LINEAR`` at ``fps``.
     fps : float
         Frames per second of ``weights``.
+    rotations, translations : array_like, optional
+        ``(T, 3, 3)`` proper rotations and ``(T, 3)`` translations (the file's
+        units) of the head per frame: the node is animated with them (a
+        quaternion per frame, slerped; the mesh turns about its origin).
+        Both or neither.
 
     Returns
     -------
@@ -259,7 +270,8 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
     Raises
     ------
     InputError
-        A suffix other than ``.glb``; shapes that disagree; NaN or inf; faces
+        A suffix other than ``.glb``; shapes that disagree; NaN or inf; a head
+        motion that is not ``T`` proper rotations and translations; faces
         outside the vertices; a frame rate that is not positive; names that
         are not ``K``; an output folder that does not exist.
     """
@@ -279,7 +291,24 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
         raise InputError(f"weights must have shape (T, {K}) with T > 0, got {W.shape}", path)
     if not (np.isfinite(D).all() and np.isfinite(W).all()):
         raise InputError("deltas or weights contain NaN or inf", path)
-    return _write_glb(path, V, F, D, names, W, _check_fps(path, fps), "facegeom write_rig_glb")
+    motion = None
+    if (rotations is None) != (translations is None):
+        raise InputError("the head motion needs both rotations and translations", path)
+    if rotations is not None:
+        from scipy.spatial.transform import Rotation
+
+        R = np.asarray(rotations, dtype=np.float64)
+        t = np.asarray(translations, dtype=np.float64)
+        T = W.shape[0]
+        if R.shape != (T, 3, 3) or t.shape != (T, 3) or not (np.isfinite(R).all() and np.isfinite(t).all()):
+            raise InputError(f"the head motion must be {T} finite rotations (T, 3, 3) and translations (T, 3), got "
+                             f"{R.shape} and {t.shape}", path)
+        if not (np.abs(np.einsum("tij,tkj->tik", R, R) - np.eye(3)).max() < 1e-6 and (np.linalg.det(R) > 0).all()):
+            raise InputError("the head rotations are not proper rotations", path)
+        q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
+        flip = np.r_[1.0, np.sign(np.cumprod(np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]) + 1e-300)))]
+        motion = (q * flip[:, None], t)  # consecutive quaternions on the same side: slerp takes the short way
+    return _write_glb(path, V, F, D, names, W, _check_fps(path, fps), "facegeom write_rig_glb", motion)
 
 
 def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,

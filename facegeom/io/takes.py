@@ -93,14 +93,26 @@ __all__ = [
     "ict_to_arkit",
     "write_livelink_csv",
     "find_takes",
+    "EYE_YAW_PER_WEIGHT",
+    "EYE_PITCH_PER_WEIGHT",
+    "eye_rotations",
+    "head_angles",
 ]
 
-#: The 9 rotation columns that follow the weights (read past, not kept).
+#: The 9 rotation columns that follow the weights (radians; kept as ``Take.rotations`` when all nine are there).
 ROTATION_NAMES: tuple[str, ...] = (
     "HeadYaw", "HeadPitch", "HeadRoll",
     "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll",
     "RightEyeYaw", "RightEyePitch", "RightEyeRoll",
 )
+
+#: ARKit's eye turn per unit of ``eyeLookOut - eyeLookIn`` (radians). Live Link Face writes each eye's yaw and
+#: pitch beside the weights; on the four real takes at hand they are linear in them (correlation -1.00):
+#: LeftEyeYaw = -0.59 to -0.61 (out - in), RightEyeYaw = +0.60 to +0.62 (out - in) (both plus about 0.06 rad of
+#: convergence, left out here: the neutral face looks straight ahead).
+EYE_YAW_PER_WEIGHT = 0.60
+#: The same for ``eyeLookUp - eyeLookDown``: both eyes' pitch = -0.48 to -0.56 (up - down); the median take 0.50.
+EYE_PITCH_PER_WEIGHT = 0.50
 
 #: Accepted values of ``read_take(policy=...)``.
 POLICIES: tuple[str, ...] = ("interpolate", "drop")
@@ -134,6 +146,10 @@ class Take:
     timecode_fps : float
         Frame base used to read the timecode's frame field (see
         :func:`timecode_fps`).
+    rotations : numpy.ndarray or None
+        ``(T, 9)`` head and eye rotations (radians, :data:`ROTATION_NAMES`
+        order) when the file has all nine columns, else None; lost rows as
+        ``weights``.
     """
 
     path: str
@@ -143,6 +159,7 @@ class Take:
     lost_rows: int
     policy: str
     timecode_fps: float = _DEFAULT_FPS
+    rotations: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -225,14 +242,16 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     else:
         weights = _interpolate(W, t, is_good)
         times = t
+    K = len(ARKIT_NAMES)
     return Take(
         path=str(p),
         names=ARKIT_NAMES,
-        weights=weights,
+        weights=np.ascontiguousarray(weights[:, :K]),
         times=times - times[0],
         lost_rows=len(lost),
         policy=policy,
         timecode_fps=fps,
+        rotations=np.ascontiguousarray(weights[:, K:]) if weights.shape[1] > K else None,
     )
 
 
@@ -262,6 +281,8 @@ def _scan(fh, path):
         raise InputError(f"the header repeats column(s): {', '.join(dup)}", path)
     tc_col = header.index("Timecode")
     columns = [header.index(n) for n in ARKIT_NAMES]
+    if all(n in header for n in ROTATION_NAMES):  # the head and eyes, kept beside the weights
+        columns += [header.index(n) for n in ROTATION_NAMES]
     pick = operator.itemgetter(*columns)
 
     good_lines: list[int] = []
@@ -307,7 +328,7 @@ def _to_float(cells: list[tuple[str, ...]], lines: list[int], columns: list[int]
     except ValueError:
         W = None
     if W is not None and np.isfinite(W).all():
-        return W.reshape(len(cells), len(ARKIT_NAMES))
+        return W.reshape(len(cells), len(columns))
     for r, row in enumerate(cells):  # slow path: only to name the culprit
         for k, cell in enumerate(row):
             try:
@@ -594,3 +615,47 @@ def find_takes(folder: str | os.PathLike) -> list[Path]:
     if not files:
         raise InputError("no .csv take in this folder", folder)
     return files
+
+
+def eye_rotations(weights, names: Sequence[str]) -> np.ndarray:
+    """The eyes' Live Link rotations from ARKit eye-look weights -> ``(T, 6)`` radians.
+
+    Columns ``LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, RightEyePitch,
+    RightEyeRoll`` (:data:`ROTATION_NAMES` [3:]), as the app relates them
+    (:data:`EYE_YAW_PER_WEIGHT`, :data:`EYE_PITCH_PER_WEIGHT`; roll 0).
+    ``names``: the ARKit names of the columns of ``weights (T, K)``, any
+    spelling; a missing eye-look column counts as 0.
+    """
+    W = np.asarray(weights, dtype=np.float64)
+    if W.ndim != 2 or W.shape[1] != len(names):
+        raise InputError(f"weights must be (T, {len(names)}), got {W.shape}")
+    col = {}
+    for k, n in enumerate(names):
+        plain = str(n)[:1].upper() + str(n)[1:]
+        if plain in _ARKIT_SET:
+            col[plain] = k
+
+    def w(name):
+        return W[:, col[name]] if name in col else np.zeros(W.shape[0])
+
+    out = np.zeros((W.shape[0], 6))
+    for i, side, sign in ((0, "Left", -1.0), (3, "Right", 1.0)):
+        out[:, i] = sign * EYE_YAW_PER_WEIGHT * (w(f"EyeLookOut{side}") - w(f"EyeLookIn{side}"))
+        out[:, i + 1] = -EYE_PITCH_PER_WEIGHT * (w(f"EyeLookUp{side}") - w(f"EyeLookDown{side}"))
+    return out
+
+
+def head_angles(rotations) -> np.ndarray:
+    """Head rotations ``(T, 3, 3)`` (facegeom's frame: Y up, the face towards +Z) -> ``(T, 3)`` yaw, pitch, roll.
+
+    Radians, intrinsic Y (yaw), then X (pitch), then Z (roll): the ``HeadYaw,
+    HeadPitch, HeadRoll`` columns of a Live Link take.
+    """
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(rotations, dtype=np.float64)
+    if R.ndim != 3 or R.shape[1:] != (3, 3):
+        raise InputError(f"rotations must be (T, 3, 3), got {R.shape}")
+    if R.shape[0] == 0:
+        return np.zeros((0, 3))
+    return Rotation.from_matrix(R).as_euler("YXZ")

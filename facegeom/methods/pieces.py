@@ -57,14 +57,15 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.constants import FACE_AREA
 from facegeom.errors import InputError
+from facegeom.io.takes import EYE_PITCH_PER_WEIGHT, EYE_YAW_PER_WEIGHT
 from facegeom.registration import kabsch
 
 __all__ = ["ROLES", "Piece", "split_pieces", "second_head", "classify_pieces", "piece_deltas",
            "EYE_YAW_DEGREES", "EYE_PITCH_DEGREES"]
 
 ROLES = ("skin", "eye", "jaw", "stay", "follow")
-EYE_YAW_DEGREES = 34.0  # eyeLookIn / eyeLookOut at weight 1 turn the eye by this much (see the module's note)
-EYE_PITCH_DEGREES = 29.0  # eyeLookUp / eyeLookDown at weight 1
+EYE_YAW_DEGREES = float(np.degrees(EYE_YAW_PER_WEIGHT))  # eyeLookIn / Out at weight 1 turn the eye this much (34.4)
+EYE_PITCH_DEGREES = float(np.degrees(EYE_PITCH_PER_WEIGHT))  # eyeLookUp / Down at weight 1 (28.6)
 EYE_RADIUS_CM = (0.8, 1.8)  # an eyeball's radius (people: about 1.2 cm), model cm
 EYE_SPHERE_RMS = 0.1  # a sphere fits an eye within this fraction of its radius (rms)
 EYE_CENTRE_CM = 2.0  # an eye's centre lies within this of the template's eye centre, model cm

@@ -49,7 +49,8 @@ from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
 from facegeom.methods.marker_solve import MarkerSolve, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
-__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "arkit_map", "marker_vertices", "read_animation",
+__all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "arkit_map", "livelink_rotations", "marker_vertices",
+           "read_animation",
            "solve_file",
            "take_fps",
            "write_curves", "write_curves_glb", "write_curves_livelink", "write_curves_npz"]
@@ -210,8 +211,12 @@ def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
     rig = solved.rig
     if rig is None:
         raise InputError("a .glb needs the rig's mesh, and this solve carries no rig", path)
+    s = solved.solve
+    motion = {}
+    if isinstance(s.info, dict) and s.info.get("head_motion"):  # a performance on a character: the head moves too
+        motion = {"rotations": s.rotations, "translations": s.translations * GLB_SCALE}
     return write_rig_glb(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
-                         solved.solve.names, solved.solve.weights, solved.fps)
+                         s.names, s.weights, solved.fps, **motion)
 
 
 def arkit_map(solved: SolvedCapture) -> ShapeMap:
@@ -222,8 +227,27 @@ def arkit_map(solved: SolvedCapture) -> ShapeMap:
     return ShapeMap.between(ARKIT_NAMES, solved.solve.names)
 
 
+def livelink_rotations(solved: SolvedCapture, arkit_weights) -> np.ndarray:
+    """The 9 rotation columns of a Live Link take for ``solved`` -> ``(T, 9)`` radians.
+
+    Head: the solve's head rotations as yaw, pitch, roll
+    (:func:`facegeom.io.takes.head_angles`); eyes: the take's own when the
+    curves came from one (``solve.info["eye_rotations"]``), else from the
+    ARKit eye-look weights ``arkit_weights (T, 52)`` as the app relates them
+    (:func:`facegeom.io.takes.eye_rotations`).
+    """
+    from facegeom.io.takes import eye_rotations, head_angles
+
+    s = solved.solve
+    eyes = s.info.get("eye_rotations") if isinstance(s.info, dict) else None
+    if eyes is None:
+        eyes = eye_rotations(arkit_weights, ARKIT_NAMES)
+    return np.c_[head_angles(s.rotations), eyes]
+
+
 def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
-    """The weights as a Live Link Face CSV take: the 52 ARKit columns from the rig's shapes (:func:`arkit_map`)."""
+    """The weights as a Live Link Face CSV take: the 52 ARKit columns from the rig's shapes (:func:`arkit_map`),
+    the head's and eyes' rotation columns from the solve (:func:`livelink_rotations`)."""
     from facegeom.io.takes import write_livelink_csv
 
     m = arkit_map(solved)
@@ -237,7 +261,7 @@ def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
     if m.unmapped_source:
         solved.notes.append(f"{path.name}: rig shapes a Live Link take has no column for (not written): "
                             f"{', '.join(m.unmapped_source)}")
-    return write_livelink_csv(path, W, ARKIT_NAMES, solved.fps)
+    return write_livelink_csv(path, W, ARKIT_NAMES, solved.fps, rotations=livelink_rotations(solved, W))
 
 
 CURVE_WRITERS = {

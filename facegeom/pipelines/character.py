@@ -1,0 +1,121 @@
+"""A performance played on the user's own character through the rig: weights by name, head and eyes carried over.
+
+The industry route (``facegeom solve ... --character RIG``, ``facegeom animate
+--take TAKE --character RIG``): the actor's weights -- a solve on the actor's
+rig, or the ARKit weights of a Live Link take -- drive the character's rig
+through the one name map (:meth:`~facegeom.model.rig.BlendshapeRig.map_from`:
+ICT and ARKit names in any spelling, a mapping file's gains), with
+
+- the head's motion carried over: the same rotations; the translations
+  scaled by the character's size over the actor's (the root mean square
+  radius of the neutrals), so a character twice the actor's size moves twice
+  as far;
+- the eyes: a character rig's eye-look shapes are driven like any other (its
+  eyes, when :mod:`facegeom.methods.pieces` made them, turn inside those
+  shapes); the Live Link output gets eye rotation columns from the ARKit
+  eye-look weights, as the app relates them
+  (:func:`facegeom.io.takes.eye_rotations`), and head columns from the head
+  rotations (:func:`facegeom.io.takes.head_angles`).
+
+The result is a :class:`~facegeom.pipelines.solve.SolvedCapture` on the
+character, written by the usual writers (``.glb``: the character's mesh, its
+shapes and the animation; ``.csv``: a Live Link take; ``.npz``: curves).
+Shapes of the character nothing drives, and actor shapes that drive nothing,
+are named in the notes.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.io.markerseq import MarkerSequence
+from facegeom.io.shape_names import ARKIT_NAMES
+from facegeom.methods.marker_solve import MarkerSolve
+from facegeom.pipelines.solve import SolvedCapture, take_fps
+from facegeom.registration import rms_radius
+
+__all__ = ["onto_character", "take_onto_character", "size_ratio"]
+
+
+def size_ratio(character, actor) -> float:
+    """The character's size over the actor's: the ratio of their neutrals' root mean square radii (1 if unknown)."""
+    if actor is None:
+        return 1.0
+    a = rms_radius(np.asarray(actor.neutral, dtype=np.float64))
+    c = rms_radius(np.asarray(character.neutral, dtype=np.float64))
+    return float(c / a) if a > 0 and np.isfinite(c / a) else 1.0
+
+
+def _map_notes(m, character, what: str) -> list[str]:
+    notes = []
+    if m.unmapped_rig:
+        notes.append(f"character shapes nothing in the {what} drives (held at 0): {', '.join(m.unmapped_rig)}")
+    if m.unmapped_source:
+        notes.append(f"{what} shapes the character has no shape for (dropped): {', '.join(m.unmapped_source)}")
+    return notes
+
+
+def onto_character(solved: SolvedCapture, character, actor=None) -> SolvedCapture:
+    """The actor's solve ``solved`` played on ``character`` (a :class:`~facegeom.model.rig.BlendshapeRig`).
+
+    ``actor``: the rig that was solved (default ``solved.rig``), for the size
+    ratio of the head's translations. Raises :class:`InputError` when no shape
+    of the character is reached by the actor's names.
+    """
+    s = solved.solve
+    m = character.map_from(s.names)
+    if m.is_empty:
+        raise InputError(f"none of the character's shapes is reached by the actor's names ({', '.join(s.names[:4])}, "
+                         f"...); give a mapping file with names=MAP.csv")
+    k = size_ratio(character, actor if actor is not None else solved.rig)
+    out = replace(s, weights=m.apply(s.weights), raw_weights=m.apply(s.raw_weights), names=tuple(character.names),
+                  translations=s.translations * k, smoothing=np.zeros(len(character.names)),
+                  info={**s.info, "character_scale": k, "head_motion": True})
+    notes = list(solved.notes) + _map_notes(m, character, "actor's rig")
+    notes.append(f"character: {int(m.matrix.any(axis=1).sum())} of its {len(character.names)} shapes driven; head "
+                 f"translations x{k:.3f} (the character's size over the actor's)")
+    return replace(solved, solve=out, rig=character, notes=notes)
+
+
+def take_onto_character(take, character, start: int = 0, frames: int | None = None) -> SolvedCapture:
+    """A Live Link take (a :class:`~facegeom.io.takes.Take` or its path) played on ``character``.
+
+    Its ARKit weights drive the character through the name map; its head
+    rotations (when the file has them) become the head's motion. Frames
+    ``start .. start + frames - 1`` (all from ``start`` when ``frames`` is None).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from facegeom.io.takes import read_take
+
+    tk = read_take(take) if isinstance(take, (str, Path)) else take
+    T_all = tk.n_frames
+    if not 0 <= start < T_all:
+        raise InputError(f"the take has {T_all} frames; start {start} is outside it", tk.path)
+    stop = T_all if frames is None else start + frames
+    if stop > T_all:
+        raise InputError(f"the take has {T_all} frames; start {start} + frames {frames} runs past its end", tk.path)
+    W = tk.weights[start:stop]
+    m = character.map_from(ARKIT_NAMES)
+    if m.is_empty:
+        raise InputError("none of the character's shapes is an ARKit or ICT expression; give a mapping file with "
+                         "names=MAP.csv")
+    T = W.shape[0]
+    if tk.rotations is not None:  # yaw about Y, pitch about X, roll about Z (intrinsic), radians
+        R = Rotation.from_euler("YXZ", tk.rotations[start:stop, :3]).as_matrix()
+    else:
+        R = np.repeat(np.eye(3)[None], T, axis=0)
+    Wc = m.apply(W)
+    solve = MarkerSolve(weights=Wc, names=tuple(character.names), rotations=R, translations=np.zeros((T, 3)),
+                        raw_weights=Wc.copy(), smoothing=np.zeros(len(character.names)), rms=np.zeros(T),
+                        lost=np.zeros(T, dtype=np.int64), time_s=0.0,
+                        info={"take": tk.path, "head_motion": True,
+                              "eye_rotations": None if tk.rotations is None else tk.rotations[start:stop, 3:]})
+    seq = MarkerSequence(np.arange(start, stop, dtype=np.int64), (), np.zeros((T, 0, 3)), tk.path)
+    notes = _map_notes(m, character, "take's")
+    if tk.rotations is None or not np.any(tk.rotations[start:stop, :3]):
+        notes.append(f"{Path(tk.path).name}: no head rotation in the take; the head stays still")
+    return SolvedCapture(solve, seq, np.zeros(0, dtype=np.int64), "take", take_fps(tk), True, character, notes)

@@ -1,0 +1,186 @@
+"""A performance on the user's own character through the rig: `animate --take --character`, `solve --character`.
+
+The character: the MakeHuman head with its 52 ARKit face units (CC0, ``tests/data/heads/``), an
+artist's ARKit-named rig in another topology. Its shapes are driven by name (ICT and ARKit meet
+through the one name map), the head's rotation and (scaled) translation carried over, the Live
+Link output's head and eye columns filled, every ``.glb`` opened by the Khronos validator.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tests.conftest import validate
+
+CHARACTER = Path(__file__).parent / "data" / "heads" / "makehuman_arkit.npz"
+
+
+@pytest.fixture(scope="module")
+def character():
+    from facegeom.model.rig import BlendshapeRig
+
+    return BlendshapeRig.from_npz(CHARACTER)
+
+
+def _glb_motion(path):
+    """The node's rotation and translation keyframes of a .glb written by facegeom -> (quats (T, 4), t (T, 3))."""
+    import pygltflib
+
+    doc = pygltflib.GLTF2().load_binary(str(path))
+    blob = doc.binary_blob()
+    out = {}
+    for ch in doc.animations[0].channels:
+        acc = doc.accessors[doc.animations[0].samplers[ch.sampler].output]
+        view = doc.bufferViews[acc.bufferView]
+        width = {"VEC4": 4, "VEC3": 3, "SCALAR": 1}[acc.type]
+        data = np.frombuffer(blob, dtype=np.float32, count=acc.count * width,
+                             offset=view.byteOffset + (acc.byteOffset or 0))
+        out[ch.target.path] = data.reshape(acc.count, width)
+    return out
+
+
+def test_take_on_the_character(character, real_takes, tmp_path, capsys, validator_env):
+    from facegeom.cli.main import main
+    from facegeom.io.gltf import read_glb_animation
+    from facegeom.io.takes import read_take
+
+    take = real_takes[0]
+    main(["animate", "--take", str(take), "--character", str(CHARACTER), "--frames", "120", "-o",
+          str(tmp_path / "on.glb")])
+    out = capsys.readouterr().out
+    assert "frames 0..119" in out and "wrote" in out
+    issues = validate(validator_env, tmp_path / "on.glb")
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0
+    anim = read_glb_animation(tmp_path / "on.glb")
+    tk = read_take(take)
+    names = list(anim.names) if hasattr(anim, "names") else list(character.names)
+    W = np.asarray(anim.weights)
+    assert W.shape == (120, 52)
+    # ARKit names on both sides: the take's weights play one to one (float32 in the file)
+    for k, n in enumerate(names):
+        col = tk.names.index(n[0].upper() + n[1:])
+        np.testing.assert_allclose(W[:, k], tk.weights[:120, col], atol=1e-6)
+    # the Live Link take of the character: same weights, the take's eye rotations carried over
+    main(["animate", "--take", str(take), "--character", str(CHARACTER), "--frames", "120", "-o",
+          str(tmp_path / "on.csv")])
+    back = read_take(tmp_path / "on.csv")
+    np.testing.assert_allclose(back.weights, tk.weights[:120], atol=1e-3)
+    if tk.rotations is not None:
+        np.testing.assert_allclose(back.rotations[:, 3:], tk.rotations[:120, 3:], atol=1e-3)
+
+
+def test_character_names_map_gains(character, real_takes, tmp_path):
+    from facegeom.cli.main import main
+    from facegeom.io.takes import read_take
+
+    m = tmp_path / "map.csv"
+    m.write_text("rig_shape,source_shape,gain\njawOpen,jawOpen,0.5\nmouthSmileLeft,mouthSmileLeft,0\n")
+    main(["animate", "--take", str(real_takes[0]), "--character", str(CHARACTER), "--character-names", str(m),
+          "--frames", "60", "-o", str(tmp_path / "c.npz")])
+    z = np.load(tmp_path / "c.npz")
+    tk = read_take(real_takes[0])
+    names = list(z["names"])
+    np.testing.assert_allclose(z["weights"][:, names.index("jawOpen")], 0.5 * tk.weights[:60, tk.names.index("JawOpen")])
+    assert np.abs(z["weights"][:, names.index("mouthSmileLeft")]).max() == 0.0
+    np.testing.assert_allclose(z["weights"][:, names.index("eyeBlinkLeft")], tk.weights[:60, tk.names.index("EyeBlinkLeft")])
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory, face_model):
+    """30 frames of the ICT face's 80 markers, jawOpen and a smile, the head turning and moving (cm)."""
+    from facegeom.io.markerseq import write_marker_sequence
+    from facegeom.model import BlendshapeRig
+    from facegeom.model.layouts import ict80
+
+    d = tmp_path_factory.mktemp("character")
+    rig = BlendshapeRig.from_face_model(face_model)
+    ids = ict80(face_model)
+    rng = np.random.default_rng(1)
+    T = 30
+    W = np.zeros((T, rig.n_shapes))
+    W[:, rig.shape_index("jawOpen")] = 0.5 + 0.4 * np.sin(np.linspace(0, 3, T))
+    W[:, rig.shape_index("mouthSmile_L")] = np.linspace(0, 0.8, T)
+    F = rig.neutral[ids][None] + np.einsum("tb,bpi->tpi", W, rig.deltas[:, ids])
+    R = Rotation.from_rotvec(rng.normal(0, 0.2, (T, 3))).as_matrix()
+    t = rng.normal(0, 3, (T, 3))
+    X = np.einsum("tij,tpj->tpi", R, F) + t[:, None]
+    write_marker_sequence(d / "cap.npz", X, names=[f"v{i}" for i in ids])
+    return d, rig, W, R, t
+
+
+def test_solve_onto_the_character(capture, character, tmp_path, capsys, validator_env):
+    from facegeom.cli.main import main
+    from facegeom.pipelines.character import size_ratio
+
+    d, rig, W, R, t = capture
+    main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
+          str(tmp_path / "c.npz")])
+    out = capsys.readouterr().out
+    assert "head translations x" in out
+    z = np.load(tmp_path / "c.npz")
+    names = list(z["names"])
+    assert names == list(character.names)
+    # the actor's ICT weights drive the character's ARKit shapes by name
+    np.testing.assert_allclose(z["weights"][:, names.index("jawOpen")], W[:, rig.shape_index("jawOpen")], atol=1e-3)
+    np.testing.assert_allclose(z["weights"][:, names.index("mouthSmileLeft")], W[:, rig.shape_index("mouthSmile_L")],
+                               atol=1e-3)
+    assert np.abs(z["weights"][:, names.index("tongueOut")]).max() == 0.0  # no ICT shape drives it
+    # the head: the same turns, translations scaled to the character
+    k = size_ratio(character, rig)
+    assert 0.5 < k < 2.0 and abs(k - 1.0) > 0.01
+    np.testing.assert_allclose(z["rotations"], R, atol=1e-4)
+    np.testing.assert_allclose(z["translations"], k * t, atol=1e-3)
+    # the .glb: the character's mesh and shapes, its node turning and moving as the actor's head (metres)
+    main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
+          str(tmp_path / "c.glb")])
+    issues = validate(validator_env, tmp_path / "c.glb")
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0
+    motion = _glb_motion(tmp_path / "c.glb")
+    q = Rotation.from_matrix(R).as_quat()
+    dots = np.abs((motion["rotation"] * q).sum(axis=1))
+    assert dots.min() > 1 - 1e-5
+    np.testing.assert_allclose(motion["translation"], k * t * 0.01, atol=1e-5)
+    assert ((motion["rotation"][1:] * motion["rotation"][:-1]).sum(axis=1) > 0).all()  # slerp the short way
+
+
+def test_livelink_out_fills_head_and_eye_columns(capture, tmp_path):
+    """A solve's Live Link take has the head's yaw, pitch and roll and the eyes' rotations from their looks."""
+    from facegeom.cli.main import main
+    from facegeom.io.takes import EYE_YAW_PER_WEIGHT, head_angles, read_take
+
+    d, rig, W, R, t = capture
+    main(["solve", str(d / "cap.npz"), "--smooth", "off", "-o", str(tmp_path / "s.csv")])
+    tk = read_take(tmp_path / "s.csv")
+    np.testing.assert_allclose(tk.rotations[:, :3], head_angles(R), atol=1e-3)
+    assert np.abs(tk.rotations[:, 3:]).max() < 1e-6  # no eye look in this capture: straight ahead
+    from facegeom.io.takes import eye_rotations
+
+    look = np.zeros((2, 52))
+    names = list(tk.names)
+    look[0, names.index("EyeLookOutLeft")] = 1.0
+    look[1, names.index("EyeLookInRight")] = 1.0
+    e = eye_rotations(look, names)
+    assert e[0, 0] == pytest.approx(-EYE_YAW_PER_WEIGHT) and e[1, 3] == pytest.approx(-EYE_YAW_PER_WEIGHT)
+
+
+def test_character_mistakes_are_one_line(tmp_path, capsys, real_takes):
+    from facegeom.cli.main import main
+
+    for args, words in (
+        (["animate", "--take", str(real_takes[0]), "--character", str(tmp_path / "none.npz"), "-o",
+          str(tmp_path / "x.glb")], "not found"),
+        (["animate", "--take", str(real_takes[0]), "--character", str(CHARACTER), "--obj-dir", str(tmp_path / "o"),
+          "-o", str(tmp_path / "x.glb")], "--obj-dir"),
+        (["animate", "--take", str(real_takes[0]), "--character-names", str(CHARACTER), "-o",
+          str(tmp_path / "x.glb")], "--character-names goes with --character"),
+        (["animate", "--take", str(real_takes[0]), "--character", str(CHARACTER), "--start", "999999", "-o",
+          str(tmp_path / "x.glb")], "start 999999"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(args)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "x.glb").exists()
