@@ -184,3 +184,17 @@ def test_character_mistakes_are_one_line(tmp_path, capsys, real_takes):
         err = capsys.readouterr().err
         assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "x.glb").exists()
+
+
+def test_bench_character_orders_the_routes(face_model, real_takes, tmp_path, capsys):
+    """Where the truth is known: the actor's rig with deformation transfer beats the generic solve and the
+    nearest-copy baseline by far, and the transfer alone (true weights) is the smallest error."""
+    from facegeom.bench.character import ROUTES, run
+
+    r = run(face_model, real_takes[:1], tmp_path, cases=1, frames=60)
+    err = {x["route"]: x["face_median_mm"] for x in r["rows"]}
+    print(err)
+    ours, generic, copy, transfer_only = (err[k] for k in ROUTES)
+    assert transfer_only < ours < 0.5 * min(generic, copy)
+    assert ours < 1.0  # mm, at the character's size
+    assert (tmp_path / "character.csv").exists() and (tmp_path / "character-summary.md").exists()

@@ -347,6 +347,26 @@ def bench_transfer(obj: Context, artist_path, neutral, names_map, units, up, eng
         click.echo(f"wrote {path}")
 
 
+@bench.command("character")
+@click.option("--cases", default=4, show_default=True, type=click.IntRange(1, 1000),
+              help="Actor / character pairs (random ICT identities; each character remeshed and registered).")
+@click.option("--frames", default=300, show_default=True, type=click.IntRange(10, 100000),
+              help="Frames of the take window per case.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help=f"Folder of ARKit take CSVs (or one CSV). Default: {TAKES_LOOKUP}.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/character", show_default=True,
+              help="Folder for character.csv and character-summary.md.")
+@click.pass_obj
+def bench_character(obj: Context, cases, frames, takes_path, seed, out):
+    """A performance onto another character through the rig, where the truth is known (face error, weights, jitter)."""
+    from facegeom.bench import character as bc
+    from facegeom.cli.context import take_files
+
+    takes = take_files(takes_path, None, alternatives=())
+    bc.run(obj.face_model(), takes, out, cases, frames, seed, echo=click.echo, progress=click.echo)
+
+
 @bench.command("retarget-scaling")
 @click.option("--frames", default="100,1000,10000,100000", show_default=True,
               help="Comma-separated sequence lengths T.")

@@ -1,0 +1,148 @@
+"""A performance onto another character through the rig, measured where the truth is known.
+
+Protocol (seeded, ``facegeom bench character``): per case,
+
+- the **actor**: a random ICT identity performing a window of a real take (its
+  ICT weights), seen as the 80 markers of the ``ict80`` layout with 0.2 mm of
+  noise, the head turning and moving;
+- the **character**: another random ICT identity, remeshed by pymeshlab to
+  another topology (10,000-13,000 vertices) and given to ``facegeom transfer`` as a
+  bare head; its **true** performance is the take's weights on its true shapes
+  (the ICT expressions resampled at its vertices, barycentric);
+- the **routes** (each a solve of the actor, curves smoothed as ``facegeom
+  solve`` does by default, then weights played on a character rig by name):
+
+  ``facegeom (actor's rig)``: solve on the actor's own rig (its true identity:
+  what ``facegeom identity`` fits, at best), character rig by deformation
+  transfer; ``facegeom, generic actor``: solve on the generic ICT
+  face (no identity fit), deformation transfer; baselines ``copy weights,
+  nearest transfer``: the generic solve copied onto a rig built by copying each
+  delta from the nearest registered point (the common shortcut); and
+  ``true weights, deformation transfer``: the take's own weights on the
+  transferred rig (the transfer's share of the error).
+
+Per route: the character's face error per frame (RMS over the vertices near
+the face area, mm at the character's own size), median and 95th percentile
+over frames; the weight error (mean absolute, against the take's); the jitter
+(mean absolute second difference of the face's vertices over frames, mm per
+frame squared) next to the truth's own.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from facegeom.bench.report import Report, format_table, machine_note
+from facegeom.constants import CM_TO_MM, FACE_AREA
+
+__all__ = ["make_character", "run_case", "run", "ROUTES"]
+
+ROUTES = ("facegeom (actor's rig)", "facegeom, generic actor", "copy weights, nearest transfer",
+          "true weights, deformation transfer")
+EDGE_CM = 0.3  # the character's remesh: target edge length (10,000-13,000 vertices)
+NOISE_MM = 0.2  # marker noise of the actor's capture
+
+
+def make_character(model, seed: int):
+    """A random ICT identity remeshed to another topology -> ``(V cm, F, true deltas (K, n, 3) cm, face mask (n,))``."""
+    import igl
+    import pymeshlab
+
+    a = model.random_identity(np.random.default_rng([int(seed), 7]))
+    V0 = model.identity_neutral(a)
+    T = np.asarray(model.triangles, dtype=np.int64)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(V0, T))
+    ms.meshing_isotropic_explicit_remeshing(targetlen=pymeshlab.PureValue(EDGE_CM), iterations=5)
+    m = ms.current_mesh()
+    V, F = m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
+    _, tri, C = igl.point_mesh_squared_distance(V, V0, T)
+    b = igl.barycentric_coordinates(C, V0[T[tri, 0]], V0[T[tri, 1]], V0[T[tri, 2]])
+    b = np.where(np.isfinite(b), b, 1.0 / 3.0)
+    D = np.asarray(model.expression_deltas, dtype=np.float64)
+    truth = np.einsum("vj,kvjc->kvc", b, D[:, T[tri]])
+    face = (T[tri] < FACE_AREA).all(axis=1)
+    return V, F, truth, face
+
+
+def _actor_capture(model, a_seed: int, W, rng):
+    """The actor's markers: identity ``a_seed`` performing ``W (T, K)``, head motion, noise -> ``(X (T, p, 3), ids)``."""
+    from facegeom.model import BlendshapeRig
+    from facegeom.model.layouts import ict80
+
+    rig = BlendshapeRig.from_face_model(model, model.random_identity(np.random.default_rng([int(a_seed), 3])))
+    ids = ict80(model)
+    T = W.shape[0]
+    F = rig.neutral[ids][None] + np.einsum("tb,bpi->tpi", W, rig.deltas[:, ids])
+    R = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (T, 3)), axis=0)).as_matrix()
+    t = np.cumsum(rng.normal(0, 0.05, (T, 3)), axis=0)
+    X = np.einsum("tij,tpj->tpi", R, F) + t[:, None] + rng.normal(0, NOISE_MM / CM_TO_MM, F.shape)
+    return X, ids, rig
+
+
+def run_case(model, W, a_seed: int, c_seed: int, fitter=None, progress=None) -> dict:
+    """One actor / character pair on the take window ``W (T, 53)`` -> per route the metrics (see module)."""
+    from facegeom.methods.marker_solve import solve_markers
+    from facegeom.methods.transfer import register_character, transfer_character
+    from facegeom.model import BlendshapeRig
+
+    say = progress or (lambda line: None)
+    rng = np.random.default_rng([int(a_seed), int(c_seed), 11])
+    X, ids, actor = _actor_capture(model, a_seed, W, rng)
+    generic = BlendshapeRig.from_face_model(model)
+    t0 = time.perf_counter()
+    solved = {"own": solve_markers(X, ids, actor, fitter, smooth="auto").weights,
+              "generic": solve_markers(X, ids, generic, fitter, smooth="auto").weights}
+    t_solve = time.perf_counter() - t0
+    V, F, truth, face = make_character(model, c_seed)
+    t0 = time.perf_counter()
+    ch = register_character(model, V, F)
+    t_reg = time.perf_counter() - t0
+    rigs = {e: transfer_character(model, ch, e).deltas for e in ("deformation", "nearest")}
+    say(f"case actor {a_seed} / character {c_seed}: {V.shape[0]} vertices, registration {t_reg:.1f} s, solves "
+        f"{t_solve:.1f} s")
+    true_frames = np.einsum("tk,kvc->tvc", W, truth[:, face])
+    routes = {ROUTES[0]: (solved["own"], "deformation"), ROUTES[1]: (solved["generic"], "deformation"),
+              ROUTES[2]: (solved["generic"], "nearest"), ROUTES[3]: (W, "deformation")}
+    out = {}
+    jitter_true = float(np.abs(np.diff(true_frames, 2, axis=0)).mean() * CM_TO_MM)
+    for name, (Wr, engine) in routes.items():
+        frames = np.einsum("tk,kvc->tvc", Wr, rigs[engine][:, face])
+        err = np.sqrt(((frames - true_frames) ** 2).sum(axis=2).mean(axis=1)) * CM_TO_MM  # (T,) RMS mm
+        out[name] = {"face_median_mm": float(np.median(err)), "face_p95_mm": float(np.percentile(err, 95)),
+                     "weight_mae": float(np.abs(Wr - W).mean()),
+                     "jitter": float(np.abs(np.diff(frames, 2, axis=0)).mean() * CM_TO_MM), "jitter_true": jitter_true}
+    return out
+
+
+def run(model, takes, out=None, cases: int = 2, frames: int = 300, seed: int = 0, echo=print, progress=None) -> dict:
+    """``cases`` actor / character pairs, each on a ``frames`` window of the real takes -> the summary (and files)."""
+    from facegeom.io import ict_weights, read_take
+
+    rng = np.random.default_rng(seed)
+    Ws = [ict_weights(read_take(p), model.expression_names) for p in takes]
+    rows = []
+    for c in range(cases):
+        W_all = Ws[c % len(Ws)]
+        start = int(rng.integers(0, max(1, W_all.shape[0] - frames)))
+        W = W_all[start:start + frames]
+        res = run_case(model, W, 1000 + 2 * c + seed, 1001 + 2 * c + seed, progress=progress)
+        for route, m in res.items():
+            rows.append({"case": c, "take": str(takes[c % len(takes)]), "start": start, "route": route, **m})
+    rep = Report(out, "character", echo)
+    rep.csv(rows)
+    table = []
+    for route in ROUTES:
+        r = [x for x in rows if x["route"] == route]
+        table.append([route, f"{np.median([x['face_median_mm'] for x in r]):.3f}",
+                      f"{np.median([x['face_p95_mm'] for x in r]):.3f}", f"{np.median([x['weight_mae'] for x in r]):.4f}",
+                      f"{np.median([x['jitter'] for x in r]):.4f} ({np.median([x['jitter_true'] for x in r]):.4f})"])
+    note = (f"{cases} actor / character pairs (random ICT identities; the character remeshed to 10-13k vertices, "
+            f"registered as a bare head), {frames}-frame windows of real takes, 80 markers with {NOISE_MM} mm noise; "
+            f"face error: RMS over the character's face-area vertices per frame, median over frames (mm). "
+            f"{machine_note()}.")
+    rep.summary(format_table(["route", "face error median (mm)", "face error p95 (mm)", "weight MAE",
+                              "jitter (truth) mm/frame^2"], table), note)
+    return {"rows": rows, "files": rep.written}
