@@ -167,3 +167,37 @@ def validate(env, path):
     for m in issues["messages"]:
         print(f"validator {m['severity']} {m['code']} {m.get('pointer', '')}: {m['message']}")
     return issues
+
+
+# ----------------------------------------------------------------------------- viewer tests' helpers
+@pytest.fixture
+def scene(headless):
+    """A headless polyscope scene, emptied before and after the test."""
+    import polyscope as ps
+
+    ps.remove_all_structures()
+    yield
+    ps.clear_user_callback()
+    ps.remove_all_structures()
+
+
+def read_png(path) -> np.ndarray:
+    """An image file as an ``(h, w, 3)`` RGB array."""
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def changed(a, b, cols=None) -> int:
+    """Pixels that differ visibly between two renders (in the column range ``cols`` if given)."""
+    d = np.abs(a.astype(int) - b.astype(int)).sum(axis=-1) > 30
+    if cols is not None:
+        d = d[:, max(int(cols[0]), 0):int(cols[1])]
+    return int(d.sum())
+
+
+def assert_not_blank(img):
+    """The render shows something: not one colour, and more than 3 % of its pixels not white."""
+    img = np.asarray(img, dtype=np.float64)[..., :3]
+    assert img.std() > 10.0, "the image is blank"
+    assert (np.abs(img - 255).sum(axis=-1) > 30).mean() > 0.03, "almost nothing is drawn"

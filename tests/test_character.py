@@ -83,9 +83,10 @@ def test_character_names_map_gains(character, real_takes, tmp_path):
     z = np.load(tmp_path / "c.npz")
     tk = read_take(real_takes[0])
     names = list(z["names"])
-    np.testing.assert_allclose(z["weights"][:, names.index("jawOpen")], 0.5 * tk.weights[:60, tk.names.index("JawOpen")])
+    jaw, blink = tk.names.index("JawOpen"), tk.names.index("EyeBlinkLeft")
+    np.testing.assert_allclose(z["weights"][:, names.index("jawOpen")], 0.5 * tk.weights[:60, jaw])
     assert np.abs(z["weights"][:, names.index("mouthSmileLeft")]).max() == 0.0
-    np.testing.assert_allclose(z["weights"][:, names.index("eyeBlinkLeft")], tk.weights[:60, tk.names.index("EyeBlinkLeft")])
+    np.testing.assert_allclose(z["weights"][:, names.index("eyeBlinkLeft")], tk.weights[:60, blink])
 
 
 @pytest.fixture(scope="module")
@@ -194,7 +195,47 @@ def test_bench_character_orders_the_routes(face_model, real_takes, tmp_path, cap
     r = run(face_model, real_takes[:1], tmp_path, cases=1, frames=60)
     err = {x["route"]: x["face_median_mm"] for x in r["rows"]}
     print(err)
-    ours, generic, copy, transfer_only = (err[k] for k in ROUTES)
+    ours, generic, copy, transfer_only, markers = (err[k] for k in ROUTES)
     assert transfer_only < ours < 0.5 * min(generic, copy)
     assert ours < 1.0  # mm, at the character's size
+    assert markers < min(generic, copy)  # the marker route needs no actor identity: its labels carry the character
     assert (tmp_path / "character.csv").exists() and (tmp_path / "character-summary.md").exists()
+
+
+def test_marker_route_onto_a_bare_head(face_model, real_takes, tmp_path, capsys, validator_env):
+    """No rig at all: a scanned head driven through markers retargeted from key frames; a valid animated .glb."""
+    from facegeom.cli.main import main
+    from facegeom.io.gltf import read_glb_animation
+
+    head = CHARACTER.with_name("lee_perry_smith.ply")
+    main(["animate", "--take", str(real_takes[0]), "--character", str(head), "--route", "markers", "--frames", "90",
+          "--keys", "8", "-o", str(tmp_path / "m.glb")])
+    out = capsys.readouterr().out
+    assert "8 key frames" in out and "80 markers on the character" in out and "every vertex within" in out
+    issues = validate(validator_env, tmp_path / "m.glb")
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0
+    anim = read_glb_animation(tmp_path / "m.glb")
+    assert anim.weights.shape[0] == 90 and anim.neutral.shape[0] == 8844
+    K, n = anim.deltas.shape[:2]
+    frames = anim.neutral[None] + (anim.weights @ anim.deltas.reshape(K, -1)).reshape(-1, n, 3)
+    motion = np.linalg.norm(frames - frames.mean(axis=0), axis=2).max()  # metres
+    assert 0.001 < motion < 0.05  # the face moves by millimetres to centimetres, not by the head's size
+    for args, words in ((["-o", str(tmp_path / "m.csv")], "animated .glb"),
+                        (["--rig", str(CHARACTER), "-o", str(tmp_path / "x.glb")], "--rig")):
+        with pytest.raises(SystemExit) as exc:
+            main(["animate", "--take", str(real_takes[0]), "--character", str(head), "--route", "markers", *args])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_key_frames_cover_the_performance():
+    from facegeom.pipelines.character_markers import key_frames
+
+    t = np.linspace(0, 1, 200)
+    X = np.zeros((200, 3, 3))
+    X[:, 0, 0] = np.sin(6 * t)  # extremes near 26, 78, 130, 183
+    X[:, 1, 1] = (t > 0.9) * 2.0  # a late pose, far from all others
+    k = key_frames(X, 4)
+    assert k.size == 4 and np.all(np.diff(k) > 0)
+    assert np.any(k >= 180)  # the late pose is a key
+    assert np.abs(X[k[0]] - np.median(X, axis=0)).max() < 0.1  # the first key is the rest pose

@@ -15,36 +15,10 @@ import pytest
 
 ps = pytest.importorskip("polyscope")
 
+from tests.conftest import assert_not_blank, changed, read_png  # noqa: E402
+
 from facegeom.errors import InputError  # noqa: E402
 from facegeom.viewer.app import NO_DISPLAY, check_display, display_available  # noqa: E402
-
-
-@pytest.fixture
-def scene(headless):
-    ps.remove_all_structures()
-    yield
-    ps.clear_user_callback()
-    ps.remove_all_structures()
-
-
-def read_png(path) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.open(path).convert("RGB"))
-
-
-def assert_not_blank(img):
-    img = np.asarray(img, dtype=np.float64)[..., :3]
-    assert img.std() > 10.0, "the image is blank"
-    assert (np.abs(img - 255).sum(axis=-1) > 30).mean() > 0.03, "almost nothing is drawn"
-
-
-def changed(a, b, cols=None) -> int:
-    """Pixels that differ visibly between two renders (in the column range ``cols`` if given)."""
-    d = np.abs(a.astype(int) - b.astype(int)).sum(axis=-1) > 30
-    if cols is not None:
-        d = d[:, max(int(cols[0]), 0):int(cols[1])]
-    return int(d.sum())
 
 
 def columns(view, name, V) -> tuple[float, float]:

@@ -11,7 +11,9 @@ Views (each behind ``facegeom view <name>``; ``--screenshot PATH`` renders headl
 - :class:`facegeom.viewer.rig.RigView`: any blendshape rig posed with one slider per shape;
 - :class:`facegeom.viewer.rig.TransferView`: the ICT template beside a character after
   ``facegeom transfer``'s registration, one set of sliders for both, the template drawn over the
-  character, its 68 landmarks dragged, saved and used for a new registration.
+  character, its 68 landmarks dragged, saved and used for a new registration;
+- :class:`facegeom.viewer.character.CharacterView`: a Live Link take on the ICT face beside the
+  user's character playing it through its rig, play/pause, scrubbing, the most active shapes.
 
 Methods come from the plugin registry (:mod:`facegeom.registry`), cases from the
 benchmark protocols (:mod:`facegeom.bench`). ``python -m facegeom.viewer.make_images``

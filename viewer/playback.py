@@ -30,7 +30,7 @@ from facegeom.pipelines.animate import drive_frames, face_error_mm
 from facegeom.registry import LINEUPS, parse_method, parse_methods
 from facegeom.viewer.app import TRUTH_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
-__all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView", "CurvesView"]
+__all__ = ["load_sequence", "PlaybackView", "RetargetView", "AnimateView", "CurvesView", "advance_in_real_time"]
 
 TRUE_MARKER_COLOR = (0.15, 0.15, 0.15)
 
@@ -102,6 +102,13 @@ class PlaybackView(BaseView):
 
     def playback_panel(self) -> None:
         """Play/pause and one-frame step buttons, the frame slider and the speed slider (frames per tick)."""
+        self.transport_panel()
+        ch, v = self.ui.slider_int("speed (frames/tick)", self.speed, 1, 8)
+        if ch:
+            self.speed = int(v)
+
+    def transport_panel(self) -> None:
+        """Play/pause and one-frame step buttons and the frame slider (every playback view's)."""
         import polyscope.imgui as psim
 
         ui = self.ui
@@ -116,9 +123,6 @@ class PlaybackView(BaseView):
         ch, v = ui.slider_int("frame", self.frame, 0, self.n_frames - 1)
         if ch:
             self.set_frame(int(v))
-        ch, v = ui.slider_int("speed (frames/tick)", self.speed, 1, 8)
-        if ch:
-            self.speed = int(v)
 
     def plot(self, label: str, values: np.ndarray, unit: str = "mm", height: float = 60.0) -> None:
         """Per-frame values as a line plot, the current frame's value in the overlay, a bar under it for time."""
@@ -388,6 +392,18 @@ class AnimateView(PlaybackView):
             self.plot(f"{label} marker error", self.marker_err[label], height=40.0)
 
 
+def advance_in_real_time(view: "PlaybackView", fps: float) -> None:
+    """One tick of real-time playback: the frame is the time since play was pressed (or the last jump, ``view._t0``
+    at ``view._f0``) times ``fps`` times ``view.speed``, wrapped; nothing when paused or frozen."""
+    if not view.playing or view.frozen:
+        return
+    if view._t0 is None:
+        view._t0, view._f0 = time.monotonic(), view.frame
+    t = view._f0 + int((time.monotonic() - view._t0) * fps * view.speed)
+    if t % view.n_frames != view.frame:
+        PlaybackView.set_frame(view, t)
+
+
 class CurvesView(PlaybackView):
     """Play an animation file (what ``facegeom solve`` writes): a ``.glb``, ``.npz`` curves or a Live Link take.
 
@@ -447,14 +463,8 @@ class CurvesView(PlaybackView):
         self._t0, self._f0 = (time.monotonic(), self.frame) if on else (None, self.frame)
 
     def advance(self) -> None:
-        """Real-time playback: the frame is the time since play was pressed times fps (times ``speed``), wrapped."""
-        if not self.playing or self.frozen:
-            return
-        if self._t0 is None:
-            self._t0, self._f0 = time.monotonic(), self.frame
-        t = self._f0 + int((time.monotonic() - self._t0) * self.anim.fps * self.speed)
-        if t % self.n_frames != self.frame:
-            PlaybackView.set_frame(self, t)
+        """Real-time playback at the file's frame rate (see :func:`advance_in_real_time`)."""
+        advance_in_real_time(self, self.anim.fps)
 
     def set_frame(self, t: int) -> None:
         """Show frame ``t`` (wrapped); while playing, the clock restarts there (the slider and steps)."""

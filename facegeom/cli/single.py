@@ -228,9 +228,16 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
 @click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
               help="With --character: a mapping CSV rig_shape,source_shape,gain from ARKit names to the "
                    "character's shapes (gains per shape).")
+@click.option("--route", type=click.Choice(["rig", "markers"]), default="rig", show_default=True,
+              help="With --character: rig (its shapes driven by name) or markers (no rig needed: the actor's "
+                   "markers retargeted onto the head's by the tangent framework from --keys key frames, the head "
+                   "driven through them; --character is then any head: a mesh, a glTF scene or a rig file).")
+@click.option("--keys", default=10, show_default=True, type=click.IntRange(2, 1000),
+              help="With --route markers: key frames (the frame nearest the neutral, then the farthest apart), "
+                   "their labels proposed from the actor's displacements.")
 @click.pass_obj
 def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir,
-            rig_path, neutral, names_map, units, up, fitter, smooth, character_path, character_map):
+            rig_path, neutral, names_map, units, up, fitter, smooth, character_path, character_map, route, keys):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame.
 
     With --rig: the retargeted markers are solved on the rig -> blendshape weight curves.
@@ -239,6 +246,10 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     from facegeom.errors import InputError
 
     if character_path is not None:
+        if route == "markers":
+            _animate_markers(obj, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
+                             character_map, keys, retargeter, deformer, (neutral, names_map, units, up))
+            return
         _animate_character(obj, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
                            character_map, (neutral, names_map, units, up))
         return
@@ -309,6 +320,46 @@ def _animate_character(obj: Context, take_path, takes_path, start, frames, outpu
     click.echo(f"{path.name} frames {start}..{start + T - 1} ({T / played.fps:.1f} s at {played.fps:g} fps) on "
                f"{Path(character_path).name}: {len(character.names)} shapes, {character.n_vertices} vertices")
     click.echo(f"wrote {output}")
+
+
+GLB_TOLERANCE_M = 1e-4  # --route markers: the .glb's frames within 0.1 mm of the driven mesh (metres)
+
+
+def _animate_markers(obj: Context, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
+                     character_map, keys, retargeter, deformer, rig_opts):
+    """``animate --character HEAD --route markers``: the paper's route onto a head no one rigged."""
+    import numpy as np
+
+    from facegeom.cli.flags import as_flags
+    from facegeom.cli.transfer import read_head
+    from facegeom.errors import InputError
+    from facegeom.io import check_outputs
+    from facegeom.io.gltf import write_sequence_glb
+    from facegeom.io.takes import read_take
+    from facegeom.pipelines.character_markers import markers_onto_character, take_markers
+    from facegeom.pipelines.solve import take_fps
+    from facegeom.registry import parse_method
+
+    if obj_dir or rig_path is not None or character_map is not None or any(
+            v not in (None, "auto") for v in rig_opts):
+        raise InputError("--route markers drives the head through markers: --obj-dir, --rig and its options and "
+                         "--character-names do not go with it")
+    if Path(output).suffix.lower() != ".glb":
+        raise InputError("with --route markers the output is the character's animated .glb", output)
+    path = take_files(takes_path, take_path)[0]
+    check_outputs([path, character_path], [output])
+    model = obj.face_model()
+    X, X0, ids = take_markers(model, path, start, frames)
+    V, F, parts = read_head(character_path)
+    click.echo(f"{Path(character_path).name}: {V.shape[0]} vertices; {path.name} frames {start}..{start + len(X) - 1}")
+    mr = markers_onto_character(model, X, X0, ids, V, F, n_keys=keys, parts=parts,
+                                retargeter=parse_method(retargeter).build("retargeters"),
+                                deformer=parse_method(deformer).build("deformers"),
+                                progress=lambda line: click.echo(as_flags(line)))
+    metres = mr.character.registration.units / 100.0
+    _, info = write_sequence_glb(output, mr.frames * metres, F, take_fps(read_take(path)), tolerance=GLB_TOLERANCE_M)
+    click.echo(f"wrote {output} ({info['frames']} frames as {info['targets']} morph targets, every vertex within "
+               f"{info['max_error'] * 1000:.3f} mm)")
 
 
 def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,

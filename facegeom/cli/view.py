@@ -324,3 +324,60 @@ def view_transfer(obj, head, engine, landmarks, units, pieces, shape, weight, sa
                      landmarks=lm, save_path=save_landmarks, weights=start,
                      background=screenshot is None)  # a window: re-registration in a worker process
     _run(v, screenshot, size, exit_after, state_path)
+
+
+@view.command("character")
+@click.option("--take", "take_path", type=click.Path(dir_okay=False), default=None,
+              help="A Live Link Face CSV take (default: the first take of --takes, else of the takes lookup).")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help=f"Folder of takes, for the default take (default: {TAKES_LOOKUP}).")
+@click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG",
+              help="The character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from `facegeom transfer`): its "
+                   "shapes driven by name from the take's ARKit weights, as `facegeom animate --take --character`.")
+@click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
+              metavar="MAP.csv",
+              help="With --character: a mapping CSV rig_shape,source_shape,gain from ARKit names to the "
+                   "character's shapes (gains per shape).")
+@click.option("--start", default=0, show_default=True, type=click.IntRange(0), help="First frame of the take played.")
+@click.option("--frames", default=None, type=click.IntRange(1, 1000000),
+              help="Frames played (default: the rest of the take from --start).")
+@click.option("--frame", default=0, show_default=True, type=click.IntRange(0),
+              help="Frame of the window shown first (and in the screenshot).")
+@_output_options
+@click.pass_obj
+def view_character(obj, take_path, takes_path, character_path, character_map, start, frames, frame, screenshot, size,
+                   exit_after, state_path):
+    """Play a Live Link take on the actor (the ICT face) beside your character's rig.
+
+    Actor | character, both coloured by the displacement from their neutral (mm, one scale); the character
+    plays the mapped weights and turns with the take's head rotation. Play/pause, frame slider, speed.
+    """
+    from facegeom.cli.context import take_files
+    from facegeom.cli.flags import as_flags
+    from facegeom.errors import InputError
+    from facegeom.viewer.app import check_display
+
+    check_display(screenshot)
+    _check_screenshot(screenshot, take_path, character_path, character_map)
+    _size(size)
+    if character_path is None:
+        if character_map is not None:
+            raise InputError("--character-names goes with --character")
+        raise InputError("give the character: --character RIG (an OBJ folder, .glb/.gltf or .npz, e.g. from "
+                         "`facegeom transfer`)")
+    path = take_files(takes_path, take_path)[0]
+    _check_screenshot(screenshot, path)
+    from facegeom.io.takes import read_take
+
+    take = read_take(path)
+    character = load_cli_rig(character_path, obj.face_model, names_map=character_map)
+    from facegeom.viewer.character import CharacterView
+
+    v = CharacterView(obj.face_model(), take, character, start=start, frames=frames, frame=frame,
+                      character_name=Path(character_path).name)
+    for line in v.notes:
+        click.echo(as_flags(line))
+    T = v.n_frames
+    click.echo(f"{path.name} frames {start}..{start + T - 1} ({T / v.fps:.1f} s at {v.fps:g} fps) on "
+               f"{Path(character_path).name}: {len(character.names)} shapes, {character.n_vertices} vertices")
+    _run(v, screenshot, size, exit_after, state_path)
