@@ -24,7 +24,12 @@ Protocol (seeded, ``facegeom bench character``): per case,
   retargeted by the tangent framework from :data:`KEYS` key frames whose labels
   are proposed automatically
   (:func:`facegeom.pipelines.character_markers.markers_onto_character`), the
-  character's mesh driven by the tangent deformer.
+  character's mesh driven by the tangent deformer. Labels proposed that way are
+  an affine function of the actor's markers, which every retargeter here
+  reproduces exactly (the tangent and RBF retargeters give the same frames),
+  so the retargeters are compared with the labels an artist would pose: the
+  character's **true** markers at the key frames (``markers, true labels``:
+  tangent, and RBF, the baseline of the retargeting experiments).
 
 Per route: the character's face error per frame (RMS over the vertices near
 the face area, mm at the character's own size), median and 95th percentile
@@ -45,7 +50,9 @@ from facegeom.constants import CM_TO_MM, FACE_AREA
 __all__ = ["make_character", "run_case", "run", "ROUTES"]
 
 ROUTES = ("facegeom (actor's rig)", "facegeom, generic actor", "copy weights, nearest transfer",
-          "true weights, deformation transfer", "markers: tangent retargeter + deformer")
+          "true weights, deformation transfer", "markers, labels proposed", "markers, true labels: tangent",
+          "markers, true labels: RBF")
+MARKER_ROUTES = {ROUTES[5]: "tangent", ROUTES[6]: "rbf"}  # route -> retargeter, with the character's true labels
 KEYS = 10  # the marker route's key frames (labels proposed from the actor's displacements)
 EDGE_CM = 0.3  # the character's remesh: target edge length (10,000-13,000 vertices)
 NOISE_MM = 0.2  # marker noise of the actor's capture
@@ -116,8 +123,16 @@ def run_case(model, W, a_seed: int, c_seed: int, fitter=None, progress=None) -> 
     true_frames = np.einsum("tk,kvc->tvc", W, truth[:, face])
     from facegeom.pipelines.character_markers import markers_onto_character
 
-    mr = markers_onto_character(model, stable, actor.neutral[ids], ids, V, F, n_keys=KEYS)
-    marker_frames = mr.frames[:, face] - V[face][None]
+    from facegeom.registry import parse_method
+
+    mr = markers_onto_character(model, stable, actor.neutral[ids], ids, V, F, n_keys=KEYS, character=ch)
+    marker_frames = {ROUTES[4]: mr.frames[:, face] - V[face][None]}
+    mv, keys = mr.marker_vertices, mr.key_frames
+    true_labels = V[mv][None] + np.einsum("lk,kpc->lpc", W[keys], truth[:, mv])
+    for name, spec in MARKER_ROUTES.items():
+        mt = markers_onto_character(model, stable, actor.neutral[ids], ids, V, F, keys=keys, labels=true_labels,
+                                    character=ch, retargeter=parse_method(spec).build("retargeters"))
+        marker_frames[name] = mt.frames[:, face] - V[face][None]
     routes = {ROUTES[0]: (solved["own"], "deformation"), ROUTES[1]: (solved["generic"], "deformation"),
               ROUTES[2]: (solved["generic"], "nearest"), ROUTES[3]: (W, "deformation")}
     out = {}
@@ -127,7 +142,7 @@ def run_case(model, W, a_seed: int, c_seed: int, fitter=None, progress=None) -> 
             Wr, engine = routes[name]
             frames = np.einsum("tk,kvc->tvc", Wr, rigs[engine][:, face])
         else:
-            Wr, frames = np.full_like(W, np.nan), marker_frames
+            Wr, frames = np.full_like(W, np.nan), marker_frames[name]
         err = np.sqrt(((frames - true_frames) ** 2).sum(axis=2).mean(axis=1)) * CM_TO_MM  # (T,) RMS mm
         out[name] = {"face_median_mm": float(np.median(err)), "face_p95_mm": float(np.percentile(err, 95)),
                      "weight_mae": float(np.abs(Wr - W).mean()) if np.isfinite(Wr).all() else float("nan"),

@@ -148,9 +148,11 @@ def take_markers(model, take, start: int = 0, frames: int | None = None, marker_
 
 def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_ids, V, F, *, labels=None,
                            keys=None, n_keys: int = 10, retargeter=None, deformer=None, parts=None, roles=None,
-                           progress=None) -> MarkerRoute:
+                           progress=None, character=None) -> MarkerRoute:
     """Drive the head ``(V, F)`` by the actor's markers ``(T, p, 3)`` (model frame, cm) on template vertices
-    ``marker_ids`` (see the module docstring); ``labels (L, p, 3)`` at ``keys`` replace the proposal."""
+    ``marker_ids`` (see the module docstring); ``labels (L, p, 3)`` at ``keys`` replace the proposal.
+    ``character``: the head already registered (:func:`~facegeom.methods.transfer.register_character` of
+    ``(V, F)``), not registered again."""
     from facegeom.methods.transfer import register_character
     from facegeom.registry import parse_method
 
@@ -160,7 +162,7 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
         raise InputError(f"actor markers must be (T >= 2, {len(marker_ids)}, 3), got {X.shape}")
     times = {}
     t0 = time.perf_counter()
-    ch = register_character(model, V, F, parts=parts, roles=roles, progress=progress)
+    ch = character or register_character(model, V, F, parts=parts, roles=roles, progress=progress)
     times["registration"] = time.perf_counter() - t0
     reg = ch.registration
     mv = character_markers(model, reg, ch.pieces[0].vertices, marker_ids, ch.vertices)
