@@ -82,6 +82,17 @@ def take_files_or_skip(count: int = 1):
 
 
 @pytest.fixture(scope="session")
+def scanned_head_rig(face_model, tmp_path_factory):
+    """The Lee Perry-Smith scan (``tests/data/heads``, CC BY 3.0) given to ``facegeom transfer`` once: its rig
+    ``.npz`` (cm, Y up), the registration stored with it (what the marker route and its viewer reuse)."""
+    from facegeom.cli.main import main
+
+    out = tmp_path_factory.mktemp("scanned-head") / "lee_perry_smith.npz"
+    main(["transfer", str(Path(__file__).parent / "data" / "heads" / "lee_perry_smith.ply"), "-o", str(out)])
+    return out
+
+
+@pytest.fixture(scope="session")
 def real_takes():
     """The real take files of this machine (at least one; see :func:`take_files_or_skip`)."""
     return take_files_or_skip()
@@ -201,3 +212,17 @@ def assert_not_blank(img):
     img = np.asarray(img, dtype=np.float64)[..., :3]
     assert img.std() > 10.0, "the image is blank"
     assert (np.abs(img - 255).sum(axis=-1) > 30).mean() > 0.03, "almost nothing is drawn"
+
+
+def cli_error(capsys, argv) -> str:
+    """Run ``facegeom ARGV`` in-process expecting a user's mistake: exit status 2 and one line ``facegeom: error:
+    ...`` on stderr, no traceback -> that line."""
+    from facegeom.cli.main import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(list(argv))
+    err = capsys.readouterr().err
+    assert exc.value.code == 2, err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("facegeom: error: "), err
+    assert "Traceback" not in err
+    return err.strip()

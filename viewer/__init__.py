@@ -13,9 +13,12 @@ Views (each behind ``facegeom view <name>``; ``--screenshot PATH`` renders headl
   ``facegeom transfer``'s registration, one set of sliders for both, the template drawn over the
   character, its 68 landmarks dragged, saved and used for a new registration;
 - :class:`facegeom.viewer.character.CharacterView`: a Live Link take on the ICT face beside the
-  user's character playing it through its rig, play/pause, scrubbing, the most active shapes.
+  user's character playing it through its rig, play/pause, scrubbing, the most active shapes;
+- :class:`facegeom.viewer.character_markers.MarkerCharacterView`: the same beside any head driven
+  through markers, the key frames' labels dragged with the mouse, refitted in a worker thread and saved.
 
 Methods come from the plugin registry (:mod:`facegeom.registry`), cases from the
 benchmark protocols (:mod:`facegeom.bench`). ``python -m facegeom.viewer.make_images``
-regenerates the README images. Shared machinery is in :mod:`facegeom.viewer.app`.
+regenerates the README images. Shared machinery is in :mod:`facegeom.viewer.app`, marker dragging in
+:mod:`facegeom.viewer.dragging`.
 """

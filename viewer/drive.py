@@ -33,18 +33,17 @@ from facegeom.viewer.app import (
     SELECTED_COLOR,
     TRUTH_COLOR,
     BaseView,
-    color_u32,
     error_mm,
     nice_ceiling,
     row_offsets,
 )
+from facegeom.viewer.dragging import MarkerDragging
 
 __all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
 
 DEFAULT_METHODS = "rbf;biharmonic;tangent"
 LAYOUTS = ["ict80", "landmarks68", "random80", "random40"]
 NUDGE_RANGE_MM = 20.0
-PICK_PX = 10.0  # a press this close (window pixels) to a marker's centre grabs it: markers are drawn ~5 px wide
 KEY_STEP_MM = 0.5  # one arrow-key press (x4 with shift)
 NEAR_CM = 1.0  # "near the marker": rest-shape vertices within this distance of its vertex (state file)
 FAILED_COLOR = (0.9, 0.3, 0.3)
@@ -97,7 +96,7 @@ def _rbf_kernels() -> tuple[str, ...]:
         return _RBF_KERNELS
 
 
-class DriveView(BaseView):
+class DriveView(MarkerDragging, BaseView):
     """Source | methods... | target, live under marker drags, arrow keys and slider nudges.
 
     Parameters
@@ -467,89 +466,19 @@ class DriveView(BaseView):
         xy = self.world_to_screen(np.concatenate([P + self.shifts[n] for n in names]))
         return {n: xy[i * len(P):(i + 1) * len(P)] for i, n in enumerate(names)}
 
-    def marker_at(self, screen_xy, radius_px: float = PICK_PX):
-        """``(copy, marker)`` of the marker nearest to window pixel ``screen_xy`` within ``radius_px``, or None."""
-        best, where = float(radius_px), None
-        q = np.asarray(screen_xy, float)
-        for name, xy in self.marker_screen().items():
-            d = np.linalg.norm(xy - q, axis=1)
-            i = int(np.argmin(d))
-            if d[i] <= best:
-                best, where = float(d[i]), (name, i)
-        return where
+    def marker_world(self, name: str, m: int) -> np.ndarray:
+        """Marker ``m`` as drawn on copy ``name``: its label + offset, shifted into the copy's place, ``(3,)``."""
+        return self.positions()[m] + self.shifts[name]
 
-    def begin_drag(self, screen_xy) -> bool:
-        """Grab the marker within :data:`PICK_PX` pixels of ``screen_xy`` (on a method's face or on the target):
-        select it and start dragging; the camera ignores the mouse until :meth:`end_drag`. Returns whether it did."""
-        import polyscope as ps
+    def drag_value(self, m: int) -> np.ndarray:
+        """What a drag of marker ``m`` changes: its offset (cm), copied at the press."""
+        return self.offsets[m].copy()
 
-        hit = self.marker_at(screen_xy)
-        if hit is None:
-            return False
-        name, m = hit
-        o, d = self.screen_ray(screen_xy)
-        n = np.asarray(ps.get_view_camera_parameters().get_look_dir(), float)
-        anchor = self.positions()[m] + self.shifts[name]  # the marker, in the copy's place
-        grab = o + d * float((anchor - o) @ n) / float(d @ n)  # where the press meets the marker's plane
-        self._drag = (m, anchor, grab, n, self.offsets[m].copy())
-        self.marker = m
-        ps.set_do_default_mouse_interaction(False)
-        self.refresh()
-        return True
-
-    def drag_to(self, screen_xy) -> None:
-        """Move the dragged marker with the mouse: by the press-to-``screen_xy`` motion, in the plane through the
-        marker facing the camera (the marker does not jump to the cursor when the press was a few pixels off)."""
-        if self._drag is None:
-            return
-        m, anchor, grab, n, start = self._drag
-        o, d = self.screen_ray(screen_xy)
-        denom = float(d @ n)
-        if abs(denom) < 1e-9:
-            return
-        hit = o + d * float((anchor - o) @ n) / denom
-        new = start + (hit - grab)
+    def drag_set(self, m: int, start, delta) -> None:
+        """A drag moved marker ``m`` by ``delta`` (cm) since the press: its offset becomes ``start + delta``."""
+        new = start + delta
         if not np.array_equal(new, self.offsets[m]):
             self.set_offset(m, new)
-
-    def end_drag(self, screen_xy=None) -> None:
-        """Finish the drag (at ``screen_xy`` if given) and give the mouse back to polyscope's camera."""
-        import polyscope as ps
-
-        if self._drag is not None and screen_xy is not None:
-            self.drag_to(screen_xy)
-        if self._drag is not None:
-            self.drags += 1
-        self._drag = None
-        ps.set_do_default_mouse_interaction(True)
-
-    def handle_mouse(self) -> None:
-        """Mouse dragging, once per frame.
-
-        Polyscope reads the mouse for its camera before this callback runs, but only
-        starts orbiting once the button has moved a few pixels: a press seen here
-        switches its mouse handling off in time. The press position is ImGui's
-        (where the button went down, even if the mouse moved in the same frame), and
-        a release applies the last position first (a fast flick can move and release
-        within one frame). Off the markers, or over a panel, the camera works as usual.
-        """
-        import polyscope.imgui as psim
-
-        io = psim.GetIO()
-        self.hover = None
-        if self._drag is None:
-            if not io.WantCaptureMouse:
-                hit = self.marker_at(io.MousePos)
-                self.hover = None if hit is None else hit[1]
-                if psim.IsMouseClicked(0):
-                    self.begin_drag(io.MouseClickedPos[0])
-            if self.hover is not None or self._drag is not None:
-                psim.SetMouseCursor(psim.ImGuiMouseCursor_Hand)
-        elif psim.IsMouseDown(0):
-            self.drag_to(io.MousePos)
-            psim.SetMouseCursor(psim.ImGuiMouseCursor_Hand)
-        else:
-            self.end_drag(io.MousePos)
 
     def handle_keys(self) -> None:
         """Arrow keys nudge the selected marker in the screen plane (left/right, up/down), page up/down towards or
@@ -573,20 +502,6 @@ class DriveView(BaseView):
                 delta += v * step
         if delta.any():
             self.nudge(self.marker, delta)
-
-    def draw_marker_rings(self) -> None:
-        """Rings around the selected marker (magenta) and the one under the mouse (black, thicker) on every
-        draggable copy, so the user sees what a press would grab and what the keys move."""
-        import polyscope.imgui as psim
-
-        dl = psim.GetBackgroundDrawList()
-        xy = self.marker_screen()
-        for name in xy:
-            p = xy[name][self.marker]
-            dl.AddCircle((float(p[0]), float(p[1])), 7.0, color_u32(SELECTED_COLOR), 0, 2.0)
-            if self.hover is not None:
-                p = xy[name][self.hover]
-                dl.AddCircle((float(p[0]), float(p[1])), PICK_PX, color_u32((0.05, 0.05, 0.05)), 0, 2.5)
 
     def _capture_rest_faces(self) -> None:
         if not self.offsets.any():

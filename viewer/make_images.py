@@ -4,8 +4,8 @@ Usage::
 
     python -m facegeom.viewer.make_images --out docs/images [--only drive,fit] [--size 1600x900]
 
-Writes ``view-drive.png``, ``view-retarget.png``, ``view-animate.png`` and
-``view-fit.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
+Writes ``view-drive.png``, ``view-retarget.png``, ``view-animate.png``,
+``view-fit.png`` and ``view-character.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
 fixed, seeded settings). Needs the face data (``--data`` or ``$FACEGEOM_DATA``)
 and, for retarget/animate, the ARKit takes (``--takes`` or ``$FACEGEOM_TAKES``;
 a synthetic take otherwise). Renders with EGL: no display or GPU needed.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from facegeom.errors import FacegeomError
 
-VIEWS = ("drive", "retarget", "animate", "fit")
+VIEWS = ("drive", "retarget", "animate", "fit", "character")
 
 # fixed settings of the README scenes
 DRIVE = dict(methods="rbf;laplacian;biharmonic;tangent", seed=0, expression="happiness", intensity=0.9)
@@ -27,28 +27,37 @@ TAKE = dict(take="alex_rom_3.csv", frames=120, seed=0, labels=10)  # the window 
 RETARGET_METHODS = "copy;rbf;tangent"
 ANIMATE = dict(retargeters="copy;tangent", deformer="tangent")
 FIT = dict(methods="sem;l1reg;pcadel", case=0, seed=0, kind="landmarks", noise_px=1.0)
+# the character view: an artist's ARKit rig (MakeHuman, CC0; see tests/data/heads/SOURCES.md) playing the take
+CHARACTER = Path(__file__).resolve().parents[1] / "tests" / "data" / "heads" / "makehuman_stylised_arkit.npz"
 
 
-def _sequence(model, takes):
-    """The README's take window: around the take's most intense frame; a synthetic take without takes."""
+def _take_window(model, takes):
+    """The README's take and window start: around the take's most intense frame -> ``(path, start, frames)``."""
     import numpy as np
 
     from facegeom.io import find_takes, ict_weights, read_take
     from facegeom.model import locate_takes
-    from facegeom.viewer.playback import load_sequence
 
     n = TAKE["frames"]
+    folder = locate_takes(takes)
+    path = folder / TAKE["take"] if folder.is_dir() else folder
+    if not path.is_file():
+        path = find_takes(folder)[0]
+    W = ict_weights(read_take(path), model.expression_names)
+    start = int(np.clip(int(np.argmax(W.sum(axis=1))) - n // 2, 0, max(W.shape[0] - n, 0)))
+    return path, start, min(n, W.shape[0])
+
+
+def _sequence(model, takes):
+    """The README's take window as an actor/character sequence; a synthetic take without takes."""
+    from facegeom.viewer.playback import load_sequence
+
     try:
-        folder = locate_takes(takes)
-        path = folder / TAKE["take"] if folder.is_dir() else folder
-        if not path.is_file():
-            path = find_takes(folder)[0]
-        W = ict_weights(read_take(path), model.expression_names)
-        start = int(np.clip(int(np.argmax(W.sum(axis=1))) - n // 2, 0, max(W.shape[0] - n, 0)))
-        return load_sequence(model, path, None, start, min(n, W.shape[0]), TAKE["seed"])
+        path, start, n = _take_window(model, takes)
+        return load_sequence(model, path, None, start, n, TAKE["seed"])
     except FacegeomError as exc:
         print(f"no take ({exc}); using a synthetic one", file=sys.stderr)
-        return load_sequence(model, frames=n, seed=TAKE["seed"], synthetic=True)
+        return load_sequence(model, frames=TAKE["frames"], seed=TAKE["seed"], synthetic=True)
 
 
 def _peak(seq) -> int:
@@ -78,6 +87,15 @@ def build(name: str, model, takes=None):
         from facegeom.viewer.fit import FitView
 
         return FitView(model, **FIT)
+    if name == "character":
+        from facegeom.model import load_rig
+        from facegeom.viewer.character import CharacterView
+
+        if not CHARACTER.is_file():
+            raise FacegeomError(f"the README's character rig is not here: {CHARACTER} (a source checkout has it)")
+        path, start, n = _take_window(model, takes)
+        return CharacterView(model, path, load_rig(CHARACTER), start=start, frames=n, frame=n // 2,
+                             character_name=CHARACTER.name)
     raise ValueError(f"unknown view {name!r}; choose from {', '.join(VIEWS)}")
 
 

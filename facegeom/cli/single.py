@@ -232,12 +232,20 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
               help="With --character: rig (its shapes driven by name) or markers (no rig needed: the actor's "
                    "markers retargeted onto the head's by the tangent framework from --keys key frames, the head "
                    "driven through them; --character is then any head: a mesh, a glTF scene or a rig file).")
-@click.option("--keys", default=10, show_default=True, type=click.IntRange(2, 1000),
-              help="With --route markers: key frames (the frame nearest the neutral, then the farthest apart), "
-                   "their labels proposed from the actor's displacements.")
+@click.option("--keys", default="10", show_default=True,
+              help="With --route markers: how many key frames (chosen: the frame nearest the neutral, then the "
+                   "farthest apart), or which (take frames, e.g. 0,120,344); their labels proposed from the "
+                   "actor's displacements.")
+@click.option("--key-labels", "key_labels", type=click.Path(dir_okay=False), default=None,
+              help="With --route markers: a key-labels CSV (frame,marker[,vertex],x,y,z in the head's units, "
+                   "e.g. saved and edited in `facegeom view character --route markers`): the character's markers "
+                   "at its frames, which become key frames; markers it leaves out stay proposed.")
+@click.option("--save-key-labels", "save_key_labels", type=click.Path(dir_okay=False), default=None,
+              help="With --route markers: write the labels used (proposed or given) as a key-labels CSV to edit.")
 @click.pass_obj
 def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, deformer, output, obj_dir,
-            rig_path, neutral, names_map, units, up, fitter, smooth, character_path, character_map, route, keys):
+            rig_path, neutral, names_map, units, up, fitter, smooth, character_path, character_map, route, keys,
+            key_labels, save_key_labels):
     """Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> character mesh per frame.
 
     With --rig: the retargeted markers are solved on the rig -> blendshape weight curves.
@@ -248,7 +256,8 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     if character_path is not None:
         if route == "markers":
             _animate_markers(obj, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
-                             character_map, keys, retargeter, deformer, (neutral, names_map, units, up))
+                             character_map, (keys, key_labels, save_key_labels), retargeter, deformer,
+                             (neutral, names_map, units, up))
             return
         _animate_character(obj, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
                            character_map, (neutral, names_map, units, up))
@@ -325,41 +334,78 @@ def _animate_character(obj: Context, take_path, takes_path, start, frames, outpu
 GLB_TOLERANCE_M = 1e-4  # --route markers: the .glb's frames within 0.1 mm of the driven mesh (metres)
 
 
-def _animate_markers(obj: Context, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
-                     character_map, keys, retargeter, deformer, rig_opts):
-    """``animate --character HEAD --route markers``: the paper's route onto a head no one rigged."""
-    import numpy as np
+def parse_keys(text: str) -> tuple[int | None, list[int]]:
+    """``--keys``: a count (``"10"``) or take frames (``"0,120,344"``) -> ``(count or None, frames)``."""
+    from facegeom.errors import InputError
 
+    cells = [c.strip() for c in str(text).split(",")]
+    try:
+        values = [int(c) for c in cells]
+    except ValueError:
+        raise InputError(f"--keys {text!r}: give a number of key frames (e.g. 10) or take frames (e.g. 0,120,344)") \
+            from None
+    if len(values) == 1:
+        if not 2 <= values[0] <= 1000:
+            raise InputError(f"--keys {values[0]}: between 2 and 1000 key frames")
+        return values[0], []
+    if min(values) < 0 or len(set(values)) != len(values):
+        raise InputError(f"--keys {text!r}: take frames must be distinct and not negative")
+    return None, sorted(values)
+
+
+def _animate_markers(obj: Context, take_path, takes_path, start, frames, output, obj_dir, rig_path, character_path,
+                     character_map, key_opts, retargeter, deformer, rig_opts):
+    """``animate --character HEAD --route markers``: the paper's route onto a head no one rigged."""
     from facegeom.cli.flags import as_flags
-    from facegeom.cli.transfer import read_head
+    from facegeom.cli.transfer import read_head, stored_registration
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.io.gltf import write_sequence_glb
+    from facegeom.io.key_labels import read_key_labels, write_key_labels
     from facegeom.io.takes import read_take
-    from facegeom.pipelines.character_markers import markers_onto_character, take_markers
+    from facegeom.pipelines.character_markers import (key_labels_comment, markers_onto_character, resolve_keys,
+                                                      take_markers)
     from facegeom.pipelines.solve import take_fps
     from facegeom.registry import parse_method
 
+    keys, key_labels, save_labels = key_opts
     if obj_dir or rig_path is not None or character_map is not None or any(
             v not in (None, "auto") for v in rig_opts):
         raise InputError("--route markers drives the head through markers: --obj-dir, --rig and its options and "
                          "--character-names do not go with it")
     if Path(output).suffix.lower() != ".glb":
         raise InputError("with --route markers the output is the character's animated .glb", output)
+    count, listed = parse_keys(keys)
     path = take_files(takes_path, take_path)[0]
-    check_outputs([path, character_path], [output])
+    check_outputs([path, character_path, key_labels], [output, save_labels])
     model = obj.face_model()
-    X, X0, ids = take_markers(model, path, start, frames)
+    take = read_take(path)
+    X, X0, ids = take_markers(model, take, start, frames)
+    stop = start + len(X)
+    given = read_key_labels(key_labels, len(ids)) if key_labels else None  # its frames: checked on the window
+    rel, labels = resolve_keys(given, listed, start, stop, len(ids))
     V, F, parts = read_head(character_path)
-    click.echo(f"{Path(character_path).name}: {V.shape[0]} vertices; {path.name} frames {start}..{start + len(X) - 1}")
-    mr = markers_onto_character(model, X, X0, ids, V, F, n_keys=keys, parts=parts,
+    click.echo(f"{Path(character_path).name}: {V.shape[0]} vertices; {path.name} frames {start}..{stop - 1}")
+    stored = stored_registration(model, character_path, V, F)
+    if stored is not None:
+        click.echo("registration: the one `facegeom transfer` stored with the rig")
+    mr = markers_onto_character(model, X, X0, ids, V, F, keys=rel, n_keys=count or 10, labels=labels, parts=parts,
+                                character=stored,
                                 retargeter=parse_method(retargeter).build("retargeters"),
                                 deformer=parse_method(deformer).build("deformers"),
                                 progress=lambda line: click.echo(as_flags(line)))
+    if given is not None:
+        given.check_vertices(mr.marker_vertices)
     metres = mr.character.registration.units / 100.0
-    _, info = write_sequence_glb(output, mr.frames * metres, F, take_fps(read_take(path)), tolerance=GLB_TOLERANCE_M)
-    click.echo(f"wrote {output} ({info['frames']} frames as {info['targets']} morph targets, every vertex within "
-               f"{info['max_error'] * 1000:.3f} mm)")
+    t0 = time.perf_counter()
+    _, info = write_sequence_glb(output, mr.source(metres), F, take_fps(take), tolerance=GLB_TOLERANCE_M,
+                                 hold_bytes=0)  # driving again is cheaper than keeping: memory stays bounded
+    click.echo(f"wrote {output} ({info['frames']} frames driven and stored as {info['targets']} morph targets in "
+               f"{time.perf_counter() - t0:.2f} s, every vertex within {info['max_error'] * 1000:.3f} mm)")
+    if save_labels:
+        write_key_labels(save_labels, mr.key_frames + start, mr.labels, mr.marker_vertices,
+                         comment=key_labels_comment(Path(character_path).name, V.shape[0], path.name))
+        click.echo(f"wrote {save_labels} ({mr.key_frames.size} key frames x {len(ids)} markers)")
 
 
 def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, seed, retargeter, output, obj_dir,

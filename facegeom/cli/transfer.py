@@ -36,26 +36,30 @@ def axis_turn(R):
 
 def in_facegeom_frame(rig, reg):
     """The rig in facegeom's frame for its own ``.npz``: centimetres, and the axes turned by the signed axis
-    permutation nearest the registration's (a Z-up head becomes Y-up exactly; a Y-up head keeps its axes)."""
+    permutation nearest the registration's (a Z-up head becomes Y-up exactly; a Y-up head keeps its axes).
+    -> ``(rig, S, k)``: the rig and the change of frame ``x' = k S x``."""
     from facegeom.model.rig import BlendshapeRig
 
     S = axis_turn(reg.R.T)  # head -> model axes, snapped
     k = reg.units  # head units -> cm
     return BlendshapeRig(rig.neutral @ S.T * k, rig.deltas @ S.T * k, rig.names, rig.triangles, rig.landmark_ids,
-                         parts=rig.parts)
+                         parts=rig.parts), S, k
 
 
-def write_transfer_rig(rig, path, metres_per_unit: float, reg=None) -> Path:
-    """Write ``rig`` to ``path`` by suffix: ``.npz`` (facegeom's frame: :func:`in_facegeom_frame`, given ``reg``),
-    ``.glb`` (metres) or a new OBJ folder (the head's units and axes); atomically."""
+def write_transfer_rig(rig, path, metres_per_unit: float, reg=None, skin=None) -> Path:
+    """Write ``rig`` to ``path`` by suffix: ``.npz`` (facegeom's frame: :func:`in_facegeom_frame`, given ``reg``;
+    with ``skin`` (the skin's vertex ids) the registration is stored beside the rig, so that the marker route
+    reuses it), ``.glb`` (metres) or a new OBJ folder (the head's units and axes); atomically."""
     import numpy as np
 
     from facegeom.cli.identity import write_rig
     from facegeom.io.gltf import write_rig_glb
+    from facegeom.methods.transfer import character_arrays
 
     path = Path(path)
     if path.suffix.lower() == ".npz" and reg is not None:
-        return write_rig(in_facegeom_frame(rig, reg), path)
+        moved, S, k = in_facegeom_frame(rig, reg)
+        return moved.save_npz(path, extra=None if skin is None else character_arrays(reg, skin, S, k))
     if path.suffix.lower() == ".glb":
         K = rig.n_shapes
         weights = np.r_[np.zeros((1, K)), np.eye(K), np.zeros((1, K))]  # neutral, each shape, neutral
@@ -116,7 +120,7 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
         rig, missing = rig.renamed(ARKIT_CAMEL_NAMES)
         if missing:
             click.echo(f"ARKit names: {', '.join(missing)} left out (no ICT expression)")
-    write_transfer_rig(rig, output, reg.units / 100.0, reg)
+    write_transfer_rig(rig, output, reg.units / 100.0, reg, res.info.get("skin_vertices"))
     frame = {".glb": "metres", ".npz": "cm, Y up, facing +Z: facegeom's rig frame"}.get(
         suffix, f"{reg.report['units']['name']}, the head's axes")
     click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, {frame})")
@@ -133,6 +137,25 @@ def parse_pieces(items) -> dict:
             raise InputError(f"--piece takes NAME=ROLE, got {item!r}")
         roles[name] = role
     return roles
+
+
+def stored_registration(model, path, V, F):
+    """The head's registration stored by ``facegeom transfer`` beside a rig ``.npz`` -> a Character, or None
+    (another file kind, or a rig without one)."""
+    import zipfile
+
+    import numpy as np
+
+    from facegeom.methods.transfer import REGISTRATION_KEYS, stored_character
+
+    if Path(path).suffix.lower() != ".npz":
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in REGISTRATION_KEYS if k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
+        return None  # read_head has read it: a problem here means no registration
+    return stored_character(model, V, F, arrays, path)
 
 
 def read_head(path):

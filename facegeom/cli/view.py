@@ -331,9 +331,10 @@ def view_transfer(obj, head, engine, landmarks, units, pieces, shape, weight, sa
               help="A Live Link Face CSV take (default: the first take of --takes, else of the takes lookup).")
 @click.option("--takes", "takes_path", type=click.Path(), default=None,
               help=f"Folder of takes, for the default take (default: {TAKES_LOOKUP}).")
-@click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG",
+@click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG|HEAD",
               help="The character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from `facegeom transfer`): its "
-                   "shapes driven by name from the take's ARKit weights, as `facegeom animate --take --character`.")
+                   "shapes driven by name from the take's ARKit weights, as `facegeom animate --take --character`; "
+                   "with --route markers any head (a mesh, a glTF scene or a rig's neutral).")
 @click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
               metavar="MAP.csv",
               help="With --character: a mapping CSV rig_shape,source_shape,gain from ARKit names to the "
@@ -343,14 +344,30 @@ def view_transfer(obj, head, engine, landmarks, units, pieces, shape, weight, sa
               help="Frames played (default: the rest of the take from --start).")
 @click.option("--frame", default=0, show_default=True, type=click.IntRange(0),
               help="Frame of the window shown first (and in the screenshot).")
+@click.option("--route", type=click.Choice(["rig", "markers"]), default="rig", show_default=True,
+              help="rig: the character's rig plays the mapped weights; markers: any head (--character HEAD: a mesh, "
+                   "a glTF scene or a rig's neutral) driven through markers retargeted from key frames, whose "
+                   "labels the mouse edits (as `facegeom animate --route markers`).")
+@click.option("--keys", default=None, metavar="N|F1,F2,...",
+              help="With --route markers: the number of key frames chosen (default 10), or the key frames (take "
+                   "frames).")
+@click.option("--key-labels", "key_labels", type=click.Path(dir_okay=False), default=None, metavar="CSV",
+              help="With --route markers: labels of key frames (frame,marker,vertex,x,y,z, what --save-key-labels "
+                   "and `facegeom animate --save-key-labels` write); its frames are key frames.")
+@click.option("--save-key-labels", "save_labels", type=click.Path(dir_okay=False), default=None, metavar="CSV",
+              help="With --route markers: where 'save labels' (and the key s) writes every key frame's markers "
+                   "(default: key-labels.csv in the current folder); `facegeom animate --route markers "
+                   "--key-labels` reads it.")
 @_output_options
 @click.pass_obj
-def view_character(obj, take_path, takes_path, character_path, character_map, start, frames, frame, screenshot, size,
-                   exit_after, state_path):
-    """Play a Live Link take on the actor (the ICT face) beside your character's rig.
+def view_character(obj, take_path, takes_path, character_path, character_map, start, frames, frame, route, keys,
+                   key_labels, save_labels, screenshot, size, exit_after, state_path):
+    """Play a Live Link take on the actor (the ICT face) beside your character.
 
-    Actor | character, both coloured by the displacement from their neutral (mm, one scale); the character
-    plays the mapped weights and turns with the take's head rotation. Play/pause, frame slider, speed.
+    Actor | character, both coloured by the displacement from their neutral (mm, one scale). With --route rig
+    (the default) the character's rig plays the mapped weights and turns with the take's head rotation; with
+    --route markers any head is driven through markers retargeted from key frames, and at a key frame (paused)
+    its markers are dragged with the mouse and saved as key labels. Play/pause, frame slider, speed.
     """
     from facegeom.cli.context import take_files
     from facegeom.cli.flags import as_flags
@@ -358,13 +375,23 @@ def view_character(obj, take_path, takes_path, character_path, character_map, st
     from facegeom.viewer.app import check_display
 
     check_display(screenshot)
-    _check_screenshot(screenshot, take_path, character_path, character_map)
+    _check_screenshot(screenshot, take_path, character_path, character_map, key_labels)
     _size(size)
     if character_path is None:
         if character_map is not None:
             raise InputError("--character-names goes with --character")
         raise InputError("give the character: --character RIG (an OBJ folder, .glb/.gltf or .npz, e.g. from "
                          "`facegeom transfer`)")
+    if route == "markers":
+        if character_map is not None:
+            raise InputError("--character-names maps a rig's shapes: it does not go with --route markers")
+        _view_character_markers(obj, take_files(takes_path, take_path)[0], character_path, start, frames, frame,
+                                keys, key_labels, save_labels, screenshot, size, exit_after, state_path)
+        return
+    given = [f for f, v in (("--keys", keys), ("--key-labels", key_labels), ("--save-key-labels", save_labels))
+             if v is not None]
+    if given:
+        raise InputError(f"{given[0]} goes with --route markers")
     path = take_files(takes_path, take_path)[0]
     _check_screenshot(screenshot, path)
     from facegeom.io.takes import read_take
@@ -380,4 +407,38 @@ def view_character(obj, take_path, takes_path, character_path, character_map, st
     T = v.n_frames
     click.echo(f"{path.name} frames {start}..{start + T - 1} ({T / v.fps:.1f} s at {v.fps:g} fps) on "
                f"{Path(character_path).name}: {len(character.names)} shapes, {character.n_vertices} vertices")
+    _run(v, screenshot, size, exit_after, state_path)
+
+
+def _view_character_markers(obj, path, head, start, frames, frame, keys, key_labels, save_labels, screenshot, size,
+                            exit_after, state_path):
+    """``view character --route markers``: the head registered, the route built, the labels edited in the window."""
+    from facegeom.cli.flags import as_flags
+    from facegeom.cli.single import parse_keys
+    from facegeom.cli.transfer import read_head
+    from facegeom.io import check_outputs, check_writable_folder
+    from facegeom.io.key_labels import read_key_labels
+    from facegeom.io.takes import read_take
+    from facegeom.model.layouts import ict80
+
+    count, listed = parse_keys(keys) if keys is not None else (None, [])
+    _check_screenshot(screenshot, path)
+    if save_labels is not None:  # the labels read may be saved over: editing a file is the point
+        check_outputs([path, head], [save_labels, screenshot])
+        check_writable_folder(save_labels)
+    from facegeom.viewer.character_markers import MarkerCharacterView
+
+    take = read_take(path)
+    model = obj.face_model()
+    given = read_key_labels(key_labels, len(ict80(model)), n_frames=take.n_frames) if key_labels else None
+    V, F, parts = read_head(head)
+    click.echo(f"{Path(head).name}: {V.shape[0]} vertices, {F.shape[0]} triangles"
+               + (f", {len(parts)} parts" if parts else ""))
+    v = MarkerCharacterView(model, take, V, F, start=start, frames=frames, frame=frame, keys=listed,
+                            n_keys=count or 10, key_labels=given, parts=parts, character_name=Path(head).name,
+                            save_path=save_labels, progress=lambda line: click.echo(as_flags(line)), echo=click.echo)
+    T = v.n_frames
+    click.echo(f"{path.name} frames {start}..{start + T - 1} ({T / v.fps:.1f} s at {v.fps:g} fps) on {Path(head).name} "
+               f"through markers; key frames {', '.join(str(int(f) + start) for f in v.keys)} (take frames); "
+               f"'save labels' writes {v.save_path}")
     _run(v, screenshot, size, exit_after, state_path)

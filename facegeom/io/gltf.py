@@ -39,6 +39,7 @@ import json
 import os
 import re
 import struct
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -48,12 +49,16 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path
+from facegeom.io.frames import FrameSource
 
 __all__ = ["GlbAnimation", "GltfRig", "RigPart", "write_rig_glb", "write_sequence_glb", "read_glb_animation",
            "read_gltf_rig", "DEFAULT_TOLERANCE"]
 
 #: Default bound of :func:`write_sequence_glb`: 0.01 mesh units, 0.1 mm on the ICT face (in cm).
 DEFAULT_TOLERANCE = 0.01
+#: Default ``hold_bytes`` of :func:`write_sequence_glb`: a frame source whose frames fit in 1 GiB of float32 is
+#: driven once and kept.
+HOLD_BYTES = 2 ** 30
 
 _FLOAT, _UINT, _USHORT, _UBYTE = 5126, 5125, 5123, 5121
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -179,9 +184,10 @@ class _Blob:
 
 
 def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, names, weights: np.ndarray,
-               fps: float, generator: str, motion=None) -> Path:
+               fps: float, generator: str, motion=None, normals_of=None, rest_weights=None) -> Path:
     """Build and write the document (arrays already checked); ``motion``: ``(quaternions (T, 4) xyzw,
-    translations (T, 3))`` animating the node, or None."""
+    translations (T, 3))`` animating the node, or None; ``normals_of``: the vertices whose normals are
+    stored (default ``V``); ``rest_weights``: the mesh's weights when nothing plays (default zeros)."""
     try:
         import pygltflib as g
     except ImportError:  # pragma: no cover - a declared dependency
@@ -192,7 +198,8 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
     i_idx = blob.add(F.reshape(-1), "SCALAR", _UINT, _ELEMENT_ARRAY_BUFFER)
     V32 = V.astype(np.float32)
     i_pos = blob.add(V32, "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True)
-    i_nrm = blob.add(_vertex_normals(V, F.astype(np.int64)), "VEC3", _FLOAT, _ARRAY_BUFFER)
+    i_nrm = blob.add(_vertex_normals(V if normals_of is None else np.asarray(normals_of, dtype=np.float64),
+                                     F.astype(np.int64)), "VEC3", _FLOAT, _ARRAY_BUFFER)
     D32 = deltas.astype(np.float32)
     targets = [g.Attributes(POSITION=blob.add(D32[k], "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True))
                for k in range(K)]
@@ -216,7 +223,8 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
         scene=0,
         scenes=[g.Scene(nodes=[0])],
         nodes=[g.Node(mesh=0, name="face")],
-        meshes=[g.Mesh(primitives=[prim], weights=[0.0] * K, name="face",
+        meshes=[g.Mesh(primitives=[prim], name="face",
+                       weights=[0.0] * K if rest_weights is None else [float(w) for w in rest_weights],
                        extras={"targetNames": [str(n) for n in names]})],
         animations=[g.Animation(name="weights", samplers=samplers, channels=channels, extras={"fps": fps})],
         accessors=blob.accessors,
@@ -312,15 +320,19 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
 
 
 def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
-                       tolerance: float = DEFAULT_TOLERANCE) -> tuple[Path, dict]:
+                       tolerance: float = DEFAULT_TOLERANCE, *, hold_bytes: int = HOLD_BYTES,
+                       progress=None) -> tuple[Path, dict]:
     """Write a driven vertex sequence as a ``.glb``: mean mesh + K SVD morph targets + their weight curves.
 
     Parameters
     ----------
     path : str or os.PathLike
         The ``.glb`` file.
-    frames : array_like
-        ``(T, n, 3)`` vertex positions.
+    frames : array_like or FrameSource
+        ``(T, n, 3)`` vertex positions, or a
+        :class:`~facegeom.io.frames.FrameSource` computing them a chunk at a
+        time (streamed: memory does not grow with ``T`` beyond a few ``(T, K)``
+        arrays; see below).
     faces : array_like
         ``(m, 3)`` integer triangles.
     fps : float
@@ -329,6 +341,13 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
         Error bound in the mesh's units: every vertex of every frame, as the
         file plays it back (float32), lies within ``tolerance`` of the input.
         The default 0.01 is 0.1 mm on the ICT face (in cm).
+    hold_bytes : int
+        Frame source only: when its frames fit in this many bytes of float32
+        they are driven once and kept (as offsets from the first frame);
+        otherwise every pass drives them again. Default 1 GiB.
+    progress : callable, optional
+        Frame source only: called with a one-line string as the passes go
+        (``"glb: pass 2 (project), 40,000/100,000 frames"``).
 
     Returns
     -------
@@ -343,9 +362,45 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     InputError
         As :func:`write_rig_glb`, plus frames that are not ``(T, n, 3)`` or
         hold NaN or inf, and a tolerance that is not a positive number.
+
+    Notes
+    -----
+    An array is decomposed whole: mean frame, thin SVD of the frames minus
+    the mean (through the ``T x T`` Gram matrix), ``K`` by bisection with the
+    frames played back. A frame source is streamed in chunks of its
+    ``chunk_frames``:
+
+    1. principal axes of an evenly spaced sample (at most 256 frames, 256 MiB)
+       about its mean, the fewest keeping every sample vertex within
+       ``tolerance / 4``;
+    2. a pass projecting every frame on the axes: coefficients, the exact
+       residual norm ``sqrt(|d|^2 - |c|^2)`` and, for the frames where that
+       norm is above ``tolerance / 2``, the farthest vertex off the axes;
+    3. while some frame has a vertex beyond ``tolerance / 2``, the residual
+       directions of the worst such frames join the axes (greedily, until
+       those frames are within) and a pass projects every frame on the new
+       ones;
+    4. the axes are rotated by the SVD of the ``(T, r)`` coefficients, the
+       base mesh moved to the mean within their span; a vertex bound gives
+       the largest ``K`` needed, the sample and the frames the bound fears
+       most played back give the smallest candidate (bisection; within 95%
+       of ``tolerance`` when they are not all the frames, as the frames not
+       seen hold larger extremes);
+    5. a last pass plays back every frame in float32; a candidate over the
+       bound hands over to the next (a few up to the bound's ``K``, then one
+       more target at a time, as for an array).
+
+    Memory is a chunk, the sample, the axes and a few ``(T, r)`` arrays; at
+    most ``max(16, 256 MiB / (8 max(3n, T)))`` axes are kept and a sequence
+    needing more is refused. A source whose frames fit in ``hold_bytes`` as
+    float32 is driven once (its ``max_error`` then includes a bound on that
+    copy's rounding, ``2^-24`` of each offset from the first frame); otherwise
+    every pass drives it again. ``K`` can be a little above the array path's.
     """
     path = Path(path)
     _check_suffix(path)
+    if isinstance(frames, FrameSource):
+        return _write_sequence_stream(path, frames, faces, fps, tolerance, hold_bytes, progress)
     X = np.asarray(frames, dtype=np.float64)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] == 0:
         raise InputError(f"frames must have shape (T, n, 3) with T > 0, got {X.shape}", path)
@@ -362,7 +417,7 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     # Axes below tol / (4 sqrt(T)) are never needed: together they move no frame by more than tol / 4.
     U, S = _principal_axes(D, tol / (4.0 * np.sqrt(T)))
     C = U * S  # (T, r) coefficients of each frame on the axes
-    V32 = base.astype(np.float32).astype(np.float64)
+    V32 = base.astype(np.float64)  # the mean: each candidate's stored base is found from it (_played_base)
     Xf = X.reshape(T, 3 * n)
     computed = [np.zeros((0, 3 * n))]
 
@@ -378,10 +433,7 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
 
     def encode(k: int, every: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
         k = max(1, min(k, S.size))
-        scale = np.abs(U[:, :k]).max(axis=0)  # weights in [-1, 1], the targets carry the size
-        scale[scale == 0] = 1.0
-        W = (U[:, :k] / scale).astype(np.float32)
-        Dk = ((S[:k] * scale)[:, None] * axes(k)).astype(np.float32)
+        W, Dk = _scaled_targets(U[:, :k], S[:k], axes(k))
         W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
         if every:
             rows, step = np.arange(T), 256
@@ -391,8 +443,7 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
         err = 0.0
         for a in range(0, rows.size, step):  # the played-back frames, in chunks to bound memory
             r = rows[a:a + step]
-            played = V32.reshape(1, -1) + W64[r] @ D64
-            err = max(err, float(np.sqrt(((played - Xf[r]).reshape(-1, n, 3) ** 2).sum(axis=2)).max()))
+            err = max(err, _playback_error(V32, W64[r], D64, Xf[r], n))
             if err > tol and not every:
                 break
         return W, Dk, err
@@ -416,8 +467,8 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     if err > tol:  # full rank and still above: float32 rounding of the positions themselves
         raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives {err:.3g}); "
                          f"use a larger tolerance", path)
-    names = [f"svd{k:03d}" for k in range(K)]
-    _write_glb(path, V, F, Dk.reshape(K, n, 3), names, W, fps, "facegeom write_sequence_glb")
+    _write_glb(path, _played_base(base, Dk).reshape(n, 3), F, Dk.reshape(K, n, 3), [f"svd{k:03d}" for k in range(K)],
+               W, fps, "facegeom write_sequence_glb", normals_of=V, rest_weights=W[0])
     return path, {"targets": K, "max_error": err, "tolerance": tol, "frames": T}
 
 
@@ -441,6 +492,390 @@ def _principal_axes(D: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray
         evals, evecs = eigh(G, subset_by_index=(D.shape[0] - 1, D.shape[0] - 1))
     order = np.argsort(evals)[::-1]
     return evecs[:, order], np.sqrt(np.clip(evals[order], 1e-300, None))
+
+
+def _scaled_targets(U: np.ndarray, S: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float32 ``(T, k)`` weights in [0, 1] and ``(k, 3n)`` targets carrying the size, from ``U diag(S) axes``.
+
+    Each axis's coefficients are scaled into [-1, 1] (``c = S u``, ``u / max |u|``) and then shifted into
+    [0, 1]: ``w = (u / max|u| + 1) / 2`` with the target doubled, the base less half of every target
+    (:func:`_played_base`). glTF clients treat morph weights as slider values in [0, 1]; Blender's importer
+    clamps them to that range, so a negative weight would play as 0 there. Axis by axis: the first k of
+    these are the encoding with k targets.
+    """
+    scale = np.abs(U).max(axis=0)
+    scale[scale == 0] = 1.0
+    W = ((U / scale + 1.0) / 2.0).astype(np.float32)
+    Dk = ((2.0 * S * scale)[:, None] * axes).astype(np.float32)
+    return W, Dk
+
+
+def _played_base(base: np.ndarray, Dk: np.ndarray) -> np.ndarray:
+    """The base a file with targets ``Dk (k, 3n)`` stores, as played (float32): ``base - sum Dk / 2``, flat."""
+    return (np.asarray(base, dtype=np.float64).reshape(-1)
+            - 0.5 * np.asarray(Dk, dtype=np.float64).sum(axis=0)).astype(np.float32).astype(np.float64)
+
+
+def _squared_lengths(R: np.ndarray) -> np.ndarray:
+    """``(m, n)`` squared length of each vertex of ``R (m, 3n)`` (``(x^2 + y^2) + z^2``, as ``sum(axis=2)`` adds)."""
+    sq = R * R
+    out = sq[:, 0::3] + sq[:, 1::3]
+    out += sq[:, 2::3]
+    return out
+
+
+def _playback_error(base: np.ndarray, W64: np.ndarray, D64: np.ndarray, X: np.ndarray, n: int) -> float:
+    """Largest vertex distance between frames ``X (m, 3n)`` and their playback ``base' + W64 @ D64`` (``base'``
+    the stored base of these targets, :func:`_played_base`)."""
+    played = W64 @ D64
+    played += _played_base(base, D64).reshape(1, -1)
+    played -= X
+    return float(np.sqrt(_squared_lengths(played).max())) if played.size else 0.0
+
+
+# ----------------------------------------------------------------------------- streamed sequences
+
+_STREAM_BYTES = 256 * 2 ** 20  # each working block of the streamed writer: axes, coefficients, sample
+_SAMPLE_FRAMES = 256  # the first axes come from at most this many evenly spaced frames
+_BATCH_BYTES = 128 * 2 ** 20  # frames whose residuals are added to the axes at once
+
+
+class _Frames:
+    """The frames of a :class:`FrameSource` for :func:`write_sequence_glb`, as ``(m, 3n)`` float64 rows.
+
+    Every driven chunk is checked (shape, finite); errors name the output.
+    With ``hold`` the first sweep keeps every frame as float32 offsets from
+    frame 0 and later reads come from that copy; ``hold_err`` bounds the
+    vertex distance the float32 rounding of the copy made. Chunks may be the
+    source's own arrays: they are never changed.
+    """
+
+    def __init__(self, source: FrameSource, path: Path, hold: bool, progress):
+        self.src, self.path, self.progress = source, path, progress
+        self.T, self.n = source.shape[:2]
+        self.step = source.chunk_frames
+        self.hold = hold
+        self.held: np.ndarray | None = None
+        self.origin: np.ndarray | None = None
+        self.hold_err = 0.0
+        self.passes = 0
+
+    def drive(self, a: int, b: int) -> np.ndarray:
+        try:
+            X = self.src.chunk(a, b)
+        except InputError as exc:
+            if exc.path is not None:
+                raise
+            raise InputError(exc.reason, self.path) from None
+        if not np.isfinite(X).all():
+            raise InputError(f"frames {a}..{b - 1} contain NaN or inf", self.path)
+        return X.reshape(b - a, 3 * self.n)
+
+    def frames(self, a: int, b: int) -> np.ndarray:
+        if self.held is not None:
+            return self.origin + self.held[a:b]
+        return self.drive(a, b)
+
+    def rows(self, idx: np.ndarray) -> np.ndarray:
+        """Frames ``idx`` (sorted, distinct), driven in runs of consecutive frames."""
+        if self.held is not None:
+            return self.origin + self.held[idx]
+        out = np.empty((idx.size, 3 * self.n))
+        i = 0
+        while i < idx.size:
+            j = i + 1
+            while j < idx.size and idx[j] == idx[j - 1] + 1 and j - i < self.step:
+                j += 1
+            out[i:j] = self.drive(int(idx[i]), int(idx[j - 1]) + 1)
+            i = j
+        return out
+
+    def sweep(self, name: str):
+        """Yield ``(a, X)`` chunk by chunk over every frame; the first sweep with ``hold`` fills the copy."""
+        self.passes += 1
+        filling = self.hold and self.held is None
+        if filling:
+            self.held = np.empty((self.T, 3 * self.n), dtype=np.float32)
+        last = time.monotonic()
+        try:
+            for a in range(0, self.T, self.step):
+                b = min(self.T, a + self.step)
+                X = self.drive(a, b) if filling else self.frames(a, b)
+                if filling:  # float32 rounds each offset by at most 2^-24 of its size
+                    if self.origin is None:
+                        self.origin = X[0].copy()
+                    Y = X - self.origin
+                    self.held[a:b] = Y
+                    self.hold_err = max(self.hold_err, float(np.sqrt(3.0) * 2.0 ** -24 * np.abs(Y).max()))
+                    del Y
+                yield a, X
+                now = time.monotonic()
+                if self.progress is not None and (b == self.T or now - last >= 0.5):
+                    self.progress(f"glb: pass {self.passes} ({name}), {b:,}/{self.T:,} frames")
+                    last = now
+        except BaseException:
+            if filling:
+                self.held = self.origin = None
+            raise
+
+
+def _orthonormal_rows(A: np.ndarray, against: np.ndarray | None = None) -> np.ndarray:
+    """Orthonormal rows spanning ``A``'s rows less the span of ``against`` (orthonormal rows), in ``A``'s order.
+
+    Householder QR, twice; a row whose remainder is below 1e-6 (rows are
+    expected near unit length) is dropped.
+    """
+    from scipy.linalg import qr
+
+    for _ in range(2):
+        if against is not None and against.shape[0] and A.shape[0]:
+            A = A - (A @ against.T) @ against
+        if A.shape[0] == 0:
+            break
+        Qf, Rf = qr(A.T, mode="economic")
+        A = np.ascontiguousarray(Qf[:, np.abs(np.diag(Rf)) > 1e-6].T)
+    return A
+
+
+def _vertex_max(R: np.ndarray, n: int) -> np.ndarray:
+    """``(m,)`` largest vertex norm of each row of ``R (m, 3n)``."""
+    return np.sqrt(_squared_lengths(R).max(axis=1)) if R.shape[0] else np.zeros(0)
+
+
+def _residual_axes(R: np.ndarray, Q: np.ndarray, n: int, limit: float, most: int) -> np.ndarray:
+    """At most ``most`` unit axes bringing the frames' residuals ``R (m, 3n)`` (orthogonal to ``Q``) within ``limit``.
+
+    Greedy: the frame with the farthest vertex gives the next axis (its
+    residual direction) and every residual loses its part on it, until every
+    vertex of every frame is within ``limit``. ``R`` is overwritten.
+    """
+    out = []
+    far = _vertex_max(R, n)
+    while len(out) < most and far.size and far.max() > limit:
+        j = int(np.argmax(far))
+        q = R[j] / np.linalg.norm(R[j])
+        out.append(q)
+        R -= np.outer(R @ q, q)
+        far = _vertex_max(R, n)
+    return _orthonormal_rows(np.array(out), Q) if out else np.zeros((0, R.shape[1]))
+
+
+def _write_sequence_stream(path: Path, source: FrameSource, faces, fps, tolerance, hold_bytes,
+                           progress) -> tuple[Path, dict]:
+    """:func:`write_sequence_glb` for a :class:`FrameSource` (see its notes)."""
+    from scipy.linalg import eigh
+
+    T, n = source.shape[:2]
+    N = 3 * n
+    tol = float(tolerance)
+    if not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"tolerance {tolerance} is not a positive number", path)
+    _mesh_arrays(path, np.zeros((n, 3)), faces)  # faces checked before anything is driven
+    fps = _check_fps(path, fps)
+    fr = _Frames(source, path, T * N * 4 <= hold_bytes, progress)
+    if fr.hold:  # drive every frame once, now; later passes read the copy
+        for _ in fr.sweep("drive"):
+            pass
+    half = tol / 2  # a frame whose vertices are within tol / 2 of the axes' span is left the rest for rounding
+    r_max = int(min(T, N, max(16, _STREAM_BYTES // (8 * max(N, T)))))
+    batch = max(1, min(_SAMPLE_FRAMES, _BATCH_BYTES // (8 * N)))
+
+    # (1) Principal axes of an evenly spaced sample, about its mean: the fewest keeping its vertices within tol / 4.
+    s = max(1, min(T, _SAMPLE_FRAMES, _STREAM_BYTES // (8 * N)))
+    sample = np.unique(np.linspace(0, T - 1, s).round().astype(np.int64))
+    Ds = fr.rows(sample)
+    base = Ds.mean(axis=0)
+    Ds -= base
+    U, S = _principal_axes(Ds, tol / 8)  # together, the axes below tol / 8 move no sample frame more than that
+    U, S = U[:, :r_max], S[:r_max]
+    grown = [np.zeros((0, N))]
+
+    def sample_axes(k: int) -> np.ndarray:  # the first k right singular vectors U.T Ds / S (grown when needed)
+        if grown[0].shape[0] < k:
+            grown[0] = (U[:, :k].T @ Ds) / S[:k, None]
+        return grown[0][:k]
+
+    def sample_within(k: int) -> bool:  # every sample vertex within tol / 4 of the first k axes (coefficients U S)?
+        A = sample_axes(k)
+        for a in range(0, Ds.shape[0], fr.step):
+            R = Ds[a:a + fr.step] - (U[a:a + fr.step, :k] * S[:k]) @ A
+            if _vertex_max(R, n).max() > tol / 4:
+                return False
+        return True
+
+    top = 0
+    if not sample_within(0):  # doubling, then bisection: the fewest axes keeping the sample within tol / 4
+        lo, top = 1, min(8, S.size)
+        while top < S.size and not sample_within(top):
+            lo, top = top + 1, min(S.size, 2 * top)
+        while lo < top:
+            mid = (lo + top) // 2
+            if sample_within(mid):
+                top = mid
+            else:
+                lo = mid + 1
+    new = _orthonormal_rows(sample_axes(top))
+    del Ds, U, S, grown
+
+    # (2, 3) Every frame's coefficients, residual norm and farthest vertex off the axes; the residual directions
+    # of the frames still beyond tol / 2 join the axes, and a pass projects every frame on the new ones.
+    C = np.zeros((T, 0))
+    Q = np.zeros((0, N))
+    res2, far = np.empty(T), np.empty(T)
+    first = True
+    while True:
+        if first or new.shape[0]:
+            Qa = np.vstack([Q, new])
+            Cn = np.empty((T, new.shape[0]))
+            for a, X in fr.sweep("project"):
+                b = a + X.shape[0]
+                D = X - base
+                del X
+                cn = D @ new.T
+                Cn[a:b] = cn
+                if first:
+                    res2[a:b] = np.einsum("ij,ij->i", D, D)
+                r2 = res2[a:b] - np.einsum("ij,ij->i", cn, cn)
+                far[a:b] = np.sqrt(np.maximum(r2, 0.0))  # the frame's residual norm bounds its farthest vertex
+                loose = np.flatnonzero(r2 > half ** 2)
+                if loose.size:  # ... where it is not enough, the vertices themselves
+                    R = D if loose.size == b - a else D[loose]
+                    R -= np.hstack([C[a:b][loose], cn[loose]]) @ Qa
+                    far[a + loose] = _vertex_max(R, n)
+                    del R
+                del D
+            res2 -= np.einsum("ij,ij->i", Cn, Cn)
+            C = np.hstack([C, Cn]) if C.shape[1] else Cn
+            Q = Qa
+            del Cn, Qa
+            first = False
+        bad = np.flatnonzero(far > half)
+        if bad.size == 0:
+            break
+        if Q.shape[0] >= r_max:
+            raise InputError(f"the sequence needs more than {r_max} morph targets to stay within {tol} (frame "
+                             f"{int(np.argmax(far))} is {far.max():.3g} away with {r_max}); use a larger tolerance",
+                             path)
+        pick = np.sort(bad[np.argsort(-far[bad])[:batch]])
+        R = fr.rows(pick) - base
+        for _ in range(2):  # the residuals off the axes (twice, for accuracy)
+            R -= (R @ Q.T) @ Q
+        res2[pick] = np.einsum("ij,ij->i", R, R)  # exact for these frames
+        far[pick] = _vertex_max(R, n)
+        new = _residual_axes(R, Q, n, half, r_max - Q.shape[0])
+        del R
+        if new.shape[0] == 0 and (far[pick] > half).any():  # pragma: no cover - the greedy step takes such a frame
+            raise InputError(f"the sequence cannot be stored within {tol}", path)
+    if Q.shape[0] == 0:  # every frame on the base: one zero target
+        Q, C = np.zeros((1, N)), np.zeros((T, 1))
+    r = Q.shape[0]
+
+    # (4) Rotate the axes by the SVD of the coefficients (the base moved to their mean, within the axes' span: the
+    # residuals stay), largest first.
+    mu = C.mean(axis=0)
+    base = base + mu @ Q
+    C -= mu
+    Wr = eigh(C.T @ C)[1][:, ::-1]
+    Ct = Wr.T @ C.T  # (r, T) coefficients on the rotated axes
+    del C
+    Sr = np.sqrt(np.einsum("ij,ij->i", Ct, Ct))
+    # A vertex's error with k axes is at most the smaller of its frame's residual norm sqrt(res2 + tail) and its
+    # farthest vertex off all axes plus the frame's part on axes k.. times the largest vertex share of those axes.
+    res2 = np.maximum(res2, 0.0)
+    tail, share = np.zeros(T), np.zeros(n)
+    worst, spread = np.empty(r + 1), np.zeros(r + 1)
+    worst[r] = far.max()
+    marks = {max(1, k) for k in (1, r // 4, r // 2, (3 * r) // 4, r - 1)}
+    extra = []
+    for i in range(r - 1, -1, -1):
+        share += ((Wr[:, i] @ Q).reshape(n, 3) ** 2).sum(axis=1)
+        tail += Ct[i] ** 2
+        spread[i] = share.max()
+        bound = np.minimum(np.sqrt(res2 + tail), far + np.sqrt(tail * spread[i]))
+        worst[i] = bound.max()
+        if i in marks:  # the frames the bound fears most, for the bisection below
+            extra.append(np.argpartition(-bound, min(8, T) - 1)[:8])
+        del bound
+    hi = next((k for k in range(1, r + 1) if worst[k] <= half), r)
+
+    def targets(k: int) -> tuple[np.ndarray, np.ndarray]:  # (T, k) weights and (k, 3n) targets, float32
+        U = (Ct[:k] / np.where(Sr[:k] > 0, Sr[:k], 1.0)[:, None]).T  # the "U" of the SVD, as the array path has it
+        return _scaled_targets(U, Sr[:k], Wr[:, :k].T @ Q)
+
+    V32 = base.astype(np.float64)  # the mean: each candidate's stored base is found from it (_played_base)
+    W, Dk = targets(hi)
+    W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
+
+    # Candidates: bisection on the sample and the frames of the bound's worst (the array path bisects on all),
+    # then a few more up to hi.
+    seen = np.unique(np.concatenate([sample, *extra]))
+    Xs, Ws = fr.rows(seen), W64[seen]
+    # The frames not seen hold larger extremes: a candidate must leave them 5% (unless every frame is seen), so
+    # that the last pass seldom has to hand over.
+    limit = (tol if seen.size == T else 0.95 * tol) - fr.hold_err
+    lo, top = 1, hi
+    while lo < top:
+        mid = (lo + top) // 2
+        if all(_playback_error(V32, Ws[a:a + fr.step, :mid], D64[:mid], Xs[a:a + fr.step], n) <= limit
+               for a in range(0, seen.size, fr.step)):
+            top = mid
+        else:
+            lo = mid + 1
+    del Xs, Ws
+    while lo < hi:  # ... and on the frames the bound fears most at lo itself: one more target while one fails
+        tail = (Ct[lo:] ** 2).sum(axis=0)
+        bound = np.minimum(np.sqrt(res2 + tail), far + np.sqrt(tail * spread[lo]))
+        bound[seen] = 0.0
+        worse = np.sort(np.argpartition(-bound, min(64, T) - 1)[:64])
+        worse = worse[bound[worse] > half]
+        if worse.size == 0:
+            break
+        Xw = fr.rows(worse)
+        if all(_playback_error(V32, W64[worse[a:a + fr.step], :lo], D64[:lo], Xw[a:a + fr.step], n) <= limit
+               for a in range(0, worse.size, fr.step)):
+            break
+        seen = np.union1d(seen, worse)
+        lo += 1
+    ladder = sorted({lo + j for j in (0, 1, 2, 3, 5, 8, 13, 21, 34) if lo + j < hi} | {hi})
+
+    # (5) Play back every frame: a circular pass in which a candidate over the bound hands the chunk to the next.
+    starts = list(range(0, T, fr.step))
+    ci, k, err, ok, pos = 0, ladder[0], 0.0, 0, 0
+    fr.passes += 1
+    last = time.monotonic()
+    while ok < len(starts):
+        a = starts[pos]
+        b = min(T, a + fr.step)
+        X = fr.frames(a, b)
+        while True:
+            e = _playback_error(V32, W64[a:b, :k], D64[:k], X, n) + fr.hold_err
+            if e <= tol:
+                break
+            ci += 1
+            if ci < len(ladder):
+                k = ladder[ci]
+            elif k < r:  # rounding beyond the bound (tiny tolerances): one axis more
+                k += 1
+                W, Dk = targets(k)
+                W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
+            else:  # all axes and still above: float32 rounding of the positions themselves
+                raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives "
+                                 f"{e:.3g}); use a larger tolerance", path)
+            err, ok = 0.0, 0
+        del X
+        err = max(err, e)
+        ok += 1
+        pos = (pos + 1) % len(starts)
+        now = time.monotonic()
+        if progress is not None and (ok == len(starts) or now - last >= 0.5):
+            progress(f"glb: pass {fr.passes} (check {k} targets), {min(T, ok * fr.step):,}/{T:,} frames")
+            last = now
+    K = k
+    V, F = _mesh_arrays(path, base.reshape(n, 3), faces)
+    _write_glb(path, _played_base(base, Dk[:K]).reshape(n, 3), F, Dk[:K].reshape(K, n, 3),
+               [f"svd{i:03d}" for i in range(K)], W[:, :K], fps, "facegeom write_sequence_glb", normals_of=V,
+               rest_weights=W[0, :K])
+    return path, {"targets": K, "max_error": float(err), "tolerance": tol, "frames": T}
 
 
 # ----------------------------------------------------------------------------- reading

@@ -122,7 +122,8 @@ from facegeom.model import BlendshapeRig, MeshTarget, PointCloudTarget
 from facegeom.native import quiet_native
 from facegeom.registration import align_on_surface, kabsch, rms_radius, trim_outliers, units_factor
 
-__all__ = ["ENGINES", "REGIONS", "Character", "HeadRegistration", "TransferResult", "register_character",
+__all__ = ["ENGINES", "REGIONS", "REGISTRATION_KEYS", "Character", "HeadRegistration", "TransferResult",
+           "character_arrays", "stored_character", "register_character",
            "register_head", "transfer_character", "transfer_expressions", "transfer_head", "read_head_landmarks"]
 
 ENGINES = ("deformation", "nearest", "tangent")
@@ -806,6 +807,57 @@ def register_character(model, V, F, *, landmarks=None, units="auto", path=None, 
     return Character(V, F, pieces, reg, None if parts is None else tuple(parts))
 
 
+REGISTRATION_KEYS = ("registration_template", "registration_similarity", "registration_skin",
+                     "registration_identity")
+
+
+def character_arrays(registration: HeadRegistration, skin, S=None, k: float = 1.0) -> dict:
+    """A character's ``registration`` and ``skin`` vertex ids as arrays to store beside its rig
+    (:data:`REGISTRATION_KEYS`).
+
+    ``S (3, 3)`` and ``k``: the rig's frame from the head's (``x' = k S x``: an axis turn and a units factor),
+    applied to what is stored so that it matches the rig's vertices.
+    """
+    reg = registration
+    S = np.eye(3) if S is None else np.asarray(S, dtype=np.float64)
+    sim = np.zeros((4, 4))  # rows: R (3 x 3) | t; last row: scale, head units -> cm, 0, 0
+    sim[:3, :3], sim[:3, 3] = S @ reg.R, k * (S @ reg.t)
+    sim[3, 0], sim[3, 1] = k * reg.scale, reg.units / k
+    return {"registration_template": k * (reg.template @ S.T), "registration_similarity": sim,
+            "registration_skin": np.asarray(skin, dtype=np.int64),
+            "registration_identity": np.asarray(reg.identity, dtype=np.float64)}
+
+
+def stored_character(model, V, F, arrays, path=None) -> Character | None:
+    """The character registered by an earlier transfer, from the arrays :func:`character_arrays` stored
+    beside its rig -> a :class:`Character` of the skin alone (other pieces are not kept), or None when the
+    arrays are not all there. Checked against the model and the head ``(V, F)``."""
+    from facegeom.methods.pieces import Piece
+
+    if not all(key in arrays for key in REGISTRATION_KEYS):
+        return None
+    tpl, sim = np.asarray(arrays["registration_template"]), np.asarray(arrays["registration_similarity"])
+    skin = np.asarray(arrays["registration_skin"])
+    N = int(model.n_vertices)
+    ok = (tpl.shape == (N, 3) and sim.shape == (4, 4) and skin.ndim == 1 and skin.size >= 3
+          and np.issubdtype(skin.dtype, np.integer) and np.isfinite(tpl).all() and np.isfinite(sim).all())
+    if not ok or skin.min() < 0 or skin.max() >= V.shape[0] or np.unique(skin).size != skin.size \
+            or not (sim[3, 0] > 0 and sim[3, 1] > 0):
+        raise InputError("the stored registration does not fit this head or the face model; transfer the head "
+                         "again", path)
+    remap = np.full(V.shape[0], -1, dtype=np.int64)
+    remap[skin] = np.arange(skin.size)
+    inside = (remap[F] >= 0).all(axis=1)
+    faces = np.flatnonzero(inside)
+    scale, units = float(sim[3, 0]), float(sim[3, 1])
+    reg = HeadRegistration(V[skin], remap[F[inside]], tpl.astype(np.float64), scale, sim[:3, :3].copy(),
+                           sim[:3, 3].copy(), units, units * CM_TO_MM,
+                           np.asarray(arrays["registration_identity"], dtype=np.float64), {"stored": True})
+    piece = Piece("skin", skin.astype(np.int64), faces, float(igl.doublearea(V, F[inside]).sum() / 2.0), "skin",
+                  "stored")
+    return Character(V, F, [piece], reg, None)
+
+
 def transfer_character(model, character: Character, engine: str = "deformation") -> TransferResult:
     """Every expression onto the whole registered head: the skin by ``engine``, the other pieces by their role."""
     from facegeom.methods.pieces import piece_deltas
@@ -833,4 +885,5 @@ def transfer_head(model, V, F, *, engine: str = "deformation", landmarks=None, u
     res = transfer_character(model, ch, engine)
     say(f"transfer ({engine}): {len(res.names)} shapes onto {ch.vertices.shape[0]} vertices in {res.time_s:.2f} s")
     rig = BlendshapeRig(ch.vertices, res.deltas, res.names, ch.faces, parts=ch.parts)
+    res.info["skin_vertices"] = ch.pieces[0].vertices
     return rig, ch.registration, res

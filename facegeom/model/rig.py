@@ -490,8 +490,11 @@ class BlendshapeRig:
         return BlendshapeRig(self.neutral, self.deltas, self.names, self.triangles, self.landmark_ids,
                              parts=self.parts, name_map=name_map, frame=self.frame)
 
-    def save_npz(self, path: str | os.PathLike, compressed: bool = False) -> Path:
-        """Write the rig to ``path`` (npz, atomically) -> ``path``; parts, mapping and frame as optional keys."""
+    def save_npz(self, path: str | os.PathLike, compressed: bool = False, extra: dict | None = None) -> Path:
+        """Write the rig to ``path`` (npz, atomically) -> ``path``; parts, mapping and frame as optional keys.
+
+        ``extra``: more arrays stored beside the rig's (e.g. a transfer's registration), read by whoever knows
+        their keys; a key of the rig's own is refused."""
         from facegeom.io import atomic_path
 
         path = Path(path)
@@ -515,6 +518,10 @@ class BlendshapeRig:
                           map_gain=np.array([r.gain for r in rows], dtype=np.float64),
                           map_line=np.array([r.line for r in rows], dtype=np.int64),
                           map_path=np.array(self.name_map.path))
+        clash = sorted(set(extra or {}) & set(arrays))
+        if clash:
+            raise InputError(f"extra arrays may not replace the rig's own: {', '.join(clash)}", path)
+        arrays.update(extra or {})
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:  # a file object: numpy adds no ".npz" suffix
                 (np.savez_compressed if compressed else np.savez)(fh, **arrays)

@@ -22,7 +22,7 @@ mesh is driven through its markers every frame.
    gives the character's markers every frame.
 5. **Drive**: a deformer (default ``tangent``) fitted once on the character's
    mesh with its markers as handles, ``deform_many`` in chunks of
-   :data:`CHUNK` frames.
+   :data:`CHUNK_BYTES`, when the frames are read (:class:`MarkerRoute`).
 """
 from __future__ import annotations
 
@@ -35,39 +35,117 @@ from scipy.spatial import cKDTree
 from facegeom.errors import InputError
 
 __all__ = ["MarkerRoute", "key_frames", "propose_labels", "character_markers", "markers_onto_character",
-           "take_markers", "CHUNK"]
+           "take_markers", "resolve_keys", "key_labels_comment", "CHUNK_BYTES"]
 
-CHUNK = 500  # frames driven at once (memory: CHUNK x n x 3 floats)
+CHUNK_BYTES = 48 << 20  # vertices driven at once (float64): larger blocks are slower (page faults, cache)
 
 
 @dataclass
 class MarkerRoute:
     """The character driven through markers (what :func:`markers_onto_character` returns).
 
+    The frames are driven on demand, :data:`CHUNK_BYTES` at a time: :meth:`source` streams them (to
+    :func:`facegeom.io.gltf.write_sequence_glb` or a mesh sequence) without holding ``T x n x 3``;
+    :attr:`frames` drives and keeps them all.
+
     Attributes
     ----------
-    frames : (T, n, 3) float64
-        The character's vertices per frame (its units and frame).
     markers : (T, p, 3) float64
         The retargeted character markers.
     marker_vertices : (p,) int64
         The character's marker vertices.
     key_frames : (L,) int64
+        Frames of the window.
     labels : (L, p, 3) float64
         The character's markers at the key frames (proposed or given).
     times : dict
-        Seconds per step (``registration``, ``retarget``, ``deformer_fit``, ``drive``).
+        Seconds per step (``registration``, ``retarget``, ``deformer_fit``; ``drive`` once :attr:`frames` is read).
     character : Character or None
         The registered head (:func:`~facegeom.methods.transfer.register_character`).
+    deformer : Deformer
+        Fitted on the character with its markers as handles.
+    actor : (T, p, 3) float64
+        The actor's markers retargeted (model frame, cm).
+    proposed : (L, p, 3) float64
+        The labels proposed at the key frames (what :attr:`labels` holds where nothing was given).
     """
 
-    frames: np.ndarray
     markers: np.ndarray
     marker_vertices: np.ndarray
     key_frames: np.ndarray
     labels: np.ndarray
     times: dict = field(default_factory=dict)
     character: object = None
+    deformer: object = None
+    actor: np.ndarray | None = None
+    proposed: np.ndarray | None = None
+    _frames: np.ndarray | None = field(default=None, repr=False)
+
+    def relabel(self, labels, retargeter=None) -> "MarkerRoute":
+        """The same route with other labels ``(L, p, 3)`` at the same key frames (NaN: the proposal) -> a new route.
+
+        Only the retargeter is fitted again (the registration and the deformer are kept): what an edit of a
+        label costs (tens of milliseconds for a thousand frames).
+        """
+        from facegeom.registry import parse_method
+
+        L = np.asarray(labels, dtype=np.float64)
+        if L.shape != self.proposed.shape:
+            raise InputError(f"labels must be {self.proposed.shape} for the key frames, got {L.shape}")
+        if np.isinf(L).any():
+            raise InputError("labels contain inf")
+        L = np.where(np.isnan(L), self.proposed, L)
+        t0 = time.perf_counter()
+        rt = (retargeter or parse_method("tangent").build("retargeters")).fit(self.actor, self.key_frames, L)
+        Y = rt.transform()
+        times = {**{k: v for k, v in self.times.items() if k != "drive"}, "retarget": time.perf_counter() - t0}
+        return MarkerRoute(Y, self.marker_vertices, self.key_frames, L, times, self.character, self.deformer,
+                           self.actor, self.proposed)
+
+    @property
+    def n_vertices(self) -> int:
+        """The character's vertices ``n``."""
+        return int(self.character.vertices.shape[0])
+
+    def chunk_frames(self) -> int:
+        """Frames driven at once: :data:`CHUNK_BYTES` of float64 vertices (at least one frame)."""
+        return max(1, CHUNK_BYTES // (24 * self.n_vertices))
+
+    def deform(self, Y) -> np.ndarray:
+        """The character's vertices with its markers at ``Y (m, p, 3)`` (head units) -> ``(m, n, 3)``."""
+        Y = np.asarray(Y, dtype=np.float64)
+        many = getattr(self.deformer, "deform_many", None)
+        return many(Y) if many else np.stack([self.deformer.deform(y) for y in Y])
+
+    def drive(self, a: int, b: int) -> np.ndarray:
+        """The character's vertices at frames ``a .. b - 1`` of the window -> ``(b - a, n, 3)``."""
+        return self.deform(self.markers[a:b])
+
+    def source(self, scale: float = 1.0):
+        """The frames as a :class:`~facegeom.io.frames.FrameSource` (driven chunk by chunk when read), times
+        ``scale`` (e.g. the head's units -> metres for a ``.glb``)."""
+        from facegeom.io.frames import FrameSource
+
+        def frames(a: int, b: int) -> np.ndarray:
+            X = np.array(self.drive(a, b), order="C")  # the deformer's (transposed) view, laid out once
+            if scale != 1.0:
+                X *= scale
+            return X
+
+        return FrameSource(self.markers.shape[0], self.n_vertices, frames, chunk_frames=self.chunk_frames())
+
+    @property
+    def frames(self) -> np.ndarray:
+        """``(T, n, 3)`` float64: every frame, driven once and kept."""
+        if self._frames is None:
+            t0 = time.perf_counter()
+            T, step = self.markers.shape[0], self.chunk_frames()
+            out = np.empty((T, self.n_vertices, 3))
+            for a in range(0, T, step):
+                out[a:a + step] = self.drive(a, min(T, a + step))
+            self._frames = out
+            self.times["drive"] = time.perf_counter() - t0
+        return self._frames
 
 
 def key_frames(X, count: int) -> np.ndarray:
@@ -123,16 +201,73 @@ def propose_labels(X, keys, registration, actor_neutral_markers, character_marke
     return character_marker_positions[None] + registration.delta_in_head(dX)
 
 
+def resolve_keys(given, listed, start: int, stop: int, n_markers: int):
+    """The key frames and labels of the window ``start .. stop - 1`` of a take: the frames ``listed`` and those of
+    the key-labels file ``given``, for :func:`markers_onto_character`.
+
+    Parameters
+    ----------
+    given : facegeom.io.key_labels.KeyLabels or None
+        A key-labels file as read (:func:`~facegeom.io.key_labels.read_key_labels`); its frames are key frames.
+    listed : sequence of int
+        More key frames (take frames).
+    start, stop : int
+        The window, take frames.
+    n_markers : int
+        Markers of the layout ``p``.
+
+    Returns
+    -------
+    keys : (L,) int64 or None
+        The union of both, sorted, as frames of the window; None when neither gives one (the route chooses).
+    labels : (L, p, 3) float64 or None
+        The file's labels at its frames, NaN elsewhere (those keep the proposal); None without a file.
+
+    Raises
+    ------
+    InputError
+        A frame outside the window (naming the file when it is the file's), a single key frame.
+    """
+    file_frames = [] if given is None else [int(f) for f in given.frames]
+    chosen = sorted({int(f) for f in listed} | set(file_frames))
+    outside = [f for f in chosen if not start <= f < stop]
+    if outside:
+        raise InputError(f"key frame {outside[0]} is outside the window, frames {start}..{stop - 1}",
+                         given.path if outside[0] in file_frames else None)
+    if len(chosen) == 1:
+        raise InputError(f"the marker route needs at least 2 key frames, got only frame {chosen[0]}: list more "
+                         f"or label more frames")
+    if not chosen:
+        return None, None
+    keys = np.array(chosen, dtype=np.int64) - start
+    if given is None:
+        return keys, None
+    if given.labels.shape[1:] != (n_markers, 3):
+        raise InputError(f"the labels are for {given.labels.shape[1]} markers, the layout has {n_markers}", given.path)
+    labels = np.full((len(chosen), n_markers, 3), np.nan)
+    labels[np.searchsorted(chosen, file_frames)] = given.labels
+    return keys, labels
+
+
+def key_labels_comment(head_name: str, n_vertices: int, take_name: str) -> str:
+    """The comment heading a key-labels file written for the head ``head_name`` and the take ``take_name``."""
+    return (f"key labels for {head_name} ({n_vertices} vertices), take {take_name}: frame = take frame, marker = "
+            f"index in the actor's 80-marker layout, x,y,z in the head's units")
+
+
 def take_markers(model, take, start: int = 0, frames: int | None = None, marker_ids=None):
     """The generic ICT face performing a take, seen as markers -> ``(X (T, p, 3) cm, neutral markers (p, 3), ids)``.
 
-    ``marker_ids``: template vertices (default the ``ict80`` layout).
+    ``take``: a path or a read :class:`~facegeom.io.takes.Take`; ``marker_ids``: template vertices (default the
+    ``ict80`` layout).
     """
     from facegeom.io import ict_weights, read_take
     from facegeom.model import BlendshapeRig
     from facegeom.model.layouts import ict80
 
-    tk = read_take(take)
+    from facegeom.io.takes import Take
+
+    tk = take if isinstance(take, Take) else read_take(take)
     W = ict_weights(tk, model.expression_names)
     if not 0 <= start < W.shape[0]:
         raise InputError(f"the take has {W.shape[0]} frames; start {start} is outside it", tk.path)
@@ -150,7 +285,8 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
                            keys=None, n_keys: int = 10, retargeter=None, deformer=None, parts=None, roles=None,
                            progress=None, character=None) -> MarkerRoute:
     """Drive the head ``(V, F)`` by the actor's markers ``(T, p, 3)`` (model frame, cm) on template vertices
-    ``marker_ids`` (see the module docstring); ``labels (L, p, 3)`` at ``keys`` replace the proposal.
+    ``marker_ids`` (see the module docstring); ``labels (L, p, 3)`` at ``keys`` (frames of the window) replace
+    the proposal where they are not NaN.
     ``character``: the head already registered (:func:`~facegeom.methods.transfer.register_character` of
     ``(V, F)``), not registered again."""
     from facegeom.methods.transfer import register_character
@@ -167,11 +303,16 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     reg = ch.registration
     mv = character_markers(model, reg, ch.pieces[0].vertices, marker_ids, ch.vertices)
     keys = key_frames(X, min(n_keys, X.shape[0])) if keys is None else np.asarray(keys, dtype=np.int64)
+    if keys.ndim != 1 or keys.size < 2 or np.unique(keys).size != keys.size or keys.min() < 0 \
+            or keys.max() >= X.shape[0]:
+        raise InputError(f"key frames must be at least 2 distinct frames of the {X.shape[0]}-frame window")
+    proposed = propose_labels(X, keys, reg, actor_neutral_markers, ch.vertices[mv])
     if labels is None:
-        labels = propose_labels(X, keys, reg, actor_neutral_markers, ch.vertices[mv])
+        labels = proposed
     labels = np.asarray(labels, dtype=np.float64)
     if labels.shape != (keys.size, len(mv), 3):
         raise InputError(f"labels must be ({keys.size}, {len(mv)}, 3) for the key frames, got {labels.shape}")
+    labels = np.where(np.isnan(labels), proposed, labels)  # markers not given keep the proposal
     say(f"{keys.size} key frames ({', '.join(map(str, keys[:12]))}{', ...' if keys.size > 12 else ''}); "
         f"{len(mv)} markers on the character")
     t0 = time.perf_counter()
@@ -181,13 +322,5 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     t0 = time.perf_counter()
     de = (deformer or parse_method("tangent").build("deformers")).fit(ch.vertices, ch.faces, mv)
     times["deformer_fit"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    frames = np.empty((Y.shape[0],) + ch.vertices.shape)
-    many = getattr(de, "deform_many", None)
-    for a in range(0, Y.shape[0], CHUNK):
-        block = Y[a:a + CHUNK]
-        frames[a:a + CHUNK] = many(block) if many else np.stack([de.deform(y) for y in block])
-    times["drive"] = time.perf_counter() - t0
-    say(f"retarget {times['retarget']:.2f} s, deformer fit {times['deformer_fit']:.2f} s, {Y.shape[0]} frames driven "
-        f"in {times['drive']:.2f} s")
-    return MarkerRoute(frames, Y, mv, keys, labels, times, ch)
+    say(f"retarget {times['retarget']:.2f} s, deformer fit {times['deformer_fit']:.2f} s")
+    return MarkerRoute(Y, mv, keys, labels, times, ch, de, X, proposed)
