@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 HEADING = "## Try it: every task on example inputs"
 OUTPUT_OPTIONS = ("-o", "--output", "--out", "--screenshot", "--mesh-out", "--rig-out", "--markers-out", "--map",
-                  "--report")
+                  "--report", "--save-key-labels")
 TASKS = ("drive", "retarget", "animate", "solve", "fit", "identity", "clean", "decimate", "crop", "batch",
          "view drive", "view retarget", "view animate", "view fit", "bench drive", "bench retarget",
          "bench animate", "bench fit", "bench solve")

@@ -170,6 +170,20 @@ def test_cli_writes_a_png(tmp_path, face_model, real_takes):
     assert_not_blank(img)
 
 
+def test_make_images_renders_the_character_view(tmp_path, face_model, real_takes):
+    """``make images``' character picture (the README's): the stylised MakeHuman rig playing a real take."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([sys.executable, "-m", "facegeom.viewer.make_images", "--out", str(tmp_path), "--only",
+                        "character", "--size", "800x450", "--data", face_model.path, "--takes",
+                        str(Path(real_takes[0]).parent)], capture_output=True, text=True, env=env, timeout=120)
+    if r.returncode != 0 and ("could not start a renderer" in r.stderr or "EGL" in r.stderr):
+        pytest.skip(f"headless rendering unavailable: {r.stderr.strip()}")
+    assert r.returncode == 0, r.stderr
+    img = read_png(tmp_path / "view-character.png")
+    assert img.shape == (450, 800, 3)
+    assert_not_blank(img)
+
+
 def test_cli_without_display_says_how_to_run_headless(real_takes):
     from facegeom.viewer.app import NO_DISPLAY
 

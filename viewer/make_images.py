@@ -5,7 +5,7 @@ Usage::
     python -m facegeom.viewer.make_images --out docs/images [--only drive,fit] [--size 1600x900]
 
 Writes ``view-drive.png``, ``view-retarget.png``, ``view-animate.png``,
-``view-fit.png`` and ``view-character.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
+``view-fit.png``, ``view-character.png`` and ``view-character-markers.png`` (the same scenes as ``facegeom view <name> --screenshot``, with
 fixed, seeded settings). Needs the face data (``--data`` or ``$FACEGEOM_DATA``)
 and, for retarget/animate, the ARKit takes (``--takes`` or ``$FACEGEOM_TAKES``;
 a synthetic take otherwise). Renders with EGL: no display or GPU needed.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from facegeom.errors import FacegeomError
 
-VIEWS = ("drive", "retarget", "animate", "fit", "character")
+VIEWS = ("drive", "retarget", "animate", "fit", "character", "character-markers")
 
 # fixed settings of the README scenes
 DRIVE = dict(methods="rbf;laplacian;biharmonic;tangent", seed=0, expression="happiness", intensity=0.9)
@@ -29,6 +29,8 @@ ANIMATE = dict(retargeters="copy;tangent", deformer="tangent")
 FIT = dict(methods="sem;l1reg;pcadel", case=0, seed=0, kind="landmarks", noise_px=1.0)
 # the character view: an artist's ARKit rig (MakeHuman, CC0; see tests/data/heads/SOURCES.md) playing the take
 CHARACTER = Path(__file__).resolve().parents[1] / "tests" / "data" / "heads" / "makehuman_stylised_arkit.npz"
+# the marker route's view: a scanned head with no rig (Lee Perry-Smith, CC BY 3.0; see tests/data/heads/SOURCES.md)
+SCANNED_HEAD = CHARACTER.with_name("lee_perry_smith.ply")
 
 
 def _take_window(model, takes):
@@ -96,6 +98,18 @@ def build(name: str, model, takes=None):
         path, start, n = _take_window(model, takes)
         return CharacterView(model, path, load_rig(CHARACTER), start=start, frames=n, frame=n // 2,
                              character_name=CHARACTER.name)
+    if name == "character-markers":
+        from facegeom.cli.transfer import read_head
+        from facegeom.viewer.character_markers import MarkerCharacterView
+
+        if not SCANNED_HEAD.is_file():
+            raise FacegeomError(f"the README's scanned head is not here: {SCANNED_HEAD} (a source checkout has it)")
+        path, start, n = _take_window(model, takes)
+        V, F, parts = read_head(SCANNED_HEAD)
+        view = MarkerCharacterView(model, path, V, F, start=start, frames=n, n_keys=6, parts=parts,
+                                   character_name=SCANNED_HEAD.name, echo=lambda line: None)
+        view.set_frame(int(view.keys[len(view.keys) // 2]))  # paused on a key frame: its markers drawn
+        return view
     raise ValueError(f"unknown view {name!r}; choose from {', '.join(VIEWS)}")
 
 
