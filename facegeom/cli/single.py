@@ -332,6 +332,7 @@ def _animate_character(obj: Context, take_path, takes_path, start, frames, outpu
 
 
 GLB_TOLERANCE_M = 1e-4  # --route markers: the .glb's frames within 0.1 mm of the driven mesh (metres)
+PROGRESS_S = 5.0  # --route markers: seconds between progress lines while the .glb is written
 
 
 def parse_keys(text: str) -> tuple[int | None, list[int]]:
@@ -398,8 +399,16 @@ def _animate_markers(obj: Context, take_path, takes_path, start, frames, output,
         given.check_vertices(mr.marker_vertices)
     metres = mr.character.registration.units / 100.0
     t0 = time.perf_counter()
+    shown = [t0]
+
+    def progress(line: str) -> None:  # the writer reports twice a second: a line every few seconds is enough
+        now = time.perf_counter()
+        if now - shown[0] >= PROGRESS_S:
+            shown[0] = now
+            click.echo(f"  {line} ({now - t0:.0f} s)")
+
     _, info = write_sequence_glb(output, mr.source(metres), F, take_fps(take), tolerance=GLB_TOLERANCE_M,
-                                 hold_bytes=0)  # driving again is cheaper than keeping: memory stays bounded
+                                 hold_bytes=0, progress=progress)  # driving again is cheaper than keeping
     click.echo(f"wrote {output} ({info['frames']} frames driven and stored as {info['targets']} morph targets in "
                f"{time.perf_counter() - t0:.2f} s, every vertex within {info['max_error'] * 1000:.3f} mm)")
     if save_labels:
