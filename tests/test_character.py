@@ -261,7 +261,7 @@ def test_marker_route_onto_a_bare_head_with_edited_key_labels(face_model, real_t
     assert 0.0009 < moved[20, 1] < 0.0045 and np.abs(moved[20, [0, 2]]).max() < 0.3 * moved[20, 1]
     assert np.abs(moved[[0, 59], 1]).max() < 0.3 * moved[20, 1]  # the other keys keep their labels
     # the retargeted markers themselves carry the edit exactly at its key, and not at the others
-    from facegeom.cli.transfer import read_head, stored_registration
+    from facegeom.pipelines.character import read_head, stored_registration
     from facegeom.pipelines.character_markers import markers_onto_character, take_markers
 
     X, X0, ids = take_markers(face_model, take, 10, 60)

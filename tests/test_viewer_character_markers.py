@@ -25,14 +25,14 @@ START, FRAMES, KEYS = 100, 60, 4
 
 @pytest.fixture(scope="module")
 def head(scanned_head_rig):
-    from facegeom.cli.transfer import read_head
+    from facegeom.pipelines.character import read_head
 
     return read_head(scanned_head_rig)
 
 
 @pytest.fixture(scope="module")
 def registered(face_model, head, scanned_head_rig):
-    from facegeom.cli.transfer import stored_registration
+    from facegeom.pipelines.character import stored_registration
 
     V, F, _ = head
     return stored_registration(face_model, scanned_head_rig, V, F)
@@ -141,9 +141,10 @@ def test_drag_at_a_key_moves_its_label_and_the_route_follows_in_the_background(s
     mv = int(v.route.marker_vertices[m])
     # the key frame shows the new label at once (the head driven by the labels), before the route is back
     assert v.route is old_route
-    now = v.head_face(tk)
-    assert np.linalg.norm(now[mv] - v.labels[k, m]) < 0.15 * dist
-    assert np.linalg.norm(now[mv] - old_route.drive(tk, tk + 1)[0][mv]) > 0.7 * dist
+    now = v.head_face(tk)  # the head's units
+    np.testing.assert_allclose(now, old_route.deform(v.labels[k][None])[0], atol=1e-9)  # driven by the labels
+    # the deformer takes markers as measured (soft labels): the vertex follows the drag, not all the way
+    assert float((now[mv] - old_route.drive(tk, tk + 1)[0][mv]) @ moved) > 0.3 * dist ** 2
     # the window keeps drawing and playing the old route while the refit runs
     v.play(True)
     t0, ticks, frame0 = time.monotonic(), v.ticks, v.frame
@@ -158,8 +159,8 @@ def test_drag_at_a_key_moves_its_label_and_the_route_follows_in_the_background(s
         time.sleep(0.02)
     assert v.route is not old_route and v.refits >= 1 and not v.state()["busy"]
     np.testing.assert_array_equal(v.route.labels[k], v.labels[k])
-    new_key = v.route.drive(tk, tk + 1)[0]
-    assert np.linalg.norm(new_key[mv] - v.labels[k, m]) < 0.15 * dist  # the retargeted key frame has the label
+    np.testing.assert_allclose(v.route.markers[tk], v.labels[k], atol=1e-4)  # the retargeted key frame: the labels
+    np.testing.assert_allclose(v.route.drive(tk, tk + 1)[0], old_route.deform(v.labels[k][None])[0], atol=1e-4)
     change = {t: float(np.linalg.norm(v.route.markers[t, m] - old_route.markers[t, m])) for t in range(FRAMES)}
     assert change[tk] > 0.8 * dist
     between = [t for t in range(int(v.keys[0]), int(v.keys[-1]) + 1) if abs(t - tk) >= 3]

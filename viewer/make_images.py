@@ -99,7 +99,7 @@ def build(name: str, model, takes=None):
         return CharacterView(model, path, load_rig(CHARACTER), start=start, frames=n, frame=n // 2,
                              character_name=CHARACTER.name)
     if name == "character-markers":
-        from facegeom.cli.transfer import read_head
+        from facegeom.pipelines.character import read_head
         from facegeom.viewer.character_markers import MarkerCharacterView
 
         if not SCANNED_HEAD.is_file():

@@ -358,7 +358,7 @@ def _animate_markers(obj: Context, take_path, takes_path, start, frames, output,
                      character_map, key_opts, retargeter, deformer, rig_opts):
     """``animate --character HEAD --route markers``: the paper's route onto a head no one rigged."""
     from facegeom.cli.flags import as_flags
-    from facegeom.cli.transfer import read_head, stored_registration
+    from facegeom.pipelines.character import read_head, stored_registration
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.io.gltf import write_sequence_glb

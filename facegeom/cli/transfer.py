@@ -101,6 +101,7 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.methods.transfer import read_head_landmarks, transfer_head
+    from facegeom.pipelines.character import read_head
 
     check_outputs([head, landmarks], [output])
     suffix = Path(output).suffix.lower()
@@ -137,41 +138,3 @@ def parse_pieces(items) -> dict:
             raise InputError(f"--piece takes NAME=ROLE, got {item!r}")
         roles[name] = role
     return roles
-
-
-def stored_registration(model, path, V, F):
-    """The head's registration stored by ``facegeom transfer`` beside a rig ``.npz`` -> a Character, or None
-    (another file kind, or a rig without one)."""
-    import zipfile
-
-    import numpy as np
-
-    from facegeom.methods.transfer import REGISTRATION_KEYS, stored_character
-
-    if Path(path).suffix.lower() != ".npz":
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in REGISTRATION_KEYS if k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
-        return None  # read_head has read it: a problem here means no registration
-    return stored_character(model, V, F, arrays, path)
-
-
-def read_head(path):
-    """A head for ``facegeom transfer`` -> ``(V, F, parts or None)``: a mesh, a glTF scene or a rig file's neutral."""
-    from facegeom.io.mesh import read_mesh
-
-    suffix = Path(path).suffix.lower()
-    if suffix in (".glb", ".gltf"):
-        from facegeom.io.gltf import read_gltf_rig
-
-        g = read_gltf_rig(path, require_targets=False)
-        return g.neutral, g.faces, (g.parts if len(g.parts) > 1 else None)
-    if suffix == ".npz":
-        from facegeom.model.rig import BlendshapeRig
-
-        rig, _, _ = BlendshapeRig.read_npz(path)
-        return rig.neutral, rig.triangles, rig.parts
-    V, F = read_mesh(path)
-    return V, F, None

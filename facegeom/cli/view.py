@@ -289,7 +289,8 @@ def view_transfer(obj, head, engine, landmarks, units, pieces, shape, weight, sa
     for a new registration from the panel. HEAD: as `facegeom transfer` (a mesh, a glTF scene, a rig .npz).
     """
     from facegeom.cli.flags import as_flags
-    from facegeom.cli.transfer import parse_pieces, read_head
+    from facegeom.cli.transfer import parse_pieces
+    from facegeom.pipelines.character import read_head
     from facegeom.errors import InputError
     from facegeom.viewer.app import check_display
 
@@ -415,7 +416,7 @@ def _view_character_markers(obj, path, head, start, frames, frame, keys, key_lab
     """``view character --route markers``: the head registered, the route built, the labels edited in the window."""
     from facegeom.cli.flags import as_flags
     from facegeom.cli.single import parse_keys
-    from facegeom.cli.transfer import read_head
+    from facegeom.pipelines.character import read_head
     from facegeom.io import check_outputs, check_writable_folder
     from facegeom.io.key_labels import read_key_labels
     from facegeom.io.takes import read_take

@@ -37,7 +37,7 @@ from facegeom.methods.marker_solve import MarkerSolve
 from facegeom.pipelines.solve import SolvedCapture, take_fps
 from facegeom.registration import rms_radius
 
-__all__ = ["onto_character", "take_onto_character", "size_ratio"]
+__all__ = ["onto_character", "take_onto_character", "size_ratio", "read_head", "stored_registration"]
 
 
 def size_ratio(character, actor) -> float:
@@ -119,3 +119,39 @@ def take_onto_character(take, character, start: int = 0, frames: int | None = No
     if tk.rotations is None or not np.any(tk.rotations[start:stop, :3]):
         notes.append(f"{Path(tk.path).name}: no head rotation in the take; the head stays still")
     return SolvedCapture(solve, seq, np.zeros(0, dtype=np.int64), "take", take_fps(tk), True, character, notes)
+
+
+def stored_registration(model, path, V, F):
+    """The head's registration stored by ``facegeom transfer`` beside a rig ``.npz`` -> a Character, or None
+    (another file kind, or a rig without one)."""
+    import zipfile
+
+    from facegeom.methods.transfer import REGISTRATION_KEYS, stored_character
+
+    if Path(path).suffix.lower() != ".npz":
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in REGISTRATION_KEYS if k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
+        return None  # read_head has read it: a problem here means no registration
+    return stored_character(model, V, F, arrays, path)
+
+
+def read_head(path):
+    """A head file -> ``(V, F, parts or None)``: a mesh, a glTF scene or a rig file's neutral."""
+    from facegeom.io.mesh import read_mesh
+
+    suffix = Path(path).suffix.lower()
+    if suffix in (".glb", ".gltf"):
+        from facegeom.io.gltf import read_gltf_rig
+
+        g = read_gltf_rig(path, require_targets=False)
+        return g.neutral, g.faces, (g.parts if len(g.parts) > 1 else None)
+    if suffix == ".npz":
+        from facegeom.model.rig import BlendshapeRig
+
+        rig, _, _ = BlendshapeRig.read_npz(path)
+        return rig.neutral, rig.triangles, rig.parts
+    V, F = read_mesh(path)
+    return V, F, None
