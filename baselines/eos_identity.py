@@ -20,9 +20,14 @@ landmarks of one image with eos (PyPI ``eos-py``), the same job as
 
 Differences from our fitter: the camera is eos's **scaled orthographic**
 one (the target's focal length and perspective are ignored), the weights come
-from eos's own regularised solve (not bounded to ``[0, 1]``; clipped here when
-the result is used as a rig's weights), everything is float32, and the
-regularisation strengths are eos's (``lambda``\\ s), not a noise level.
+from eos's own regularised solve (not bounded to ``[0, 1]``: a weight may be
+negative or above 1), everything is float32, and the regularisation strengths
+are eos's (``lambda``\\ s), not a noise level.
+
+The result is eos's as eos returns it: the weights are passed on unchanged
+(not clipped to ``[0, 1]``), so the fitted face (:meth:`IdentityFit.vertices`)
+is eos's face and a comparison scores eos's fit, not a changed one (clipping
+had raised eos's landmark error, e.g. from 2.1 to 4.5 px on a synthetic image).
 """
 from __future__ import annotations
 
@@ -93,7 +98,8 @@ class EosIdentityFitter(Params):
 
         ``info``: ``time_s``, ``affine_camera`` (3x4 model -> pixel matrix),
         ``shape_coefficients`` (eos's), ``rms`` (pixels, under eos's camera).
-        ``cameras`` is ``[None]`` (eos's camera is affine).
+        ``cameras`` is ``[None]`` (eos's camera is affine). ``weights`` are eos's
+        blendshape coefficients as returned (float64, not clipped: they may lie outside ``[0, 1]``).
         """
         if isinstance(targets, (list, tuple)):
             if len(targets) != 1:
@@ -128,5 +134,4 @@ class EosIdentityFitter(Params):
                 "rms": [rms], "rounds": self.iterations, "converged": True}
         R = np.asarray(params.get_rotation_matrix() if hasattr(params, "get_rotation_matrix") else np.eye(3),
                        dtype=np.float64)[:3, :3]
-        return IdentityFit(a, np.clip(w, 0.0, 1.0)[None], ("landmarks",), [None], R[None], np.zeros((1, 3)),
-                           info, model)
+        return IdentityFit(a, w[None], ("landmarks",), [None], R[None], np.zeros((1, 3)), info, model)

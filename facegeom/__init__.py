@@ -16,8 +16,9 @@ The public API, importable from here::
   weights by :func:`solve_markers`), :class:`PinholeCamera`
 - facegeom's own methods: :class:`TangentDeformer`, :class:`TangentRetargeter`,
   :class:`SEMFitter` (the published SEM) and :class:`SEMLSFitter` (``sem-ls``,
-  the default fitter); any registered method (baselines, plugins) by name with
-  :func:`create` (``create("deformer", "rbf")``)
+  the default fitter), :class:`IdentityFitter` (a person's identity, pose and
+  expressions); any registered method (baselines, plugins) by name with
+  :func:`create` (``create("deformer", "rbf")``; ``create("identity")`` is an IdentityFitter)
 - meshes: :func:`read_mesh`, :func:`write_mesh`
 - errors: :class:`FacegeomError`, :class:`InputError`, :class:`DataNotFoundError`
 
@@ -35,6 +36,7 @@ from facegeom.errors import DataNotFoundError, FacegeomError, InputError
 
 if TYPE_CHECKING:  # what static tools see; at run time the names load on first use
     from facegeom.io.mesh import read_mesh, write_mesh
+    from facegeom.methods.identity import IdentityFitter
     from facegeom.methods.marker_solve import solve_markers
     from facegeom.methods.sem import SEMFitter, SEMLSFitter
     from facegeom.methods.tangent import TangentDeformer
@@ -61,6 +63,7 @@ _LAZY = {
     "TangentRetargeter": "facegeom.methods.tangent_retarget",
     "SEMFitter": "facegeom.methods.sem",
     "SEMLSFitter": "facegeom.methods.sem",
+    "IdentityFitter": "facegeom.methods.identity",
     "read_mesh": "facegeom.io.mesh",
     "write_mesh": "facegeom.io.mesh",
     "create": "facegeom.registry",
@@ -72,6 +75,7 @@ __all__ = [
     "DataNotFoundError",
     "FaceModel",
     "FacegeomError",
+    "IdentityFitter",
     "InputError",
     "LandmarkTarget",
     "MarkerTarget",

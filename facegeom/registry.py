@@ -5,10 +5,15 @@ Groups (declared in ``pyproject.toml``, also by third-party packages):
 - ``facegeom.deformers``   -> :class:`facegeom.interfaces.Deformer`
 - ``facegeom.retargeters`` -> :class:`facegeom.interfaces.Retargeter`
 - ``facegeom.fitters``     -> :class:`facegeom.interfaces.Fitter`
+- ``facegeom.identity``    -> identity fitters: ``fit(model, targets)`` -> an
+  :class:`~facegeom.methods.identity.IdentityFit` (``facegeom``: :class:`~facegeom.methods.identity.IdentityFitter`)
 
 The CLI, the viewer and the comparison scripts list and build every method the
 same way: ``create("deformers", "tangent", d=3)``. A kind may also be named in the
 singular (``"deformer"``, ``"retargeter"``, ``"fitter"``), as :func:`facegeom.create` users do.
+The kind ``"identity"`` is named after its entry-point group and has one spelling; it is
+the only kind with a default method (:data:`DEFAULTS`): ``create("identity")`` builds
+facegeom's own identity fitter.
 
 Method specs: a registered name plus parameters, parsed from text like
 ``label=name:k=v,k=v`` (:func:`parse_method`, :func:`parse_methods`) and built
@@ -21,19 +26,32 @@ from importlib.metadata import entry_points
 
 from facegeom.errors import InputError
 
-KINDS = ("deformers", "retargeters", "fitters")
+KINDS = ("deformers", "retargeters", "fitters", "identity")
+"""The method kinds: each is the entry-point group ``facegeom.<kind>``."""
 
-__all__ = ["KINDS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method", "parse_methods", "LINEUPS"]
+_SINGULAR = {"deformers": "deformer", "retargeters": "retargeter", "fitters": "fitter", "identity": "identity"}
+
+DEFAULTS = {"identity": "facegeom"}
+"""The method :func:`create` builds when no name is given, per kind (only where one method is the obvious choice)."""
+
+__all__ = ["KINDS", "DEFAULTS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method",
+           "parse_methods", "LINEUPS"]
 
 
 def _kind(kind: str) -> str:
-    """The plural kind (``"deformer"`` -> ``"deformers"``); an unknown kind is an InputError naming the known ones."""
-    if isinstance(kind, str) and kind + "s" in KINDS:
-        return kind + "s"
-    if kind not in KINDS:
-        raise InputError(f"unknown method kind {kind!r}; choose one of {', '.join(k[:-1] for k in KINDS)} "
-                         f"(or the plural: {', '.join(KINDS)})")
-    return kind
+    """The kind as in :data:`KINDS` (``"deformer"`` -> ``"deformers"``); an unknown one is an InputError naming them."""
+    if isinstance(kind, str) and kind in KINDS:
+        return kind
+    plural = {v: k for k, v in _SINGULAR.items()}
+    if isinstance(kind, str) and kind in plural:
+        return plural[kind]
+    raise InputError(f"unknown method kind {kind!r}; choose one of {', '.join(_SINGULAR[k] for k in KINDS)} "
+                     f"(or the plural: {', '.join(k for k in KINDS if _SINGULAR[k] != k)})")
+
+
+def _one(kind: str) -> str:
+    """What one method of ``kind`` is called in messages (``"fitters"`` -> ``"fitter"``)."""
+    return _SINGULAR[_kind(kind)]
 
 
 def _group(kind: str) -> str:
@@ -52,32 +70,38 @@ def get(kind: str, name: str) -> type:
     eps = {ep.name: ep for ep in entry_points(group=_group(kind))}
     if name not in eps:
         names = ", ".join(sorted(eps)) or "none installed"
-        raise InputError(f"no {kind[:-1]} named {name!r}; available: {names}")
+        raise InputError(f"no {_one(kind)} named {name!r}; available: {names}")
     return eps[name].load()
 
 
-def create(kind: str, name: str, **params):
+def create(kind: str, name: str | None = None, **params):
     """Build the method ``name`` of ``kind`` with constructor ``params``.
 
-    ``kind`` is ``"deformers"``, ``"retargeters"`` or ``"fitters"`` (or the singular);
-    ``name`` a registered plugin name (:func:`available`). An unknown kind or name is an
+    ``kind`` is ``"deformers"``, ``"retargeters"`` or ``"fitters"`` (or the singular), or
+    ``"identity"``; ``name`` a registered plugin name (:func:`available`), optional where the
+    kind has a default (:data:`DEFAULTS`: ``create("identity")`` is an
+    :class:`~facegeom.methods.identity.IdentityFitter`). An unknown kind or name is an
     :class:`InputError` that lists the known ones.
 
     An unknown parameter name (for a :class:`~facegeom.interfaces.Params`
     method: not in its ``param_names()``) is an :class:`InputError` listing the
     valid ones; the constructor checks the values (an InputError naming the parameter).
     """
-    cls = get(kind, name)
     kind = _kind(kind)
+    if name is None:
+        if kind not in DEFAULTS:
+            raise InputError(f"which {_one(kind)}? name one: {', '.join(available(kind)) or 'none installed'}")
+        name = DEFAULTS[kind]
+    cls = get(kind, name)
     valid = cls.param_names() if hasattr(cls, "param_names") else None
     unknown = [k for k in params if valid is not None and k not in valid]
     if unknown:
-        raise InputError(f"{kind[:-1]} {name!r} has no parameter {unknown[0]!r}; valid parameters: "
+        raise InputError(f"{_one(kind)} {name!r} has no parameter {unknown[0]!r}; valid parameters: "
                          f"{', '.join(valid) or 'none'}")
     try:
         return cls(**params)
     except TypeError as exc:  # unknown keyword
-        raise InputError(f"{kind[:-1]} {name!r}: {exc}") from None
+        raise InputError(f"{_one(kind)} {name!r}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -200,7 +224,7 @@ def parse_methods(text: str, kind: str, defaults: list[str]) -> list[MethodSpec]
     known = available(kind)
     for s in specs:
         if s.name not in known:
-            raise InputError(f"no {kind[:-1]} named {s.name!r}; available: {', '.join(known)}")
+            raise InputError(f"no {_one(kind)} named {s.name!r}; available: {', '.join(known)}")
     return specs
 
 

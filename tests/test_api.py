@@ -6,6 +6,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import facegeom
@@ -25,6 +26,7 @@ PUBLIC = {
     "TangentRetargeter": "facegeom.methods.tangent_retarget",
     "SEMFitter": "facegeom.methods.sem",
     "SEMLSFitter": "facegeom.methods.sem",
+    "IdentityFitter": "facegeom.methods.identity",
     "read_mesh": "facegeom.io.mesh",
     "write_mesh": "facegeom.io.mesh",
     "create": "facegeom.registry",
@@ -103,3 +105,33 @@ def test_create_errors_name_what_is_known():
         facegeom.create("deformer", "tangent", dd=3)
     with pytest.raises(InputError, match="d must be"):
         facegeom.create("deformer", "tangent", d="banana")
+
+
+def test_identity_fitter_is_public_and_created_by_kind(face_model):
+    """``from facegeom import IdentityFitter``; ``create("identity")`` is one (the kind's default, ``facegeom``)."""
+    from facegeom import IdentityFitter, registry
+    from facegeom.model import LandmarkTarget, PinholeCamera, look_at_camera
+
+    assert IdentityFitter is importlib.import_module("facegeom.methods.identity").IdentityFitter
+    assert type(facegeom.create("identity")) is IdentityFitter
+    fitter = facegeom.create("identity", "facegeom", expressions=False, rounds=5)
+    assert type(fitter) is IdentityFitter and fitter.get_params()["expressions"] is False
+    assert set(registry.available("identity")) >= {"facegeom"}
+    V = face_model.face(face_model.random_identity(1))  # a person's neutral face, seen slightly from the side
+    cam = look_at_camera(V, yaw=15.0)
+    ids = face_model.landmarks
+    fit = fitter.fit(face_model, LandmarkTarget(cam.project(V[ids]), ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
+    assert fit.identity.shape == (face_model.n_identities,) and np.abs(fit.weights).max() < 1e-6
+    assert fit.info["rms"][0] < 0.5 and fit.rig.n_shapes == face_model.n_expressions
+
+
+def test_create_identity_errors_name_what_is_known():
+    with pytest.raises(InputError, match=r"no identity named 'nope'; available: .*facegeom"):
+        facegeom.create("identity", "nope")
+    with pytest.raises(InputError, match=r"identity 'facegeom' has no parameter 'nois_px'; valid parameters: noise_px"):
+        facegeom.create("identity", "facegeom", nois_px=2)
+    with pytest.raises(InputError, match=r"which fitter\? name one: .*sem-ls"):
+        facegeom.create("fitter")
+    with pytest.raises(InputError, match=r"choose one of deformer, retargeter, fitter, identity \(or the plural: "
+                                         r"deformers, retargeters, fitters\)"):
+        facegeom.create("identities")

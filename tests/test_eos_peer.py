@@ -174,3 +174,52 @@ def test_speed(face_model):
     rate = n / (time.perf_counter() - t0)
     print(f"eos peer: {rate:.1f} fits/s")
     assert rate > 2.0
+
+
+# ----------------------------------------------------------------------------- scored as eos returns it
+def _spy(monkeypatch, name):
+    """Wrap ``eos.fitting.<name>``: the list of what each call returned."""
+    returned = []
+    real = getattr(eos.fitting, name)
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        returned.append(out)
+        return out
+
+    monkeypatch.setattr(eos.fitting, name, spy)
+    return returned
+
+
+def test_expression_peer_weights_are_what_eos_returned(face_model, monkeypatch):
+    """EosFitter's weights are the coefficients of eos's last fit_expressions call, unchanged."""
+    rig, _, _, _, target = synthetic(face_model, 4)
+    returned = _spy(monkeypatch, "fit_expressions")
+    r = EosFitter().fit(rig, target)
+    assert len(returned) == 6  # iterations + 1
+    np.testing.assert_array_equal(r.weights, np.asarray(returned[-1], dtype=np.float64))
+    np.testing.assert_allclose(r.vertices, rig.evaluate(r.weights))
+
+
+def test_identity_peer_passes_eos_result_through_unchanged(face_model, monkeypatch):
+    """The identity peer's fit is eos's fit_shape_and_pose as eos returns it: its weights are not clipped to [0, 1]
+    (eos's blendshape solve has no upper bound; a weight above 1 stays), so a comparison scores eos's own face."""
+    from facegeom.baselines.eos_identity import EosIdentityFitter
+
+    rng = np.random.default_rng(11)
+    a = face_model.random_identity(rng)
+    w = np.zeros(face_model.n_expressions)
+    w[[face_model.expression_index("jawOpen"), face_model.expression_index("mouthSmile_L")]] = [0.6, 0.4]
+    V = face_model.face(a, w)
+    ids = np.asarray(face_model.landmarks)
+    target = LandmarkTarget.from_mesh(V, ids, look_at_camera(V, yaw=10))
+    returned = _spy(monkeypatch, "fit_shape_and_pose")
+    fit = EosIdentityFitter().fit(face_model, target)
+    (mesh, _, alpha, coeffs), = returned
+    np.testing.assert_array_equal(fit.weights[0], np.asarray(coeffs, dtype=np.float64))
+    np.testing.assert_array_equal(fit.info["shape_coefficients"], np.asarray(alpha, dtype=np.float64))
+    assert fit.weights.max() > 1.0 and fit.weights.min() >= 0.0  # eos's result, outside [0, 1]
+    # the face scored is eos's: at the landmarks it is eos's mesh, and it has eos's error under eos's camera
+    np.testing.assert_allclose(fit.vertices(0)[ids], np.asarray(mesh.vertices, dtype=np.float64), atol=1e-3)
+    assert affine_rms(fit.info["affine_camera"], fit.vertices(0)[ids], target.points2d) == pytest.approx(
+        fit.info["rms"][0], rel=1e-3, abs=1e-3)

@@ -407,3 +407,64 @@ def test_estimate_noise_is_floored_and_finite(face_model, person, noise, noise_p
     s = fit.info["noise"][0]
     assert np.isfinite(s) and s >= 0.5 * noise_px - 1e-12
     assert np.isfinite(fit.identity).all() and np.isfinite(fit.info["energy"])
+
+
+# ----------------------------------------------------------------------------- extreme views: the fit stays valid
+def _posed_view(V, ids, yaw, dist, focal, off=0.0):
+    """A camera ``dist`` cm from the landmarks' centre, the face turned by ``yaw`` and seen ``off`` degrees off the
+    optical axis (towards the image's right edge) -> ``(pixels, unposed camera of the same intrinsics)``."""
+    turn = Rotation.from_euler("y", yaw, degrees=True).as_matrix()
+    aside = Rotation.from_euler("y", -off, degrees=True).as_matrix()
+    R = aside @ turn
+    t = aside @ (np.array([0.0, 0.0, -dist]) - turn @ V[ids].mean(axis=0))
+    cam = PinholeCamera(focal, 320.0, 240.0, R, t)
+    return cam.project(V[ids]), PinholeCamera(focal, 320.0, 240.0)
+
+
+def _checked_steps(monkeypatch):
+    """Every controlled Gauss-Newton step of the identity fits: taken only when it keeps each landmark in front of
+    its camera and does not raise the energy; returns the list of the steps' energies (before, after)."""
+    from facegeom.methods import identity as mi
+
+    seen = []
+    step = mi._State.step
+
+    def spy(self, x, x_new, p):
+        before = self.energy(x)
+        out = step(self, x, x_new, p)
+        assert self.valid(out)
+        seen.append((before, self.energy(out)))
+        return out
+
+    monkeypatch.setattr(mi._State, "step", spy)
+    return seen
+
+
+@pytest.mark.parametrize("yaw, dist, focal, off, n", [
+    (75.0, 8.0, 200.0, 0.0, 68),  # turned far and near the lens: the first pose once put landmarks behind the camera
+    (-80.0, 7.0, 150.0, 0.0, 68),
+    (60.0, 12.0, 150.0, 45.0, 68),  # a wide lens, the face near the image's edge
+    (70.0, 40.0, 1000.0, 0.0, 23),
+    (0.0, 400.0, 5000.0, 0.0, 23),  # a small face far away (~35 px wide)
+])
+def test_neutral_landmark_fit_holds_on_extreme_views(face_model, person, monkeypatch, yaw, dist, focal, off, n):
+    a, _ = person
+    V = face_model.face(a)
+    lm = np.asarray(face_model.landmarks)
+    ids = lm if n == 68 else lm[list(FIT_LANDMARKS_23)]
+    uv, cam = _posed_view(V, ids, yaw, dist, focal, off)
+    uv = uv + np.random.default_rng(2).normal(size=uv.shape) * 0.5
+    steps = _checked_steps(monkeypatch)
+    fit = IdentityFitter(expressions=False).fit(face_model, LandmarkTarget(uv, ids, cam))
+    assert steps and all(after <= before * (1 + 1e-9) for before, after in steps)
+    depth = -fit.cameras[0].to_camera(fit.vertices(0)[ids])[:, 2]
+    assert (depth > 0).all() and np.isfinite(fit.info["energy"])
+    assert fit.info["rms"][0] < 1.0  # px: the data's noise (0.5 px per coordinate), not a wrong pose
+
+
+def test_identical_landmarks_are_still_an_input_error(face_model):
+    """The one landmark input no pose fits: every point at one pixel."""
+    ids = face_model.landmarks
+    tg = LandmarkTarget(np.full((68, 2), 100.0), ids, PinholeCamera(1000, 320, 240))
+    with pytest.raises(InputError, match="degenerate"):
+        IdentityFitter(expressions=False).fit(face_model, tg)

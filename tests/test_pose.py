@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
 from facegeom.model import PinholeCamera, estimate_pose, estimate_poses, project_many, reprojection_rms
+from facegeom.model.pose import NEAR, in_front
 
 
 def face_like_points(seed, n=23):
@@ -66,3 +67,24 @@ def test_bad_input():
         estimate_pose(P, np.zeros((22, 2)), cam)
     with pytest.raises(InputError, match="behind the camera"):
         project_many(P[None], np.eye(3)[None], np.array([[0.0, 0.0, 5.0]]), np.ones(1), np.zeros(1), np.zeros(1))
+
+
+@pytest.mark.parametrize("yaw, dist", [(80.0, 8.0), (-80.0, 8.0), (-75.0, 7.0), (70.0, 7.0)])
+def test_a_face_turned_near_a_wide_lens_gets_a_pose(face_model, yaw, dist):
+    """The scaled-orthographic start put such a face closer than its own depth (landmarks behind the camera: an
+    error); moved back along its line of sight, the refinement recovers the exact pose."""
+    P = np.asarray(face_model.neutral[face_model.landmarks], dtype=np.float64)
+    R = Rotation.from_euler("y", yaw, degrees=True).as_matrix()
+    cam = PinholeCamera(200.0, 320.0, 240.0, R, -R @ P.mean(axis=0) + [0.0, 0.0, -dist])
+    uv = cam.project(P)
+    est = estimate_pose(P, uv, PinholeCamera(200.0, 320.0, 240.0))
+    assert reprojection_rms(P, uv, est) < 1e-6
+    np.testing.assert_allclose(est.R, R, atol=1e-6)
+
+
+def test_a_point_at_the_lens_is_not_in_front():
+    """A point nearer than NEAR x the mean depth counts as behind: its projection is 0 / 0."""
+    assert in_front(np.array([5.0, 10.0, 15.0]))
+    assert not in_front(np.array([1e-9, 10.0, 15.0]))
+    assert not in_front(np.array([-1.0, 10.0, 15.0]))
+    assert in_front(np.array([[2 * NEAR * 10.0, 10.0, 20.0]])).tolist() == [True]

@@ -68,7 +68,7 @@ def info(obj: Context):
 
 
 @cli.command()
-@click.option("--kind", type=click.Choice(["deformers", "retargeters", "fitters"]), default=None,
+@click.option("--kind", type=click.Choice(["deformers", "retargeters", "fitters", "identity"]), default=None,
               help="Only this kind of method.")
 def methods(kind):
     """Registered method plugins, by kind (entry points)."""

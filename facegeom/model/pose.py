@@ -3,8 +3,10 @@
 The pose ``(R, t)`` maps the face into camera space (``x_cam = R x + t``, the
 convention of :class:`facegeom.model.camera.PinholeCamera`). It is initialised in closed
 form under a scaled-orthographic camera (an affine fit of the centred 2-D
-points, orthonormalised) and refined by Levenberg-Marquardt on the perspective
-reprojection error.
+points, orthonormalised; moved back along its line of sight when a large face
+seen through a short focal length would reach behind the camera) and refined
+by Levenberg-Marquardt on the perspective reprojection error, whose steps never
+put a point behind the camera (such a step counts as a rise of the error).
 
 The refinement is written for many targets at once (:func:`estimate_poses`):
 six unknowns per target, so every step is a batch of ``6 x 6`` normal
@@ -20,7 +22,19 @@ from scipy.spatial.transform import Rotation
 from facegeom.errors import InputError
 from facegeom.model.camera import PinholeCamera
 
-__all__ = ["estimate_pose", "estimate_poses", "project_many", "reprojection_rms"]
+__all__ = ["NEAR", "estimate_pose", "estimate_poses", "in_front", "project_many", "reprojection_rms"]
+
+NEAR = 0.01
+"""A point nearer the camera than this fraction of the points' mean depth counts as behind it (the pose solvers).
+
+Such a point sits at the lens, where the projection is singular (0 / 0): a pose with a landmark there can match
+that landmark's pixel exactly and the rest badly, and the next Gauss-Newton system is numerically singular."""
+
+
+def in_front(depth) -> np.ndarray:
+    """Whether each set of depths ``(..., N)`` is in front of its camera: all ``> NEAR`` times their mean."""
+    d = np.asarray(depth, dtype=np.float64)
+    return np.all(d > NEAR * np.abs(d.mean(axis=-1, keepdims=True)), axis=-1) & np.all(d > 0, axis=-1)
 
 
 def project_many(X, R, t, f, cx, cy, what: str = "landmark"):
@@ -57,7 +71,13 @@ def _initial(P, q, f, cx, cy):
         raise InputError("the landmarks are degenerate (all at one point): no pose can be estimated")
     R = np.concatenate([r12, np.cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
     depth = f / scale
-    t = np.concatenate([qc / scale[:, None], -depth[:, None]], axis=1) - np.einsum("kij,kj->ki", R, c[:, 0])
+    # a face large in the image of a short focal length sits closer than its own depth extent: move it back along
+    # the ray through its centre (its image stays centred there) until its nearest point is half as far as the centre
+    front = np.einsum("kj,knj->kn", R[:, 2], X).max(axis=1)  # how far each face reaches towards the camera
+    back = 2.0 * front > depth
+    depth = np.where(back, 2.0 * front, depth)
+    shift = np.where(back[:, None], qc * (depth / f)[:, None], qc / scale[:, None])
+    t = np.concatenate([shift, -depth[:, None]], axis=1) - np.einsum("kij,kj->ki", R, c[:, 0])
     return R, t
 
 
@@ -65,7 +85,7 @@ def _residual(P, q, R, t, f, cx, cy):
     """Residuals ``(K, N, 2)``, camera-space points ``(K, N, 3)`` and depths; ``inf`` cost where a point is behind."""
     pc = P @ np.transpose(R, (0, 2, 1)) + t[:, None, :]
     depth = -pc[..., 2]
-    ok = np.all(depth > 0, axis=1)
+    ok = in_front(depth)
     d = np.where(depth > 0, depth, 1.0)
     uv = np.stack([cx[:, None] + f[:, None] * pc[..., 0] / d, cy[:, None] - f[:, None] * pc[..., 1] / d], axis=-1)
     r = uv - q
