@@ -254,17 +254,20 @@ def test_orthogonal_gram_batch_bounds_and_degenerate_shapes(face_model):
     np.testing.assert_allclose(rig.delta_matrix() @ E[0], D2 @ e2, atol=1e-6)
 
 
-def test_sem_ls_fit_many_equals_fit_and_landmarks_follow_the_greedy(face_model, landmark_case):
+def test_sem_ls_fit_many_equals_fit_and_landmarks_take_the_posterior_mode(face_model, landmark_case):
     rig, w, V, T = dense_case(face_model, 2, noise_cm=0.05)
     f = SEMLSFitter()
     many = f.fit_many(rig, np.stack([T, V]))
     np.testing.assert_allclose(many[0].weights, f.fit(rig, MeshTarget(T)).weights, atol=1e-9)
     np.testing.assert_allclose(many[1].weights, f.fit(rig, MeshTarget(V)).weights, atol=1e-9)
-    # landmarks: "auto" keeps the paper's greedy coefficients with the noise-aware stop (sem+)
+    # landmarks: "auto" is the posterior mode ("map"), not the greedy with the noise-aware stop (sem+)
     lrig, _, LV, ids, cam = landmark_case
     tg = LandmarkTarget(cam.project(LV[ids]), ids, cam)
-    np.testing.assert_allclose(f.fit(lrig, tg).weights, SEMFitter(clamp=True, stop="ric").fit(lrig, tg).weights,
-                               atol=1e-12)
+    auto = f.fit(lrig, tg).weights
+    np.testing.assert_allclose(auto, SEMFitter(clamp=True, coefficients="map").fit(lrig, tg).weights, atol=1e-12)
+    greedy = SEMLSFitter(coefficients="greedy").fit(lrig, tg).weights
+    np.testing.assert_allclose(greedy, SEMFitter(clamp=True, stop="ric").fit(lrig, tg).weights, atol=1e-12)
+    assert np.abs(auto - greedy).max() > 1e-6
     lsq = SEMLSFitter(coefficients="lsq").fit(lrig, tg)  # least squares on the projected motions also runs
     assert lsq.weights.min() >= 0 and lsq.weights.max() <= 1 + 1e-12
 

@@ -63,6 +63,7 @@ from threadpoolctl import threadpool_limits
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
+from facegeom.methods.landmark_map import map_weights
 from facegeom.methods.marker_solve import split_markers
 from facegeom.model import (
     BlendshapeRig,
@@ -84,6 +85,12 @@ def _camera(intr, R, t, k) -> PinholeCamera:
 
 _TINY = 1e-300
 _BEHIND = "a fitted landmark went behind the camera (the expression moves it past the camera)"
+
+
+def _by_weight(w) -> np.ndarray:
+    """The shapes with a weight above zero, largest first (the order a MAP fit reports)."""
+    idx = np.flatnonzero(w > 0)
+    return idx[np.argsort(-w[idx], kind="stable")]
 
 
 def _cut_path(order, step_e, step_gain, min_gain):
@@ -413,16 +420,20 @@ class SEMFitter(Params):
         risk-inflation threshold of variable selection (Foster & George, 1994),
         about what the best of ``B`` pure-noise directions gains. Meshes and
         landmarks (point clouds: not applied).
-    coefficients : {"greedy", "lsq", "auto"}
+    coefficients : {"greedy", "lsq", "map", "auto"}
         ``greedy`` (the paper, eq. 18): a coefficient is fixed when its shape is
         selected. ``lsq``: after each selection all selected coefficients are
         re-solved by (bounded) least squares, and the selection stops where
         generalised cross-validation is best (:func:`sem_orthogonal_gram`; on
         landmarks on the projected motions of eq. 20, on point clouds on the
-        current correspondences); ``stop`` is then not used. ``auto``: ``lsq``
-        for meshes and point clouds, whose thousands of values determine every
-        coefficient, ``greedy`` for landmarks, where a few dozen noisy values
-        cannot and the greedy's frozen coefficients act as shrinkage.
+        current correspondences); ``stop`` is then not used. ``map``
+        (landmarks only): every weight at once, the posterior mode under a
+        prior of the weights' range and a noise level estimated from the photo
+        (:mod:`facegeom.methods.landmark_map`); ``stop`` is not used, and the
+        selection order reported is the shapes by decreasing weight.
+        ``auto``: ``lsq`` for meshes and point clouds, whose thousands of
+        values determine every coefficient, ``map`` for landmarks, where a few
+        dozen noisy values cannot.
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -432,8 +443,9 @@ class SEMFitter(Params):
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
                  stop: str = "none", coefficients: str = "greedy"):
-        if coefficients not in ("greedy", "lsq", "auto"):
-            raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq' or 'auto', got {coefficients!r}")
+        if coefficients not in ("greedy", "lsq", "map", "auto"):
+            raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq', 'map' or 'auto', "
+                             f"got {coefficients!r}")
         self.coefficients = coefficients
         if stop not in ("none", "ric"):
             raise InputError(f"stop must be 'none' (the paper) or 'ric', got {stop!r}")
@@ -461,7 +473,11 @@ class SEMFitter(Params):
 
     def _lsq(self, kind: str) -> bool:
         """Whether targets of ``kind`` ("mesh", "landmarks", "points") get least-squares coefficients."""
-        return self.coefficients == "lsq" or (self.coefficients == "auto" and kind != "landmarks")
+        return self.coefficients == "lsq" or (self.coefficients in ("auto", "map") and kind != "landmarks")
+
+    def _map(self) -> bool:
+        """Whether landmark targets get the posterior mode of :mod:`facegeom.methods.landmark_map`."""
+        return self.coefficients in ("map", "auto")
 
     @property
     def _upper(self):
@@ -691,6 +707,10 @@ class SEMFitter(Params):
         orders = [None] * len(targets)
 
         def solve(R, t):
+            if self._map():
+                e, _ = map_weights(rig, ids, L, R, t, *intr, upper=self._upper)
+                orders[:] = [_by_weight(w) for w in e]
+                return e
             if self._lsq("landmarks"):
                 e, order = self._lsq_landmarks(rig, ids, L, R, t, *intr)
                 orders[:] = order
@@ -1017,9 +1037,11 @@ class SEMLSFitter(SEMFitter):
     ``coefficients="auto"``, ``clamp=True`` and ``stop="ric"``: meshes and
     point clouds get every selected coefficient re-solved by bounded least
     squares and a selection cut by generalised cross-validation (dense targets
-    reach least-squares accuracy, sparse ones stay sparse); landmarks keep the
-    paper's greedy coefficients with the noise-aware stop. Every parameter is
-    :class:`SEMFitter`'s; only the defaults differ.
+    reach least-squares accuracy, sparse ones stay sparse); landmarks get the
+    posterior mode of all weights under a prior of their range, with the
+    photo's noise estimated from the photo (:mod:`facegeom.methods.landmark_map`;
+    ``coefficients="greedy"`` is the paper's greedy with the noise-aware stop).
+    Every parameter is :class:`SEMFitter`'s; only the defaults differ.
     """
 
     def __init__(self, exclusion: bool = True, clamp: bool = True, refit: bool = False, alternations: int = 3,
