@@ -367,6 +367,48 @@ def bench_character(obj: Context, cases, frames, takes_path, seed, out):
     bc.run(obj.face_model(), takes, out, cases, frames, seed, echo=click.echo, progress=click.echo)
 
 
+@bench.command("photos")
+@click.argument("annotations", nargs=-1, type=click.Path())
+@click.option("--aflw2000", "aflw_folder", type=click.Path(file_okay=False), default=None,
+              help="Folder holding AFLW2000-3D-Reannotated.pts68.npy and AFLW2000-3D.pose.npy (default: downloaded, "
+                   "verified, into the cache, when no .pts is given).")
+@click.option("--protocol", type=click.Choice(["split", "leave-4-out"]), default="split", show_default=True,
+              help="Fit 23 landmarks and predict the 26 other inner ones, or predict each of 17 folds of four of the "
+                   "68 points from the other 64.")
+@click.option("--part", type=click.Choice(["all", "design", "held-out"]), default="held-out", show_default=True,
+              help="AFLW2000-3D: the faces the default was chosen on (even-numbered), the others, or all.")
+@click.option("--max-yaw", default=30.0, show_default=True, type=click.FloatRange(0, 90),
+              help="AFLW2000-3D: keep faces turned by at most this many degrees.")
+@click.option("--cases", default=0, show_default=True, type=click.IntRange(0),
+              help="Score the first N faces only (0: all).")
+@click.option("--methods", default="sem-ls;sem;l1reg;l2reg;pcadel", show_default=True,
+              help="';'-separated fitter specs, each scored on the generic rig and on the fitted identity's.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/photos", show_default=True,
+              help="Folder for photos.csv and photos-summary.md.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_photos(obj: Context, annotations, aflw_folder, protocol, part, max_yaw, cases, methods, out, quiet):
+    """Real annotated photos: each fitter predicts the landmarks it was not given (held-out error, inner-eye units)."""
+    from facegeom.bench import photos as bp
+    from facegeom.bench.common import available_specs
+    from facegeom.registry import parse_methods
+    from facegeom.bench.report import machine_note
+
+    specs = available_specs(parse_methods(methods, "fitters", None), echo=click.echo)
+    if annotations:
+        faces = bp.pts_faces(annotations)
+        what = f"{len(faces)} .pts annotations"
+    else:
+        faces = bp.aflw2000_faces(aflw_folder, max_yaw, part, echo=click.echo)
+        what = f"AFLW2000-3D re-annotated, |yaw| <= {max_yaw:g} deg, {part} faces"
+    if cases:
+        faces = faces[:cases]
+    label = (f"{what}: {len(faces)} faces, protocol {protocol}; error = RMS distance of the predicted landmarks over "
+             f"the annotated inner-eye distance; camera: focal = the photo's larger side, pose estimated. "
+             f"{machine_note()}.")
+    bp.run(obj.face_model(), faces, specs, protocol, out, label, echo=click.echo, progress=not quiet)
+
+
 @bench.command("retarget-scaling")
 @click.option("--frames", default="100,1000,10000,100000", show_default=True,
               help="Comma-separated sequence lengths T.")

@@ -55,6 +55,8 @@ __all__ = [
     "fetch_data",
     "fetch_plan",
     "fetch_takes",
+    "fetch_photo_annotations",
+    "PHOTOS_URL_ENV_VAR",
     "takes_state",
     "raw_folder",
     "read_registry",
@@ -72,6 +74,8 @@ LICENSE_COPY = "LICENSE.ICT-FaceKit"
 CONNECT_TIMEOUT_S, READ_TIMEOUT_S = 10, 15
 TAKES_URL_ENV_VAR = "FACEGEOM_TAKES_URL"
 TAKES_REGISTRY_FILE = "takes-registry.txt"
+PHOTOS_URL_ENV_VAR = "FACEGEOM_PHOTOS_URL"
+PHOTOS_REGISTRY_FILE = "photos-registry.txt"
 
 
 @dataclass(frozen=True)
@@ -600,12 +604,36 @@ def fetch_takes(registry: Registry | None = None, echo: Callable[[str], None] = 
     DownloadError
         As :func:`fetch_data`: one line naming the file.
     """
+    registry = registry or read_registry(shipped=TAKES_REGISTRY_FILE)
+    return _fetch_flat(registry, takes_cache_folder(), TAKES_URL_ENV_VAR, "real take",
+                       "Live Link Face, MIT licence", echo)
+
+
+def fetch_photo_annotations(registry: Registry | None = None, echo: Callable[[str], None] = print) -> Path:
+    """Download the real annotated faces of the photo benchmark (verified) into the cache -> their folder.
+
+    The files of ``photos-registry.txt`` (AFLW2000-3D's re-annotated 68
+    landmarks and the faces' yaw; non-commercial research terms, so they are
+    fetched on request and never shipped) land flat in ``photo-annotations/``
+    of the cache. The base address is the registry's, or
+    ``$FACEGEOM_PHOTOS_URL`` (a mirror laid out like the repository).
+
+    Raises
+    ------
+    DownloadError
+        As :func:`fetch_data`: one line naming the file.
+    """
+    registry = registry or read_registry(shipped=PHOTOS_REGISTRY_FILE)
+    return _fetch_flat(registry, cache_folder() / "photo-annotations", PHOTOS_URL_ENV_VAR, "annotated faces",
+                       "AFLW2000-3D, non-commercial research terms", echo)
+
+
+def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms: str, echo) -> Path:
+    """The registry's files, verified, flat in ``folder`` (kept when there with the right hash) -> ``folder``."""
     import pooch
 
-    registry = registry or read_registry(shipped=TAKES_REGISTRY_FILE)
-    base = os.environ.get(TAKES_URL_ENV_VAR) or registry.default_base_url
+    base = os.environ.get(url_var) or registry.default_base_url
     base = base if base.endswith("/") else base + "/"
-    folder = takes_cache_folder()
     todo = []
     for path, (sha, size) in registry.files.items():
         final = folder / Path(path).name
@@ -613,21 +641,19 @@ def fetch_takes(registry: Registry | None = None, echo: Callable[[str], None] = 
             todo.append(path)
     names = ", ".join(Path(p).name for p in registry.files)
     if not todo:
-        echo(f"real take: {names} already in {folder}")
+        echo(f"{what}: {names} already in {folder}")
         return folder
-    echo(f"real take (Live Link Face, MIT licence, commit {registry.commit[:7]}): {names}, "
-         f"{_mb(registry.size(todo))} from {base}")
-    staging = folder.parent / f".arkit-takes-{registry.commit[:7]}-download"
+    echo(f"{what} ({terms}, commit {registry.commit[:7]}): {names}, {_mb(registry.size(todo))} from {base}")
+    staging = folder.parent / f".{folder.name}-{registry.commit[:7]}-download"
     pup = pooch.create(path=staging, base_url=base, registry={p: f"sha256:{registry.files[p][0]}" for p in todo},
                        retry_if_failed=1)
     got = {}
     with _quiet_pooch():
         for path in todo:
-            got[path] = _fetch_file(pup, path, base, None, registry.commit, what="the real take",
-                                    url_var=TAKES_URL_ENV_VAR)
+            got[path] = _fetch_file(pup, path, base, None, registry.commit, what=f"the {what}", url_var=url_var)
     folder.mkdir(parents=True, exist_ok=True)
     for path, f in got.items():  # every file verified: move them in (same file system as the cache)
         os.replace(f, folder / Path(path).name)
     shutil.rmtree(staging, ignore_errors=True)
-    echo(f"real take: {folder}")
+    echo(f"{what}: {folder}")
     return folder
