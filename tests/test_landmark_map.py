@@ -108,7 +108,8 @@ def test_sem_ls_fits_dense_landmarks_better_than_the_greedy_on_a_known_face(rig,
 
 
 def test_sem_ls_landmark_batch_equals_one_at_a_time(rig):
-    """``fit_many`` fits targets sharing their landmark vertices together; each equals its own fit."""
+    """``fit_many`` fits targets sharing their landmark vertices together; each equals its own fit up to the
+    iterative solvers' stops (the batched pose estimate runs until every target's pose has settled)."""
     from facegeom.methods.sem import SEMLSFitter
 
     rng = np.random.default_rng(2)
@@ -124,6 +125,6 @@ def test_sem_ls_landmark_batch_equals_one_at_a_time(rig):
     many = f.fit_many(rig, targets, chunk=3)
     for tg, r in zip(targets, many):
         one = f.fit(rig, tg)
-        np.testing.assert_allclose(r.weights, one.weights, atol=1e-8)
+        np.testing.assert_allclose(r.weights, one.weights, atol=1e-6)
         assert r.info["order"] == one.info["order"]
         assert all(r.weights[i] > 0 for i in r.info["order"])

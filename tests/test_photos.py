@@ -205,16 +205,21 @@ def test_neutral_identity_fit_of_each_annotated_photo_holds(face_model, name, in
 
     The 23 inner points of ``breakingbad`` (a face off the image's centre) at 0.15 x 1920 = 288 px used to fail
     with "landmark 5 is behind the camera" (the joint Gauss-Newton steps overshot and slid the face towards the
-    lens), and ended 74-331 px off at 384-576 px; 68 points of ``breakingbad`` are ~7 px off at any focal length
-    (the annotated jaw line differs from the model's).
+    lens), and ended 74-331 px off at 384-576 px.
     """
     from facegeom.methods.identity import IdentityFitter
 
     tg = _photo_target(face_model, name, focal_factor, inner)
     fit = IdentityFitter(expressions=False).fit(face_model, tg)
     depth = -fit.cameras[0].to_camera(fit.vertices(0)[tg.vertex_ids])[:, 2]
-    assert (depth > 0).all() and np.isfinite(fit.info["energy"])
-    assert fit.info["rms"][0] < (9.0 if name == "breakingbad" and not inner else 4.0), fit.info["rms"]
+    assert (depth > 0).all() and np.isfinite(fit.info["energy"]) and fit.info["converged"]
+    # the identity stays within its prior (100 modes of sd 1: |a| ~ 10): the photo's noise is estimated from the
+    # fit, so a face the neutral model cannot explain (breakingbad's open mouth) is not explained by an identity of
+    # size 30-50 (as it was at a fixed 1 px), it is left a residual; the neutral faces stay within 0.25 inter-ocular
+    uv = read_pts(PHOTOS / f"{name}.pts")
+    io = float(np.linalg.norm(uv[39] - uv[42]))
+    assert np.linalg.norm(fit.identity) < 25.0
+    assert fit.info["rms"][0] / io < (0.35 if name == "breakingbad" else 0.25), fit.info["rms"]
     print(f"{name} {'23' if inner else '68'} focal x{focal_factor}: |a| = {np.linalg.norm(fit.identity):.1f}, "
           f"rms {fit.info['rms'][0]:.2f} px")
 

@@ -409,6 +409,35 @@ def bench_photos(obj: Context, annotations, aflw_folder, protocol, part, max_yaw
     bp.run(obj.face_model(), faces, specs, protocol, out, label, echo=click.echo, progress=not quiet)
 
 
+@bench.command("landmark-grid")
+@click.option("--cases", default=30, show_default=True, type=click.IntRange(1, 100000), help="Targets per protocol.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--methods", default="sem-ls;sem;l1reg;l2reg;pcadel", show_default=True,
+              help="';'-separated fitter specs; the first is compared with the best baseline.")
+@click.option("--takes", "takes_path", type=click.Path(), default=None,
+              help=f"Folder of ARKit take CSVs for the dense expressions. Default: {TAKES_LOOKUP}.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/landmark-grid", show_default=True,
+              help="Folder for landmark-grid.csv and landmark-grid-summary.md.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.pass_obj
+def bench_landmark_grid(obj: Context, cases, seed, methods, takes_path, out, quiet):
+    """Landmark fitters on eight synthetic protocols that differ in layout, noise, camera and expressions."""
+    from facegeom.bench import landmark_grid as lg
+    from facegeom.bench.common import available_specs
+    from facegeom.errors import DataNotFoundError
+    from facegeom.registry import parse_methods
+
+    specs = available_specs(parse_methods(methods, "fitters", None), echo=click.echo)
+    model = obj.face_model()
+    try:
+        takes = _load_takes(model, takes_path)
+    except DataNotFoundError:
+        if takes_path:
+            raise
+        takes = []
+    lg.run(model, specs, takes, cases, seed, out=out, echo=click.echo, progress=not quiet)
+
+
 @bench.command("retarget-scaling")
 @click.option("--frames", default="100,1000,10000,100000", show_default=True,
               help="Comma-separated sequence lengths T.")

@@ -40,13 +40,17 @@ import numpy as np
 
 from facegeom.model import project_many
 
-__all__ = ["landmark_jacobian", "noise_precision", "box_qp", "map_weights", "PRIOR_SD", "GAUSS_NEWTON_STEPS"]
+__all__ = ["landmark_jacobian", "noise_precision", "box_qp", "map_weights", "PRIOR_SD", "GAUSS_NEWTON_STEPS",
+           "WARM_STEPS"]
 
 #: Standard deviation of the weights' Gaussian prior: the width of their range [0, 1].
 PRIOR_SD = 1.0
 
-#: Gauss-Newton steps on the perspective projection per solve (the pose is re-estimated between solves).
+#: Gauss-Newton steps on the perspective projection of a first solve (the pose is re-estimated between solves).
 GAUSS_NEWTON_STEPS = 3
+
+#: Gauss-Newton steps of a solve that starts from the weights of the previous pose's solve.
+WARM_STEPS = 1
 
 
 def landmark_jacobian(rig, ids, e, R, t, f, cx, cy):
@@ -83,7 +87,8 @@ def noise_precision(JtJ, Jty, yty, n_values, alpha, iters: int = 100, tol: float
     lam = np.maximum(lam, 0.0)
     c = np.einsum("kbi,kb->ki", V, Jty)  # J'y in the eigenbasis
     beta = n_values / np.maximum(yty, 1e-300)
-    for _ in range(iters):
+    live = np.ones(beta.shape, dtype=bool)  # a target whose fixed point has settled is left alone (a batch of
+    for _ in range(iters):  # targets then gives each the value it gets alone)
         s = beta[:, None] * lam + alpha
         m = beta[:, None] * c / s  # posterior mean (eigenbasis)
         gamma = (beta[:, None] * lam / s).sum(axis=1)
@@ -91,8 +96,9 @@ def noise_precision(JtJ, Jty, yty, n_values, alpha, iters: int = 100, tol: float
         rss = np.maximum(yty - 2.0 * (m * c).sum(axis=1) + (lam * m * m).sum(axis=1), 1e-300)
         new = np.maximum(n_values - gamma, 1e-9) / rss
         done = np.abs(new - beta) <= tol * beta
-        beta = new
-        if done.all():
+        beta = np.where(live, new, beta)
+        live &= ~done
+        if not live.any():
             break
     return beta
 
@@ -112,37 +118,34 @@ def box_qp(H, g, lower: float = 0.0, upper=1.0, x0=None, iters: int = 60, tol: f
     x = np.zeros((K, B)) if x0 is None else np.clip(np.asarray(x0, dtype=np.float64), lower, hi)
     scale = np.maximum(np.abs(g).max(axis=1), np.abs(np.einsum("kii->ki", H)).max(axis=1)) + 1e-300
     eye = np.eye(B)
-
-    active = np.ones(K, dtype=bool)
+    active = np.arange(K)
     for _ in range(iters):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
+        if active.size == 0:
             break
-        Xa, Ha = x[idx], H[idx]
-        grad = np.einsum("kbc,kc->kb", Ha, Xa) - g[idx]
+        Xa, Ha, ga = x[active], H[active], g[active]
+        HX = np.matmul(Ha, Xa[..., None])[..., 0]
+        grad = HX - ga
         held = ((Xa <= lower) & (grad > 0)) | ((Xa >= hi) & (grad < 0))
         pg = np.where(held, 0.0, grad)
-        conv = np.abs(pg).max(axis=1) <= tol * scale[idx]
-        active[idx[conv]] = False
-        keep = ~conv
-        if not keep.any():
-            break
-        idx, Xa, Ha, grad, held = idx[keep], Xa[keep], Ha[keep], grad[keep], held[keep]
+        keep = np.abs(pg).max(axis=1) > tol * scale[active]
+        if not keep.all():
+            active, Xa, Ha, ga, HX, grad, held = (a[keep] for a in (active, Xa, Ha, ga, HX, grad, held))
+            if active.size == 0:
+                break
         free = ~held
         Hm = np.where(free[:, :, None] & free[:, None, :], Ha, 0.0) + eye * held[:, :, None]
         p = np.linalg.solve(Hm, np.where(free, -grad, 0.0)[..., None])[..., 0]
-        ga = g[idx]
-        E0 = 0.5 * np.einsum("kb,kbc,kc->k", Xa, Ha, Xa) - np.einsum("kb,kb->k", ga, Xa)
-        step = np.ones(idx.size)
+        E0 = (Xa * (0.5 * HX - ga)).sum(axis=1)
+        step = np.ones(active.size)
         new = np.clip(Xa + p, lower, hi)
         for _ls in range(30):
-            En = 0.5 * np.einsum("kb,kbc,kc->k", new, Ha, new) - np.einsum("kb,kb->k", ga, new)
-            ok = En <= E0 + 1e-4 * np.einsum("kb,kb->k", grad, new - Xa)
+            En = (new * (0.5 * np.matmul(Ha, new[..., None])[..., 0] - ga)).sum(axis=1)
+            ok = En <= E0 + 1e-4 * (grad * (new - Xa)).sum(axis=1)
             if ok.all():
                 break
             step = np.where(ok, step, 0.5 * step)
             new = np.where(ok[:, None], new, np.clip(Xa + step[:, None] * p, lower, hi))
-        x[idx] = new
+        x[active] = new
     return x
 
 
@@ -162,10 +165,11 @@ def map_weights(rig, ids, L, R, t, f, cx, cy, prior_sd: float = PRIOR_SD, upper=
     n_values = L[0].size
     for _ in range(steps):
         P, J = landmark_jacobian(rig, ids, e, R, t, f, cx, cy)
-        y = (L - P).reshape(K, -1) + np.einsum("kvb,kb->kv", J, e)  # the linearised model's data
-        JtJ = np.einsum("kvb,kvc->kbc", J, J)
-        Jty = np.einsum("kvb,kv->kb", J, y)
-        beta = noise_precision(JtJ, Jty, np.einsum("kv,kv->k", y, y), n_values, alpha)
+        y = (L - P).reshape(K, -1) + np.matmul(J, e[..., None])[..., 0]  # the linearised model's data
+        Jt = np.transpose(J, (0, 2, 1))
+        JtJ = np.matmul(Jt, J)
+        Jty = np.matmul(Jt, y[..., None])[..., 0]
+        beta = noise_precision(JtJ, Jty, (y * y).sum(axis=1), n_values, alpha)
         H = beta[:, None, None] * JtJ + alpha * np.eye(B)
         e = box_qp(H, beta[:, None] * Jty, 0.0, upper, x0=e)
     return e, 1.0 / np.sqrt(beta)

@@ -63,7 +63,7 @@ from threadpoolctl import threadpool_limits
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
-from facegeom.methods.landmark_map import map_weights
+from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights
 from facegeom.methods.marker_solve import split_markers
 from facegeom.model import (
     BlendshapeRig,
@@ -434,6 +434,8 @@ class SEMFitter(Params):
         ``auto``: ``lsq`` for meshes and point clouds, whose thousands of
         values determine every coefficient, ``map`` for landmarks, where a few
         dozen noisy values cannot.
+    prior_sd : float > 0
+        ``coefficients="map"``: the standard deviation of each weight's Gaussian prior.
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -442,7 +444,11 @@ class SEMFitter(Params):
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
-                 stop: str = "none", coefficients: str = "greedy"):
+                 stop: str = "none", coefficients: str = "greedy", prior_sd: float = PRIOR_SD):
+        if not (isinstance(prior_sd, (int, float)) and not isinstance(prior_sd, bool) and np.isfinite(prior_sd)
+                and prior_sd > 0):
+            raise InputError(f"prior_sd must be a positive number, got {prior_sd!r}")
+        self.prior_sd = float(prior_sd)
         if coefficients not in ("greedy", "lsq", "map", "auto"):
             raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq', 'map' or 'auto', "
                              f"got {coefficients!r}")
@@ -706,9 +712,13 @@ class SEMFitter(Params):
         intr = [np.array([getattr(tg.camera, a) for tg in targets]) for a in ("focal", "cx", "cy")]
         orders = [None] * len(targets)
 
+        warm = {}
+
         def solve(R, t):
-            if self._map():
-                e, _ = map_weights(rig, ids, L, R, t, *intr, upper=self._upper)
+            if self._map():  # the later solves of the pose alternation start from the last one's weights
+                e, _ = map_weights(rig, ids, L, R, t, *intr, prior_sd=self.prior_sd, upper=self._upper,
+                                   e0=warm.get("e"), steps=WARM_STEPS if "e" in warm else GAUSS_NEWTON_STEPS)
+                warm["e"] = e
                 orders[:] = [_by_weight(w) for w in e]
                 return e
             if self._lsq("landmarks"):
@@ -1046,6 +1056,6 @@ class SEMLSFitter(SEMFitter):
 
     def __init__(self, exclusion: bool = True, clamp: bool = True, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
-                 stop: str = "ric", coefficients: str = "auto"):
+                 stop: str = "ric", coefficients: str = "auto", prior_sd: float = PRIOR_SD):
         super().__init__(exclusion, clamp, refit, alternations, region, max_points, select, covered_only, stop,
-                         coefficients)
+                         coefficients, prior_sd)
