@@ -138,9 +138,11 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Coefficients by shape name (.json or .csv).")
 @click.option("--mesh-out", type=click.Path(dir_okay=False), default=None, help="Also write the fitted face mesh.")
-@click.option("--identity", is_flag=True,
+@click.option("--identity/--no-identity", default=None,
               help="Also fit the person's identity (face model modes, pose and expression together); the weights "
-                   "are the joint fit's, or with an explicit --method that fitter's on the fitted rig.")
+                   "are the joint fit's, or with an explicit --method that fitter's on the fitted rig. Default: on "
+                   "for landmarks (a photo's face is rarely the generic one) unless --rig is given, off for meshes "
+                   "and scans.")
 @click.option("--id-param", "id_params", multiple=True, metavar="KEY=VALUE",
               help="With --identity: identity fitter parameter, repeatable (e.g. --id-param noise_px=2).")
 @click.option("--rig-out", type=click.Path(), default=None,
@@ -164,6 +166,12 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
     tp = Path(target)
     scale = parse_scale(scale)
     focal, cx, cy = camera_defaults(focal, cx, cy, image)
+    if identity is None:  # a photo: the person's identity with the expression, unless a rig says who it is
+        photo = kind == "landmarks" or (kind == "auto" and tp.suffix.lower() in (".csv", ".pts"))
+        identity = photo and not rig_path and not rig_options_given(neutral, names_map, units, up)
+        if identity:
+            click.echo("landmarks: fitting the identity with the expression (a photo's face is rarely the generic "
+                       "one; --no-identity fits the generic face)")
     if identity or rig_out or id_params:
         from facegeom.cli.identity import fit_identity_target, write_rig
         from facegeom.errors import InputError
