@@ -42,9 +42,21 @@ def test_noise_precision_finds_the_noise_of_a_linear_model():
     J = rng.normal(size=(K, N, B))
     w = rng.uniform(0, 1, size=(K, B))
     y = np.einsum("knb,kb->kn", J, w) + rng.normal(size=(K, N)) * sigma
-    beta = noise_precision(np.einsum("knb,knc->kbc", J, J), np.einsum("knb,kn->kb", J, y),
-                           np.einsum("kn,kn->k", y, y), N, 1.0)
+    beta = noise_precision(J, y, 1.0)
     np.testing.assert_allclose(1.0 / np.sqrt(beta), sigma, rtol=0.05)
+    # fewer values than weights: the smaller Gram J J' gives the same fixed point as J'J
+    Js, ys = J[:, :15], rng.normal(size=(K, 15)) * sigma  # noise the prior's weights cannot reproduce
+    small = noise_precision(Js, ys, 50.0)
+    lam, V = np.linalg.eigh(np.einsum("knb,knc->kbc", Js, Js))
+    c2 = np.einsum("kbi,kb->ki", V, np.einsum("knb,kn->kb", Js, ys)) ** 2
+    beta = np.full(K, 15 / (ys * ys).sum(axis=1))
+    for _ in range(500):
+        s = beta[:, None] * lam + 50.0
+        rss = (ys * ys).sum(axis=1) - (beta[:, None] * c2 * (2 * s - beta[:, None] * lam) / s ** 2).sum(axis=1)
+        beta = (15 - (beta[:, None] * lam / s).sum(axis=1)) / rss
+    np.testing.assert_allclose(small, beta, rtol=1e-6)
+    exact = noise_precision(Js, np.einsum("knb,kb->kn", Js, w), 1.0)  # data the weights reproduce: finite
+    assert np.isfinite(exact).all() and (exact > 0).all()
 
 
 @pytest.fixture(scope="module")

@@ -79,27 +79,37 @@ def landmark_jacobian(rig, ids, e, R, t, f, cx, cy):
     return P, np.ascontiguousarray(np.transpose(J, (0, 2, 1)))
 
 
-def noise_precision(JtJ, Jty, yty, n_values, alpha, iters: int = 100, tol: float = 1e-8):
+def noise_precision(J, y, alpha, iters: int = 100, tol: float = 1e-8):
     """``1 / sigma^2 (K,)``: the noise precision that maximises the marginal likelihood of ``y = J w + noise``.
 
-    ``w ~ N(0, 1/alpha)`` per weight (bounds ignored here), noise ``N(0, sigma^2)``
-    per value; MacKay's fixed point ``beta = (N - gamma) / |y - J m|^2`` with the
-    posterior mean ``m`` and ``gamma = sum beta l_i / (alpha + beta l_i)`` over
-    the eigenvalues ``l_i`` of ``J'J``. Inputs: ``J'J (K, B, B)``, ``J'y (K, B)``,
-    ``y'y (K,)``, the number of values ``N``.
+    ``J (K, N, B)``, ``y (K, N)``; ``w ~ N(0, 1/alpha)`` per weight (bounds
+    ignored here), noise ``N(0, sigma^2)`` per value. MacKay's fixed point
+    ``beta = (N - gamma) / |y - J m|^2`` with the posterior mean ``m`` and
+    ``gamma = sum beta l_i / (alpha + beta l_i)`` over the eigenvalues ``l_i``
+    of ``J'J``. Everything depends on ``J`` through its singular values and
+    the data's components along them, so the smaller of ``J'J`` and ``J J'``
+    is decomposed.
     """
-    lam, V = np.linalg.eigh(JtJ)
-    lam = np.maximum(lam, 0.0)
-    c = np.einsum("kbi,kb->ki", V, Jty)  # J'y in the eigenbasis
-    beta = n_values / np.maximum(yty, 1e-300)
+    K, N, B = J.shape
+    if N < B:
+        lam, U = np.linalg.eigh(np.matmul(J, np.transpose(J, (0, 2, 1))))
+        lam = np.maximum(lam, 0.0)
+        c2 = lam * np.matmul(np.transpose(U, (0, 2, 1)), y[..., None])[..., 0] ** 2  # (J'y)^2 along each direction
+    else:
+        lam, V = np.linalg.eigh(np.matmul(np.transpose(J, (0, 2, 1)), J))
+        lam = np.maximum(lam, 0.0)
+        Jty = np.matmul(np.transpose(J, (0, 2, 1)), y[..., None])[..., 0]
+        c2 = np.matmul(np.transpose(V, (0, 2, 1)), Jty[..., None])[..., 0] ** 2
+    yty = (y * y).sum(axis=1)
+    beta = N / np.maximum(yty, 1e-300)
+    cap = 1e12 * beta  # sigma at least 1e-6 of the data's RMS: data the weights can reproduce exactly stay finite
     live = np.ones(beta.shape, dtype=bool)  # a target whose fixed point has settled is left alone (a batch of
     for _ in range(iters):  # targets then gives each the value it gets alone)
         s = beta[:, None] * lam + alpha
-        m = beta[:, None] * c / s  # posterior mean (eigenbasis)
         gamma = (beta[:, None] * lam / s).sum(axis=1)
-        # |y - J m|^2 = y'y - 2 m'c + m' diag(lam) m
-        rss = np.maximum(yty - 2.0 * (m * c).sum(axis=1) + (lam * m * m).sum(axis=1), 1e-300)
-        new = np.maximum(n_values - gamma, 1e-9) / rss
+        # |y - J m|^2 = y'y - 2 m'c + m' diag(lam) m with m = beta c / s
+        rss = np.maximum(yty - (beta[:, None] * c2 * (2.0 * s - beta[:, None] * lam) / s ** 2).sum(axis=1), 1e-300)
+        new = np.minimum(np.maximum(N - gamma, 1e-9) / rss, cap)
         done = np.abs(new - beta) <= tol * beta
         beta = np.where(live, new, beta)
         live &= ~done
@@ -167,14 +177,13 @@ def map_weights(rig, ids, L, R, t, f, cx, cy, prior_sd: float = PRIOR_SD, upper=
     alpha = 1.0 / prior_sd ** 2
     e = np.zeros((K, B)) if e0 is None else np.array(e0, dtype=np.float64)
     beta = np.ones(K)
-    n_values = L[0].size
     for _ in range(steps):
         P, J = landmark_jacobian(rig, ids, e, R, t, f, cx, cy)
         y = (L - P).reshape(K, -1) + np.matmul(J, e[..., None])[..., 0]  # the linearised model's data
         Jt = np.transpose(J, (0, 2, 1))
         JtJ = np.matmul(Jt, J)
         Jty = np.matmul(Jt, y[..., None])[..., 0]
-        beta = noise_precision(JtJ, Jty, (y * y).sum(axis=1), n_values, alpha)
+        beta = noise_precision(J, y, alpha)
         H = beta[:, None, None] * JtJ + alpha * np.eye(B)
         e = box_qp(H, beta[:, None] * Jty, 0.0, upper, x0=e)
     return e, 1.0 / np.sqrt(beta)
