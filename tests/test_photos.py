@@ -247,7 +247,12 @@ def test_fit_pts_recovers_a_known_face_better_than_the_generic_neutral(tmp_path,
     V = truth.evaluate(w)
     lm = np.asarray(face_model.landmarks)
     cam = look_at_camera(V, focal=800.0, image_size=(640, 480), yaw=15.0)
-    write_pts(tmp_path / "face.pts", cam.project(V[lm]) + rng.normal(size=(68, 2)) * 0.5)
+    # as an annotator marks it: the jaw contour on the face's outline, in the annotators' convention (lower, wider)
+    from facegeom.bench.common import PhotoAnnotator
+    from facegeom.model.landmarks import to_annotation_convention
+
+    marked = PhotoAnnotator(face_model, range(68))(V, cam)
+    write_pts(tmp_path / "face.pts", to_annotation_convention(marked, marked) + rng.normal(size=(68, 2)) * 0.5)
     blank_image(tmp_path / "face.png", (640, 480))
     out = {}
     for how, extra in (("identity", []), ("generic", ["--no-identity"])):  # a photo fits the identity by default

@@ -32,8 +32,11 @@ Protocols
   :data:`~facegeom.model.EVAL_LANDMARKS_26`).
 - ``leave-4-out``: all 68 points in 17 folds of four (points ``j, j + 17,
   j + 34, j + 51``: one per region), each fold predicted from the other 64;
-  the score is the RMS over all 68 predictions. The identity fit marks the side
-  contour as on the outline, as ``facegeom fit PHOTO.pts`` does.
+  the score is the RMS over all 68 predictions. As ``facegeom fit PHOTO.pts``
+  does, the jaw contour is moved to the model's convention
+  (:data:`~facegeom.model.landmarks.JAW_CONVENTION`) and its side marked as on
+  the outline for the identity fit; predicted jaw points are moved back to the
+  annotators' convention before they are scored.
 
 Routes: every fitter with the generic face's rig; the joint identity fit
 (``facegeom fit --identity``: identity, pose and expression together); every
@@ -51,10 +54,11 @@ import numpy as np
 from facegeom.bench.report import Report, format_table
 from facegeom.errors import FacegeomError, InputError
 from facegeom.model import EVAL_LANDMARKS_26, FIT_LANDMARKS_23, BlendshapeRig, LandmarkTarget, PinholeCamera
-from facegeom.model.landmarks import SIDE_CONTOUR
+from facegeom.model.landmarks import SIDE_CONTOUR, contour_candidates, silhouette_vertices, to_annotation_convention
+from facegeom.model.landmarks import to_model_convention
 
-__all__ = ["AnnotatedFace", "aflw2000_faces", "pts_faces", "folds", "run", "PROTOCOLS", "PARTS", "POSE_ONLY",
-           "JOINT"]
+__all__ = ["AnnotatedFace", "aflw2000_faces", "pts_faces", "folds", "run", "jaw_offsets", "PROTOCOLS", "PARTS",
+           "POSE_ONLY", "JOINT"]
 
 PROTOCOLS = ("split", "leave-4-out")
 PARTS = ("all", "design", "held-out")
@@ -170,11 +174,12 @@ def _fit_face(face, model, rig, lm, specs, identity_fitter, protocol) -> dict:
     """Per route: ``(predictions (68, 2), seconds, converged or None)``, or the error that stopped it."""
     cam = face.camera()
     acc: dict = {}
+    points = to_model_convention(face.points)  # as `facegeom fit PHOTO.pts` reads a 68-point annotation
     for fit_rows, held in folds(protocol):
         ids = lm[fit_rows]
-        tg = LandmarkTarget(face.points[fit_rows], ids, cam)
+        tg = LandmarkTarget(points[fit_rows], ids, cam)
         outline = np.isin(fit_rows, SIDE_CONTOUR) if protocol != "split" else None
-        tg_id = LandmarkTarget(face.points[fit_rows], ids, cam, outline)
+        tg_id = LandmarkTarget(points[fit_rows], ids, cam, outline)
         fitted = {}
 
         def joint():
@@ -255,6 +260,7 @@ def run(model, faces, specs, protocol: str = "split", out=None, label: str = "",
                                  "failure": str(g)})
                 continue
             P, secs, conv = g
+            P = to_annotation_convention(P, face.points)  # predicted jaw points where annotators put them
             rows = np.flatnonzero(np.isfinite(P[:, 0]))
             e = _score(face, rows, P[rows])
             res[route]["errors"].append(e)
@@ -294,3 +300,38 @@ def summary_table(res, labels) -> str:
                      f"{1000 * np.median(r['seconds']):.0f}" if r["seconds"].size else "-"])
     return format_table(["route", "held-out error (mean)", "median", "vs best baseline (same rig)", "converged",
                          "failures", "ms / photo (median)"], rows)
+
+
+def jaw_offsets(model, faces, echo=print) -> np.ndarray:
+    """Where annotators put the jaw contour against the model's outline -> ``(N, 17, 2)`` (inter-ocular units).
+
+    Each face's identity, pose and expression are fitted jointly to its 51
+    inner points; the difference between each annotated contour point and the
+    fitted face's outline (the contour vertex farthest out in the view, the
+    chin's fixed) is expressed in the annotation's face frame
+    (:data:`~facegeom.model.landmarks.JAW_CONVENTION`). Also echoes the mean
+    and spread per point, and the mean made left-right symmetric.
+    """
+    from facegeom.constants import FACE_AREA
+    from facegeom.methods.identity import IdentityFitter
+
+    lm = np.asarray(model.landmarks, dtype=np.int64)
+    cands = contour_candidates(np.asarray(model.neutral, dtype=np.float64), lm, region=np.arange(FACE_AREA))
+    fitter = IdentityFitter()
+    out = []
+    for face in faces:
+        r = fitter.fit(model, LandmarkTarget(face.points[17:], lm[17:], face.camera()))
+        V, cam = r.vertices(0), r.cameras[0]
+        seen = silhouette_vertices(lambda i: cam.project(V[i]), lm, cands, float(cam.project(V[lm[[30]]])[0, 0]))
+        d = face.points[:17] - cam.project(V[seen[:17]])
+        ex = face.points[45] - face.points[36]
+        x = ex / np.linalg.norm(ex)
+        out.append(np.c_[d @ x, d @ np.array([-x[1], x[0]])] / face.inner_eye())
+    D = np.array(out)
+    m, sd = D.mean(axis=0), D.std(axis=0)
+    sym = np.c_[(m[:, 0] - m[::-1, 0]) / 2, (m[:, 1] + m[::-1, 1]) / 2]
+    rows = [[j, f"{m[j, 0]:+.3f}", f"{m[j, 1]:+.3f}", f"{sd[j, 0]:.3f}", f"{sd[j, 1]:.3f}", f"({sym[j, 0]:+.2f}, "
+             f"{sym[j, 1]:+.2f})"] for j in range(17)]
+    echo(format_table(["jaw point", "dx mean", "dy mean", "dx sd", "dy sd", "symmetric (dx, dy)"], rows))
+    echo(f"{len(D)} faces; inter-ocular units in the annotation's face frame (x: eye line, y: towards the chin)")
+    return D

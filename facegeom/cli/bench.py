@@ -385,9 +385,13 @@ def bench_character(obj: Context, cases, frames, takes_path, seed, out):
               help="';'-separated fitter specs, each scored on the generic rig and on the fitted identity's.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/photos", show_default=True,
               help="Folder for photos.csv and photos-summary.md.")
+@click.option("--jaw-offsets", is_flag=True,
+              help="Instead: measure where the annotators' jaw contour lies against the model's (the table of "
+                   "facegeom.model.landmarks.JAW_CONVENTION).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_photos(obj: Context, annotations, aflw_folder, protocol, part, max_yaw, cases, methods, out, quiet):
+def bench_photos(obj: Context, annotations, aflw_folder, protocol, part, max_yaw, cases, methods, jaw_offsets, out,
+                 quiet):
     """Real annotated photos: each fitter predicts the landmarks it was not given (held-out error, inner-eye units)."""
     from facegeom.bench import photos as bp
     from facegeom.bench.common import available_specs
@@ -403,6 +407,9 @@ def bench_photos(obj: Context, annotations, aflw_folder, protocol, part, max_yaw
         what = f"AFLW2000-3D re-annotated, |yaw| <= {max_yaw:g} deg, {part} faces"
     if cases:
         faces = faces[:cases]
+    if jaw_offsets:
+        bp.jaw_offsets(obj.face_model(), faces, echo=click.echo)
+        return
     label = (f"{what}: {len(faces)} faces, protocol {protocol}; error = RMS distance of the predicted landmarks over "
              f"the annotated inner-eye distance; camera: focal = the photo's larger side, pose estimated. "
              f"{machine_note()}.")

@@ -14,7 +14,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
-from facegeom.model.landmarks import SIDE_CONTOUR
+from facegeom.model.landmarks import SIDE_CONTOUR, to_model_convention
 
 __all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'rig_note', 'scan_scale']
 
@@ -168,8 +168,10 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     file with the rig's vertex count = mesh, anything else = a point cloud.
     Landmarks need the camera intrinsics ``focal, cx, cy`` (pixels). A ``.pts``
     annotation's jaw-contour points are marked as on the face's outline
-    (``LandmarkTarget.outline``); a CSV's rows are the projections of their
-    vertices.
+    (``LandmarkTarget.outline``), and a 68-point one's are moved from where
+    annotators put them to where the model has them
+    (:func:`~facegeom.model.landmarks.to_model_convention`); a CSV's rows are
+    the projections of their vertices.
 
     ``scale``: meshes and point clouds are multiplied by it into the rig's
     units; ``"auto"`` (default) = the power of ten that makes the scan the
@@ -204,6 +206,8 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             uv = read_pts(tp)
             ids = pts_vertex_ids(rig, uv.shape[0], tp)
             outline = np.isin(ids, np.asarray(rig.landmark_ids)[list(SIDE_CONTOUR)])
+            if uv.shape[0] == 68:  # the annotators' jaw contour, moved to the model's (JAW_CONVENTION)
+                uv = to_model_convention(uv)
         else:
             ids, uv = read_landmarks(tp)
         if ids.max() >= rig.n_vertices:
