@@ -90,7 +90,7 @@ def test_map_weights_recover_exact_landmarks_and_hold_the_bounds(rig):
     cam = look_at_camera(rig.evaluate(w), focal=1000.0, image_size=(800, 800), yaw=15.0)
     L = cam.project(rig.evaluate(w)[ids])[None]
     args = [a[None] for a in (cam.R, cam.t)] + [np.array([getattr(cam, a)]) for a in ("focal", "cx", "cy")]
-    e, sigma = map_weights(rig, ids, L, *args, steps=6)
+    e, sigma, _ = map_weights(rig, ids, L, *args, steps=6)
     assert e.min() >= 0.0 and e.max() <= 1.0
     F = rig.evaluate(e[0])[ids]
     assert np.abs(cam.project(F) - L[0]).max() < 0.05 and sigma[0] < 0.05
@@ -140,3 +140,25 @@ def test_sem_ls_landmark_batch_equals_one_at_a_time(rig):
         np.testing.assert_allclose(r.weights, one.weights, atol=1e-6)
         assert r.info["order"] == one.info["order"]
         assert all(r.weights[i] > 0 for i in r.info["order"])
+
+
+def test_the_prior_scale_by_the_evidence_stays_in_range_and_bad_values_are_refused(rig):
+    from facegeom.errors import InputError
+    from facegeom.methods.landmark_map import EVIDENCE_SD_RANGE
+    from facegeom.methods.sem import SEMLSFitter
+
+    rng = np.random.default_rng(4)
+    ids = np.asarray(rig.landmark_ids)
+    w = rng.uniform(0, 0.4, rig.n_shapes) * (rng.random(rig.n_shapes) < 0.6)
+    V = rig.evaluate(w)
+    cam = look_at_camera(V, focal=900.0, image_size=(640, 480), yaw=12.0)
+    L = (cam.project(V[ids]) + rng.normal(size=(ids.size, 2)))[None]
+    args = [a[None] for a in (cam.R, cam.t)] + [np.array([getattr(cam, a)]) for a in ("focal", "cx", "cy")]
+    e, sigma, sd = map_weights(rig, ids, L, *args, prior_sd="evidence")
+    assert EVIDENCE_SD_RANGE[0] <= sd[0] <= EVIDENCE_SD_RANGE[1] and 0.3 < sigma[0] < 3.0
+    assert e.min() >= 0 and e.max() <= 1
+    r = SEMLSFitter(prior_sd="evidence").fit(rig, LandmarkTarget(L[0], ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
+    assert np.isfinite(r.weights).all()
+    for bad in ("wide", 0.0, -1.0, float("inf"), True):
+        with pytest.raises(InputError, match="prior_sd"):
+            SEMLSFitter(prior_sd=bad)

@@ -57,6 +57,10 @@ GAUSS_NEWTON_STEPS = 3
 #: Gauss-Newton steps of a solve that starts from the weights of the previous pose's solve.
 WARM_STEPS = 1
 
+#: prior_sd="evidence": rounds of the prior scale's fixed point per Gauss-Newton step, and the scales allowed.
+EVIDENCE_ROUNDS = 8
+EVIDENCE_SD_RANGE = (0.02, 5.0)
+
 
 def landmark_jacobian(rig, ids, e, R, t, f, cx, cy):
     """Pixels of the current faces and their derivative by the weights.
@@ -104,6 +108,7 @@ def noise_precision(J, y, alpha, iters: int = 100, tol: float = 1e-8):
     beta = N / np.maximum(yty, 1e-300)
     cap = 1e12 * beta  # sigma at least 1e-6 of the data's RMS: data the weights can reproduce exactly stay finite
     live = np.ones(beta.shape, dtype=bool)  # a target whose fixed point has settled is left alone (a batch of
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), beta.shape)[:, None]
     for _ in range(iters):  # targets then gives each the value it gets alone)
         s = beta[:, None] * lam + alpha
         gamma = (beta[:, None] * lam / s).sum(axis=1)
@@ -164,26 +169,49 @@ def box_qp(H, g, lower: float = 0.0, upper=1.0, x0=None, iters: int = 60, tol: f
     return x
 
 
-def map_weights(rig, ids, L, R, t, f, cx, cy, prior_sd: float = PRIOR_SD, upper=1.0, e0=None,
-                steps: int = GAUSS_NEWTON_STEPS):
+def map_weights(rig, ids, L, R, t, f, cx, cy, prior_sd=PRIOR_SD, upper=1.0, e0=None,
+                steps: int = GAUSS_NEWTON_STEPS, s0=None):
     """The posterior mode of the weights for ``K`` landmark targets seen by posed cameras.
 
     ``L (K, n, 2)`` pixels of the vertices ``ids``; cameras as
-    :func:`landmark_jacobian`. Returns ``(e (K, B), sigma (K,))``: the weights
-    and the noise estimated per target (pixels).
+    :func:`landmark_jacobian`. ``prior_sd``: the weights' prior standard
+    deviation, or ``"evidence"``: per target, the one that maximises the
+    marginal likelihood with the bounds respected (MacKay's fixed point
+    ``1/s^2 = gamma / |w|^2`` over the weights the bounds leave free, started
+    from ``s0`` or :data:`PRIOR_SD`). Returns ``(e (K, B), sigma (K,), s (K,))``:
+    the weights, the noise estimated per target (pixels) and the prior's
+    standard deviation used.
     """
     K = L.shape[0]
     B = rig.n_shapes
-    alpha = 1.0 / prior_sd ** 2
+    evidence = isinstance(prior_sd, str)
+    if evidence and prior_sd != "evidence":
+        raise ValueError(f"prior_sd must be a positive number or 'evidence', got {prior_sd!r}")
+    start = PRIOR_SD if not evidence else (PRIOR_SD if s0 is None else s0)
+    alpha = np.broadcast_to(1.0 / np.asarray(start if evidence else prior_sd, dtype=np.float64) ** 2, (K,)).copy()
     e = np.zeros((K, B)) if e0 is None else np.array(e0, dtype=np.float64)
     beta = np.ones(K)
+    eye = np.eye(B)
     for _ in range(steps):
         P, J = landmark_jacobian(rig, ids, e, R, t, f, cx, cy)
         y = (L - P).reshape(K, -1) + np.matmul(J, e[..., None])[..., 0]  # the linearised model's data
         Jt = np.transpose(J, (0, 2, 1))
         JtJ = np.matmul(Jt, J)
         Jty = np.matmul(Jt, y[..., None])[..., 0]
-        beta = noise_precision(J, y, alpha)
-        H = beta[:, None, None] * JtJ + alpha * np.eye(B)
-        e = box_qp(H, beta[:, None] * Jty, 0.0, upper, x0=e)
-    return e, 1.0 / np.sqrt(beta)
+        for _ in range(EVIDENCE_ROUNDS if evidence else 1):
+            beta = noise_precision(J, y, alpha)
+            H = beta[:, None, None] * JtJ + alpha[:, None, None] * eye
+            e = box_qp(H, beta[:, None] * Jty, 0.0, upper, x0=e)
+            if not evidence:
+                break
+            free = e > 1e-9
+            lam = np.maximum(np.linalg.eigvalsh(np.where(free[:, :, None] & free[:, None, :], JtJ, 0.0)), 0.0)
+            gamma = (beta[:, None] * lam / (alpha[:, None] + beta[:, None] * lam)).sum(axis=1)
+            ww = (e * e).sum(axis=1)
+            new = np.where(ww > 1e-12, gamma / np.maximum(ww, 1e-300), alpha)
+            new = np.clip(new, 1.0 / EVIDENCE_SD_RANGE[1] ** 2, 1.0 / EVIDENCE_SD_RANGE[0] ** 2)
+            settled = np.abs(new - alpha) <= 1e-3 * alpha
+            alpha = new
+            if settled.all():
+                break
+    return e, 1.0 / np.sqrt(beta), 1.0 / np.sqrt(alpha)

@@ -434,8 +434,10 @@ class SEMFitter(Params):
         ``auto``: ``lsq`` for meshes and point clouds, whose thousands of
         values determine every coefficient, ``map`` for landmarks, where a few
         dozen noisy values cannot.
-    prior_sd : float > 0
-        ``coefficients="map"``: the standard deviation of each weight's Gaussian prior.
+    prior_sd : float > 0 or "evidence"
+        ``coefficients="map"``: the standard deviation of each weight's Gaussian prior (default: the spread of
+        real performances' weights, 0.2), or ``"evidence"``: per photo, the one the marginal likelihood prefers
+        (started from 0.2; see :func:`~facegeom.methods.landmark_map.map_weights`).
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -445,10 +447,13 @@ class SEMFitter(Params):
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
                  stop: str = "none", coefficients: str = "greedy", prior_sd: float = PRIOR_SD):
-        if not (isinstance(prior_sd, (int, float)) and not isinstance(prior_sd, bool) and np.isfinite(prior_sd)
-                and prior_sd > 0):
-            raise InputError(f"prior_sd must be a positive number, got {prior_sd!r}")
-        self.prior_sd = float(prior_sd)
+        if prior_sd == "evidence":
+            self.prior_sd = "evidence"
+        elif (isinstance(prior_sd, (int, float)) and not isinstance(prior_sd, bool) and np.isfinite(prior_sd)
+              and prior_sd > 0):
+            self.prior_sd = float(prior_sd)
+        else:
+            raise InputError(f"prior_sd must be a positive number or 'evidence', got {prior_sd!r}")
         if coefficients not in ("greedy", "lsq", "map", "auto"):
             raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq', 'map' or 'auto', "
                              f"got {coefficients!r}")
@@ -716,9 +721,10 @@ class SEMFitter(Params):
 
         def solve(R, t):
             if self._map():  # the later solves of the pose alternation start from the last one's weights
-                e, _ = map_weights(rig, ids, L, R, t, *intr, prior_sd=self.prior_sd, upper=self._upper,
-                                   e0=warm.get("e"), steps=WARM_STEPS if "e" in warm else GAUSS_NEWTON_STEPS)
-                warm["e"] = e
+                e, _, sd = map_weights(rig, ids, L, R, t, *intr, prior_sd=self.prior_sd, upper=self._upper,
+                                       e0=warm.get("e"), steps=WARM_STEPS if "e" in warm else GAUSS_NEWTON_STEPS,
+                                       s0=warm.get("sd"))
+                warm["e"], warm["sd"] = e, sd
                 orders[:] = [_by_weight(w) for w in e]
                 return e
             if self._lsq("landmarks"):
