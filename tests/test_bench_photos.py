@@ -106,3 +106,40 @@ def test_the_command_writes_its_table(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "facegeom", "bench", "photos", str(tmp_path / "none.pts")],
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode != 0 and "Traceback" not in bad.stderr and "none.pts" in bad.stderr
+
+
+def test_the_annotations_download_through_a_mirror_verified_and_kept(tmp_path, monkeypatch):
+    """A loopback mirror laid out like the repository: the two files land in the cache, checked by SHA-256; a second
+    call finds them; a server that is down is one line naming the command to run again."""
+    import functools
+    import hashlib
+    import http.server
+    import threading
+
+    from facegeom.errors import DownloadError
+    from facegeom.model.download import Registry, fetch_photo_annotations
+
+    src = tmp_path / "mirror" / "test.configs"
+    src.mkdir(parents=True)
+    pts = _fake_aflw(src, n=6)
+    files = {f"test.configs/{p.name}": (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_size)
+             for p in src.iterdir()}
+    reg = Registry("0" * 40, "http://x/<commit>/<path>", files)
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path / "mirror"))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        monkeypatch.setenv("FACEGEOM_CACHE", str(tmp_path / "cache"))
+        monkeypatch.setenv("FACEGEOM_PHOTOS_URL", f"http://127.0.0.1:{server.server_address[1]}/")
+        said = []
+        folder = fetch_photo_annotations(reg, echo=said.append)
+        faces = bp.aflw2000_faces(folder, max_yaw=90.0)
+        np.testing.assert_array_equal(faces[0].points, pts[0].T)
+        fetch_photo_annotations(reg, echo=said.append)
+        assert "already in" in said[-1]
+    finally:
+        server.shutdown()
+    monkeypatch.setenv("FACEGEOM_CACHE", str(tmp_path / "cache2"))
+    monkeypatch.setenv("FACEGEOM_PHOTOS_URL", "http://127.0.0.1:9/")
+    with pytest.raises(DownloadError, match="facegeom bench photos"):
+        fetch_photo_annotations(reg, echo=lambda s: None)

@@ -268,7 +268,7 @@ def _short_reason(exc: Exception) -> str:
     return exc.__class__.__name__
 
 
-def _offline_message(base: str, reason: str, what: str = "the face data") -> str:
+def _offline_message(base: str, reason: str, what: str = "the face data", retry: str = "facegeom data fetch") -> str:
     from urllib.parse import urlsplit
 
     host = urlsplit(base).netloc or base
@@ -277,11 +277,11 @@ def _offline_message(base: str, reason: str, what: str = "the face data") -> str
     build = (f", or build the bundle from a local ICT-FaceKit checkout with `facegeom data build PATH/{MODEL_FOLDER}`"
              if what == "the face data" else "")
     return (f"cannot download {what} from {host} ({reason}): no network, or the server is down. "
-            f"Run `facegeom data fetch` again later (it continues where it stopped){build}")
+            f"Run `{retry}` again later (it continues where it stopped){build}")
 
 
 def _fetch_file(pup, path: str, base: str, progress, commit: str, what: str = "the face data",
-                url_var: str = URL_ENV_VAR) -> Path:
+                url_var: str = URL_ENV_VAR, retry: str = "facegeom data fetch") -> Path:
     """Fetch one registry path through pooch; every failure as one :class:`DownloadError` line.
 
     A server that accepts the connection and then says nothing is given up on after
@@ -304,10 +304,10 @@ def _fetch_file(pup, path: str, base: str, progress, commit: str, what: str = "t
         hint = f"; is ${url_var} a mirror of the repository at commit {commit[:7]}?" if os.environ.get(url_var) else ""
         raise DownloadError(f"the server answered {status} for {url}{hint}", path) from None
     except (requests.exceptions.ConnectionError, requests.exceptions.Timeout) as exc:
-        raise DownloadError(_offline_message(base, _short_reason(exc), what)) from None
+        raise DownloadError(_offline_message(base, _short_reason(exc), what, retry)) from None
     except requests.exceptions.RequestException as exc:  # e.g. the body cut short twice
-        raise DownloadError(f"the download from {url} failed twice ({_short_reason(exc)}); run `facegeom data "
-                            f"fetch` again to continue", path) from None
+        raise DownloadError(f"the download from {url} failed twice ({_short_reason(exc)}); run `{retry}` again "
+                            f"to continue", path) from None
     except ValueError as exc:  # pooch: the hash of the downloaded file differs, twice
         m = re.search(r"expected (?:sha256:)?(\w+) but got (\w+)", str(exc))
         detail = f"expected {m.group(1)}, got {m.group(2)}" if m else str(exc)
@@ -606,7 +606,7 @@ def fetch_takes(registry: Registry | None = None, echo: Callable[[str], None] = 
     """
     registry = registry or read_registry(shipped=TAKES_REGISTRY_FILE)
     return _fetch_flat(registry, takes_cache_folder(), TAKES_URL_ENV_VAR, "real take",
-                       "Live Link Face, MIT licence", echo)
+                       "Live Link Face, MIT licence", echo, "facegeom data fetch")
 
 
 def fetch_photo_annotations(registry: Registry | None = None, echo: Callable[[str], None] = print) -> Path:
@@ -625,10 +625,10 @@ def fetch_photo_annotations(registry: Registry | None = None, echo: Callable[[st
     """
     registry = registry or read_registry(shipped=PHOTOS_REGISTRY_FILE)
     return _fetch_flat(registry, cache_folder() / "photo-annotations", PHOTOS_URL_ENV_VAR, "annotated faces",
-                       "AFLW2000-3D, non-commercial research terms", echo)
+                       "AFLW2000-3D, non-commercial research terms", echo, "facegeom bench photos")
 
 
-def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms: str, echo) -> Path:
+def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms: str, echo, retry: str) -> Path:
     """The registry's files, verified, flat in ``folder`` (kept when there with the right hash) -> ``folder``."""
     import pooch
 
@@ -650,7 +650,8 @@ def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms
     got = {}
     with _quiet_pooch():
         for path in todo:
-            got[path] = _fetch_file(pup, path, base, None, registry.commit, what=f"the {what}", url_var=url_var)
+            got[path] = _fetch_file(pup, path, base, None, registry.commit, what=f"the {what}", url_var=url_var,
+                                    retry=retry)
     folder.mkdir(parents=True, exist_ok=True)
     for path, f in got.items():  # every file verified: move them in (same file system as the cache)
         os.replace(f, folder / Path(path).name)
