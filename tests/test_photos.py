@@ -231,6 +231,7 @@ def test_fit_a_real_annotated_photo_with_its_size_only(tmp_path):
             "-o", str(tmp_path / "w.json"), "--rig-out", str(tmp_path / "rig.npz"))
     assert r.returncode == 0, r.stderr
     assert "focal length not given, assumed 1024 px" in r.stdout
+    assert "einstein.pts: jaw contour moved from where annotators mark it to the model's" in r.stdout
     got = json.load(open(tmp_path / "w.json"))
     assert len(got["weights"]) == 53 and all(0.0 <= v <= 1.0 for v in got["weights"].values())
     assert (tmp_path / "rig.npz").stat().st_size > 0

@@ -208,6 +208,9 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             outline = np.isin(ids, np.asarray(rig.landmark_ids)[list(SIDE_CONTOUR)])
             if uv.shape[0] == 68:  # the annotators' jaw contour, moved to the model's (JAW_CONVENTION)
                 uv = to_model_convention(uv)
+                if notes is not None:
+                    notes.append(f"{tp.name}: jaw contour moved from where annotators mark it to the model's "
+                                 f"(up 0.07-0.35 and in 0.1-0.2 inter-ocular distances)")
         else:
             ids, uv = read_landmarks(tp)
         if ids.max() >= rig.n_vertices:
