@@ -63,7 +63,7 @@ from threadpoolctl import threadpool_limits
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, is_integer
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
-from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights
+from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights, population_prior
 from facegeom.methods.marker_solve import split_markers
 from facegeom.model import (
     BlendshapeRig,
@@ -434,10 +434,14 @@ class SEMFitter(Params):
         ``auto``: ``lsq`` for meshes and point clouds, whose thousands of
         values determine every coefficient, ``map`` for landmarks, where a few
         dozen noisy values cannot.
-    prior_sd : float > 0 or "evidence"
-        ``coefficients="map"``: the standard deviation of each weight's Gaussian prior (default: the spread of
-        real performances' weights, 0.2), or ``"evidence"``: per photo, the one the marginal likelihood prefers
-        (started from 0.2; see :func:`~facegeom.methods.landmark_map.map_weights`).
+    prior_sd : "auto", float > 0 or "evidence"
+        ``coefficients="map"``: the weights' Gaussian prior. ``"auto"`` (default): on one person's rig (a
+        fitted identity, a character) each weight's standard deviation is the spread of real performances'
+        weights, 0.2; on a face model's generic face (``rig.population`` set) the prior also carries the
+        person's shape the expression shapes reproduce, measured from the model's identity prior
+        (:func:`~facegeom.methods.landmark_map.population_prior`). A number: that standard deviation on
+        every rig. ``"evidence"``: per photo, the one the marginal likelihood prefers (started from 0.2; see
+        :func:`~facegeom.methods.landmark_map.map_weights`).
     covered_only : bool
         Point clouds: only region vertices that are the nearest neutral vertex of
         at least one scan point take part, so parts the scan does not cover
@@ -446,14 +450,14 @@ class SEMFitter(Params):
 
     def __init__(self, exclusion: bool = True, clamp: bool = False, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
-                 stop: str = "none", coefficients: str = "greedy", prior_sd: float = PRIOR_SD):
-        if prior_sd == "evidence":
-            self.prior_sd = "evidence"
+                 stop: str = "none", coefficients: str = "greedy", prior_sd="auto"):
+        if prior_sd in ("evidence", "auto"):
+            self.prior_sd = prior_sd
         elif (isinstance(prior_sd, (int, float)) and not isinstance(prior_sd, bool) and np.isfinite(prior_sd)
               and prior_sd > 0):
             self.prior_sd = float(prior_sd)
         else:
-            raise InputError(f"prior_sd must be a positive number or 'evidence', got {prior_sd!r}")
+            raise InputError(f"prior_sd must be 'auto', a positive number or 'evidence', got {prior_sd!r}")
         if coefficients not in ("greedy", "lsq", "map", "auto"):
             raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq', 'map' or 'auto', "
                              f"got {coefficients!r}")
@@ -493,6 +497,17 @@ class SEMFitter(Params):
     @property
     def _upper(self):
         return 1.0 if self.clamp else None
+
+    def _prior_sd(self):
+        """The isotropic prior's standard deviation or "evidence" (``"auto"``: the performances' spread)."""
+        return PRIOR_SD if self.prior_sd == "auto" else self.prior_sd
+
+    def _prior_cov(self, rig):
+        """``prior_sd="auto"`` on the generic face of a face model: the population's prior; else None."""
+        pop = getattr(rig, "population", None)
+        if self.prior_sd != "auto" or pop is None or tuple(pop.expression_names) != tuple(rig.names):
+            return None
+        return population_prior(pop)
 
     # ------------------------------------------------------------------ dispatch
     def fit(self, rig: BlendshapeRig, target) -> FitResult:
@@ -721,9 +736,9 @@ class SEMFitter(Params):
 
         def solve(R, t):
             if self._map():  # the later solves of the pose alternation start from the last one's weights
-                e, _, sd = map_weights(rig, ids, L, R, t, *intr, prior_sd=self.prior_sd, upper=self._upper,
+                e, _, sd = map_weights(rig, ids, L, R, t, *intr, prior_sd=self._prior_sd(), upper=self._upper,
                                        e0=warm.get("e"), steps=WARM_STEPS if "e" in warm else GAUSS_NEWTON_STEPS,
-                                       s0=warm.get("sd"))
+                                       s0=warm.get("sd"), prior_cov=self._prior_cov(rig))
                 warm["e"], warm["sd"] = e, sd
                 orders[:] = [_by_weight(w) for w in e]
                 return e
@@ -1062,6 +1077,6 @@ class SEMLSFitter(SEMFitter):
 
     def __init__(self, exclusion: bool = True, clamp: bool = True, refit: bool = False, alternations: int = 3,
                  region=None, max_points: int = 2000, select: str = "esim", covered_only: bool = True,
-                 stop: str = "ric", coefficients: str = "auto", prior_sd: float = PRIOR_SD):
+                 stop: str = "ric", coefficients: str = "auto", prior_sd="auto"):
         super().__init__(exclusion, clamp, refit, alternations, region, max_points, select, covered_only, stop,
                          coefficients, prior_sd)

@@ -155,6 +155,14 @@ class BlendshapeRig:
     frame : RigFrame, optional
         How the rig was brought into facegeom's frame (cm, Y up), for writing
         results back in its own units and axes; None: unknown.
+    population : FaceModel, optional
+        The face model whose population this rig's neutral stands for: set on
+        the generic face of a model with identity modes
+        (:meth:`from_face_model` without an identity). A fitter then knows
+        that the person in a photo is not this face, and that the weights must
+        also carry the person's shape (see
+        :func:`facegeom.methods.landmark_map.population_prior`). ``None`` for
+        one person's rig or a character's.
 
     All arrays are copied to float64 / int64 and made read-only, so the cached
     :meth:`delta_matrix` and :meth:`gram` stay valid.
@@ -167,11 +175,11 @@ class BlendshapeRig:
         inf anywhere, triangles or landmark ids out of range.
     """
 
-    __slots__ = ("neutral", "deltas", "names", "triangles", "landmark_ids", "parts", "name_map", "frame", "_D", "_G",
-                 "_index")
+    __slots__ = ("neutral", "deltas", "names", "triangles", "landmark_ids", "parts", "name_map", "frame", "population",
+                 "_D", "_G", "_index")
 
     def __init__(self, neutral, deltas, names: Sequence[str], triangles, landmark_ids=None, *, parts=None,
-                 name_map: NameMapping | None = None, frame=None):
+                 name_map: NameMapping | None = None, frame=None, population=None):
         neutral = as_vertices(neutral, "neutral")
         n = neutral.shape[0]
         d = np.asarray(deltas, dtype=np.float64)
@@ -218,6 +226,7 @@ class BlendshapeRig:
             ShapeMap.between(names, (), name_map)  # every mapped rig shape must be one of the rig's
         self.name_map = name_map
         self.frame = frame
+        self.population = population
         self._D = None
         self._G = None
         self._index = seen
@@ -349,7 +358,8 @@ class BlendshapeRig:
         ``None`` for the generic face.  The neutral is
         ``model.identity_neutral(identity)``; the delta-blendshapes are the
         model's (identity-independent) expression deltas as float64; the
-        landmark ids are ``model.landmarks``.
+        landmark ids are ``model.landmarks``.  The generic face's ``population``
+        is ``model``: it stands for everyone the model describes.
         """
         from facegeom.model.units import RigFrame
 
@@ -360,6 +370,7 @@ class BlendshapeRig:
             triangles=model.triangles,
             landmark_ids=model.landmarks,
             frame=RigFrame("cm", "y", "the ICT face model's", "the ICT face model's"),
+            population=model if identity is None and getattr(model, "n_identities", 0) > 0 else None,
         )
 
     @classmethod
@@ -465,7 +476,7 @@ class BlendshapeRig:
         its own units and axes) -> a new rig (cm, Y up) whose ``frame`` is ``frame``."""
         return BlendshapeRig(frame.to_facegeom(self.neutral), frame.to_facegeom(self.deltas), self.names,
                              self.triangles, self.landmark_ids, parts=self.parts, name_map=self.name_map,
-                             frame=frame)
+                             frame=frame, population=self.population)
 
     def renamed(self, target_names: Sequence[str]) -> tuple["BlendshapeRig", tuple[str, ...]]:
         """The same expressions as shapes named ``target_names`` (e.g. ARKit's 52) -> ``(rig, names not reached)``.
@@ -488,7 +499,7 @@ class BlendshapeRig:
     def with_name_map(self, name_map: NameMapping | None) -> "BlendshapeRig":
         """The same rig with another mapping file's rows (``None``: none)."""
         return BlendshapeRig(self.neutral, self.deltas, self.names, self.triangles, self.landmark_ids,
-                             parts=self.parts, name_map=name_map, frame=self.frame)
+                             parts=self.parts, name_map=name_map, frame=self.frame, population=self.population)
 
     def save_npz(self, path: str | os.PathLike, compressed: bool = False, extra: dict | None = None) -> Path:
         """Write the rig to ``path`` (npz, atomically) -> ``path``; parts, mapping and frame as optional keys.
