@@ -179,12 +179,10 @@ def _fit_face(face, model, rig, lm, specs, identity_fitter, protocol) -> dict:
     for fit_rows, held in folds(protocol):
         ids = lm[fit_rows]
         tg = LandmarkTarget(points[fit_rows], ids, cam)
-        outline = np.isin(fit_rows, SIDE_CONTOUR) if protocol != "split" else None
-        tg_id = LandmarkTarget(points[fit_rows], ids, cam, outline)
         fitted = {}
 
         def joint():
-            r = identity_fitter.fit(model, tg_id)
+            r = identity_fitter.fit(model, tg)
             fitted["rig"] = r.rig
             return r.cameras[0].project(r.vertices(0)[lm[held]]), bool(r.info.get("converged", True))
 

@@ -167,11 +167,13 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     landmarks of the 68-point iBUG convention (:func:`pts_vertex_ids`), a mesh
     file with the rig's vertex count = mesh, anything else = a point cloud.
     Landmarks need the camera intrinsics ``focal, cx, cy`` (pixels). A ``.pts``
-    annotation's jaw-contour points are marked as on the face's outline
-    (``LandmarkTarget.outline``), and a 68-point one's are moved from where
-    annotators put them to where the model has them
-    (:func:`~facegeom.model.landmarks.to_model_convention`); a CSV's rows are
-    the projections of their vertices.
+    annotation's jaw-contour points are moved from where annotators put
+    them to where the model's contour vertices are
+    (:func:`~facegeom.model.landmarks.to_model_convention`) when it has the
+    68 points of that convention, and otherwise marked as on the face's
+    outline (``LandmarkTarget.outline``: the identity fit lets them follow
+    the outline in the view); a CSV's rows are the projections of their
+    vertices.
 
     ``scale``: meshes and point clouds are multiplied by it into the rig's
     units; ``"auto"`` (default) = the power of ten that makes the scan the
@@ -208,6 +210,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             outline = np.isin(ids, np.asarray(rig.landmark_ids)[list(SIDE_CONTOUR)])
             if uv.shape[0] == 68:  # the annotators' jaw contour, moved to the model's (JAW_CONVENTION)
                 uv = to_model_convention(uv)
+                outline = None  # now where the model's contour vertices are: no outline to follow
                 if notes is not None:
                     notes.append(f"{tp.name}: jaw contour moved from where annotators mark it to the model's "
                                  f"(up 0.07-0.35 and in 0.1-0.2 inter-ocular distances)")
