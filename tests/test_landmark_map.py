@@ -162,3 +162,80 @@ def test_the_prior_scale_by_the_evidence_stays_in_range_and_bad_values_are_refus
     for bad in ("wide", 0.0, -1.0, float("inf"), True):
         with pytest.raises(InputError, match="prior_sd"):
             SEMLSFitter(prior_sd=bad)
+
+
+# ----------------------------------------------------------------------------- the generic face's population prior
+def test_population_prior_is_a_property_of_the_model(face_model):
+    """The weights' covariance on the generic face: symmetric, positive definite, at least the performances'
+    spread on the diagonal, the person's shape adding a spread the size of a weight's typical value; seeded, so the
+    same model always gets the same prior (and the second call is the cached one)."""
+    import time
+
+    from facegeom.methods.landmark_map import PRIOR_SD, population_prior
+
+    C = population_prior(face_model)
+    B = face_model.n_expressions
+    assert C.shape == (B, B)
+    np.testing.assert_allclose(C, C.T, atol=1e-12)
+    assert np.linalg.eigvalsh(C).min() >= PRIOR_SD ** 2 * (1 - 1e-9)
+    shape_part = np.sqrt(np.diag(C - PRIOR_SD ** 2 * np.eye(B)).mean())
+    assert 0.15 < shape_part < 0.45, shape_part
+    t0 = time.perf_counter()
+    again = population_prior(face_model)
+    assert time.perf_counter() - t0 < 0.05
+    np.testing.assert_array_equal(again, C)
+    np.testing.assert_allclose(population_prior(face_model, 0.5) - C, (0.25 - PRIOR_SD ** 2) * np.eye(B), atol=1e-12)
+
+
+def test_only_the_generic_face_stands_for_a_population(face_model):
+    from facegeom.model.units import RigFrame
+
+    generic = BlendshapeRig.from_face_model(face_model)
+    assert generic.population is face_model
+    assert BlendshapeRig.from_face_model(face_model, face_model.random_identity(1)).population is None
+    assert generic.with_name_map(None).population is face_model
+    assert generic.in_frame(RigFrame("mm", "y", "a test's", "a test's")).population is face_model
+    assert generic.renamed(["jawOpen", "eyeBlinkLeft"])[0].population is None  # other shapes: another prior
+
+
+def test_a_full_covariance_of_the_performances_spread_is_the_isotropic_prior(rig):
+    rng = np.random.default_rng(9)
+    ids = np.asarray(rig.landmark_ids)[17:]
+    w = rng.uniform(0, 0.4, rig.n_shapes) * (rng.random(rig.n_shapes) < 0.5)
+    V = rig.evaluate(w)
+    cam = look_at_camera(V, focal=900.0, image_size=(640, 480), yaw=-14.0)
+    L = (cam.project(V[ids]) + rng.normal(size=(ids.size, 2)))[None]
+    args = [a[None] for a in (cam.R, cam.t)] + [np.array([getattr(cam, a)]) for a in ("focal", "cx", "cy")]
+    e1, s1, _ = map_weights(rig, ids, L, *args, prior_sd=0.3)
+    e2, s2, sd = map_weights(rig, ids, L, *args, prior_cov=0.09 * np.eye(rig.n_shapes))
+    np.testing.assert_allclose(e2, e1, atol=1e-6)
+    np.testing.assert_allclose(s2, s1, rtol=1e-6)
+    np.testing.assert_allclose(sd, 0.3)
+
+
+def test_the_generic_face_lets_the_weights_carry_the_persons_shape(rig, face_model):
+    """Photos of other people (random identities of the model, a few shapes, 1 px, 23 landmarks, pose unknown):
+    on the generic face the population prior (the default) predicts the 26 landmarks it was not given better
+    than the performances' spread alone, and a person's own rig keeps the performances' spread."""
+    from facegeom.methods.sem import SEMLSFitter
+    from facegeom.model import EVAL_LANDMARKS_26, FIT_LANDMARKS_23
+
+    lm = np.asarray(face_model.landmarks)
+    fit_ids, held = lm[list(FIT_LANDMARKS_23)], lm[list(EVAL_LANDMARKS_26)]
+    rng = np.random.default_rng(21)
+    err = {"auto": [], 0.2: []}
+    for _ in range(12):
+        person = BlendshapeRig.from_face_model(face_model, face_model.random_identity(rng))
+        assert SEMLSFitter()._prior_cov(person) is None
+        w = np.zeros(rig.n_shapes)
+        w[rng.choice(rig.n_shapes, 6, replace=False)] = rng.uniform(0.1, 0.5, 6)
+        V = person.evaluate(w)
+        cam = look_at_camera(V, focal=1000.0, image_size=(800, 800), yaw=rng.uniform(-20, 20))
+        tg = LandmarkTarget(cam.project(V[fit_ids]) + rng.normal(size=(fit_ids.size, 2)), fit_ids,
+                            PinholeCamera(cam.focal, cam.cx, cam.cy))
+        io = np.linalg.norm(cam.project(V[lm[[39]]]) - cam.project(V[lm[[42]]]))
+        for sd in err:
+            r = SEMLSFitter(prior_sd=sd).fit(rig, tg)
+            d = r.info["camera"].project(r.vertices[held]) - cam.project(V[held])
+            err[sd].append(np.sqrt((d ** 2).sum(axis=1).mean()) / io)
+    assert np.mean(err["auto"]) < np.mean(err[0.2]), err

@@ -14,6 +14,14 @@ nothing tuned to a protocol:
   not from a benchmark. The marginal likelihood of real annotated photos
   agrees: maximised over ``s`` per photo with the bounds respected, it is at
   about 0.2 on average over 150 real faces;
+- **on a face model's generic face** (a rig whose ``population`` is set) the
+  person in the photo is not that face, and the weights must also carry the
+  part of the person's shape the expression shapes reproduce. The prior is
+  then ``N(0, C)`` with ``C`` = the performances' ``s^2 I`` plus the second
+  moment of the weights that reproduce people drawn from the model's own
+  identity prior (:func:`population_prior`: about 0.27 RMS per weight for the
+  ICT model, 0.34 with the expression part): a property of the model, not of
+  a benchmark;
 - **noise**: Gaussian, ``sigma`` per pixel coordinate, *estimated from the
   photo* by maximising the marginal likelihood (type-II maximum likelihood,
   MacKay's fixed point ``1/sigma^2 = (N - gamma) / |r|^2`` with ``gamma`` the
@@ -84,9 +92,9 @@ def population_prior(model, expression_sd: float = PRIOR_SD) -> np.ndarray:
     weights need not carry them) and fitted with weights in ``[0, 1]`` over the
     face area; the second moment of those weights. The sum of the two is the
     prior (mean zero, so the bounds keep the weights an expression does not
-    use at zero). For the ICT model the identity part's RMS is about 0.29,
-    and the two together about 0.35 per weight, with the shapes a face's width
-    and length move most correlated. Cached per model.
+    use at zero). For the ICT model the identity part's RMS is about 0.27
+    per weight and the two together 0.34; the shapes that stand in for a
+    face's width and length are correlated. Cached per model.
     """
     hit = _POPULATION_CACHE.get(id(model))
     if hit is not None and hit[0] is model:
