@@ -514,3 +514,101 @@ def test_a_server_that_never_answers_is_given_up_on_in_bounded_time(tmp_path, mo
             c.close()
     assert time.monotonic() - t0 < 10
     assert lines and "127.0.0.1" in lines[0]
+
+
+# --------------------------------------------------------------------------- budgets: size, deadline, leftovers
+class _RawServer:
+    """Answers every GET with ``200``, no Content-Length, then ``body`` in pieces of ``piece`` bytes every ``pause`` s."""
+
+    def __init__(self, body: bytes, piece: int, pause: float):
+        self.listener = socket.socket()
+        self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(8)
+        self.url = f"http://127.0.0.1:{self.listener.getsockname()[1]}/"
+        self.stop = threading.Event()
+
+        def serve(conn):
+            with conn:
+                conn.recv(4096)
+                conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: application/octet-stream\r\n\r\n")
+                for i in range(0, len(body), piece):
+                    if self.stop.is_set():
+                        return
+                    try:
+                        conn.sendall(body[i:i + piece])
+                    except OSError:
+                        return
+                    self.stop.wait(pause)
+
+        def accept():
+            self.listener.settimeout(0.1)
+            while not self.stop.is_set():
+                try:
+                    conn, _ = self.listener.accept()
+                except OSError:
+                    continue
+                threading.Thread(target=serve, args=(conn,), daemon=True).start()
+
+        threading.Thread(target=accept, daemon=True).start()
+
+    def close(self):
+        self.stop.set()
+        self.listener.close()
+
+
+def _raw_fetch(server, tmp_path, monkeypatch):
+    monkeypatch.setattr(pooch.core, "time", types.SimpleNamespace(sleep=lambda s: None))
+    monkeypatch.setenv(dl.URL_ENV_VAR, server.url)
+    monkeypatch.setenv(fd.CACHE_ENV_VAR, str(tmp_path / "cache"))
+    return dl.fetch_data(identities=0, echo=lambda s: None, progress=False)
+
+
+def test_a_server_sending_more_than_the_registry_says_is_stopped_at_that_size(tmp_path, monkeypatch):
+    """An endless stream (a proxy's page, another file): stopped once past the registry's size, nothing kept."""
+    size = dl.read_registry().files[f"{dl.MODEL_FOLDER}/vertex_indices.json"][1]
+    server = _RawServer(b"x" * (size * 3), 1 << 16, 0.0)
+    try:
+        with pytest.raises(DownloadError, match=r"sent more than the .* the registry gives for it") as e:
+            _raw_fetch(server, tmp_path, monkeypatch)
+    finally:
+        server.close()
+    assert "\n" not in str(e.value) and str(e.value).startswith(f"{dl.MODEL_FOLDER}/vertex_indices.json: ")
+    assert not [f for f in (tmp_path / "cache").rglob("*") if f.is_file()]  # no partial or temporary file
+
+
+def test_an_announced_size_larger_than_the_registry_is_refused_before_reading(mirror, registry):
+    name = f"{dl.MODEL_FOLDER}/vertex_indices.json"
+    mirror.files[name] = mirror.files[name] * 50
+    with pytest.raises(DownloadError, match=r"announced .* for a file of .*: it serves a different file"):
+        _fetch(registry)
+    assert mirror.requests.count(name) == 1  # not retried: another try gets the same file
+
+
+def test_a_server_dripping_bytes_is_given_up_on_at_the_deadline(tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.setattr(dl, "DEADLINE_BASE_S", 1.0)
+    monkeypatch.setattr(dl, "MIN_RATE_BPS", 10 ** 12)
+    server = _RawServer(b"{" * 1000, 1, 0.2)  # a byte every 0.2 s: never silent for a read timeout
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(DownloadError, match=r"not complete within 1 s .*: the server is too slow"):
+            _raw_fetch(server, tmp_path, monkeypatch)
+    finally:
+        server.close()
+    assert time.monotonic() - t0 < 6
+    assert not [f for f in (tmp_path / "cache").rglob("*") if f.is_file()]
+
+
+def test_what_a_killed_download_left_is_removed_by_the_next_fetch(mirror, registry, tmp_path):
+    import time
+
+    raw = tmp_path / "cache" / "ICT-FaceKit" / registry.commit / dl.MODEL_FOLDER
+    raw.mkdir(parents=True)
+    old, fresh = raw / "tmpk1ll3d", raw / "tmpl1v3"
+    old.write_bytes(b"x" * 1000)
+    fresh.write_bytes(b"y")  # another fetch may still be writing this one
+    then = time.time() - 2 * dl.STALE_PART_S
+    os.utime(old, (then, then))
+    _fetch(registry)
+    assert not old.exists() and fresh.exists()

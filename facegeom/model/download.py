@@ -24,6 +24,7 @@ import logging
 import os
 import re
 import shutil
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -72,6 +73,14 @@ LICENSE_PATH, LICENSE_SHA256 = "LICENSE", "b20a78d8fc51657e14f3e00c8abb538d786ad
 LICENSE_COPY = "LICENSE.ICT-FaceKit"
 #: seconds to wait for a connection, and for the next bytes once connected (each attempt; a file is tried twice)
 CONNECT_TIMEOUT_S, READ_TIMEOUT_S = 10, 15
+#: each attempt at a file must end within DEADLINE_BASE_S plus its size at MIN_RATE_BPS (a server that drips bytes
+#: slower than a dial-up line is given up on, whatever its read timeout)
+DEADLINE_BASE_S, MIN_RATE_BPS = 60, 25_000
+#: a file the registry gives no size for (the licence text) may be at most this large
+UNKNOWN_SIZE_CAP = 1 << 20
+#: a file left by a download that was killed is removed by the next fetch once it is this old (no live attempt
+#: can still be writing it: every attempt ends within its deadline)
+STALE_PART_S = 3600
 TAKES_URL_ENV_VAR = "FACEGEOM_TAKES_URL"
 TAKES_REGISTRY_FILE = "takes-registry.txt"
 PHOTOS_URL_ENV_VAR = "FACEGEOM_PHOTOS_URL"
@@ -280,24 +289,111 @@ def _offline_message(base: str, reason: str, what: str = "the face data", retry:
             f"Run `{retry}` again later (it continues where it stopped){build}")
 
 
+class _Refused(Exception):
+    """A download stopped by its budget (too many bytes, past its deadline): not retried."""
+
+
+def deadline_s(size: int | None) -> float:
+    """Seconds one attempt at a file of ``size`` bytes may take (:data:`DEADLINE_BASE_S` + size at the slowest rate)."""
+    return DEADLINE_BASE_S + (size if size else UNKNOWN_SIZE_CAP) / MIN_RATE_BPS
+
+
+class _BoundedDownloader:
+    """A pooch downloader that writes at most ``size`` bytes and gives up after :func:`deadline_s`.
+
+    pooch calls it with the address and a temporary file in the cache; what
+    the server sends beyond the registry's size (a proxy's error page, another
+    file, an endless stream) or slower than the deadline allows stops the
+    download with one line, and pooch removes the temporary file.
+    """
+
+    def __init__(self, size: int | None, progress):
+        self.cap = int(size) if size else UNKNOWN_SIZE_CAP
+        self.deadline = deadline_s(size)
+        self.progress = progress
+
+    def __call__(self, url, output_file, pooch_instance=None, check_only=False):
+        import requests
+
+        t0 = time.monotonic()
+        with requests.get(url, stream=True, timeout=(CONNECT_TIMEOUT_S, READ_TIMEOUT_S)) as r:
+            r.raise_for_status()
+            declared = r.headers.get("Content-Length", "")
+            if declared.isdigit() and int(declared) > self.cap and "Content-Encoding" not in r.headers:
+                raise _Refused(f"the server announced {_mb(int(declared))} for a file of {_mb(self.cap)}: it serves "
+                               f"a different file (a proxy's page?)")
+            if self.progress is not None:
+                self.progress.total = self.cap
+            read = getattr(r.raw, "read1", None) or r.raw.read  # read1: whatever has arrived, so the clock is seen
+            n = 0
+            with open(output_file, "wb") as fh:
+                while True:
+                    if time.monotonic() - t0 > self.deadline:
+                        raise _Refused(f"not complete within {self.deadline:.0f} s ({_mb(n)} of {_mb(self.cap)} "
+                                       f"received): the server is too slow")
+                    chunk = _read_chunk(read)
+                    if not chunk:
+                        break
+                    n += len(chunk)
+                    if n > self.cap:
+                        raise _Refused(f"the server sent more than the {_mb(self.cap)} the registry gives for it: "
+                                       f"it serves a different file")
+                    fh.write(chunk)
+                    if self.progress is not None:
+                        self.progress.update(len(chunk))
+            if self.progress is not None:
+                self.progress.close()
+
+
+def _read_chunk(read) -> bytes:
+    """Up to 64 KiB from the response; urllib3's errors as requests' (which pooch retries), as iter_content does."""
+    import requests
+    from urllib3 import exceptions as u3
+
+    try:
+        return read(1 << 16, decode_content=True)
+    except u3.ReadTimeoutError as exc:
+        raise requests.exceptions.ConnectionError(exc) from None
+    except u3.ProtocolError as exc:
+        raise requests.exceptions.ChunkedEncodingError(exc) from None
+    except u3.DecodeError as exc:
+        raise requests.exceptions.ContentDecodingError(exc) from None
+
+
+def remove_stale_parts(folder: Path, older_than_s: float = STALE_PART_S) -> int:
+    """Remove what killed downloads left in ``folder`` (pooch's ``tmp*`` files) -> how many were removed."""
+    gone = 0
+    if not folder.is_dir():
+        return 0
+    now = time.time()
+    for f in folder.rglob("tmp*"):
+        try:
+            if f.is_file() and now - f.stat().st_mtime > older_than_s:
+                f.unlink()
+                gone += 1
+        except OSError:  # someone else's cache, or already gone
+            pass
+    return gone
+
+
 def _fetch_file(pup, path: str, base: str, progress, commit: str, what: str = "the face data",
-                url_var: str = URL_ENV_VAR, retry: str = "facegeom data fetch") -> Path:
+                url_var: str = URL_ENV_VAR, retry: str = "facegeom data fetch", size: int | None = None) -> Path:
     """Fetch one registry path through pooch; every failure as one :class:`DownloadError` line.
 
     A server that accepts the connection and then says nothing is given up on after
     :data:`READ_TIMEOUT_S` seconds (tried twice), one that does not accept it after
-    :data:`CONNECT_TIMEOUT_S`.
+    :data:`CONNECT_TIMEOUT_S`; one that sends more than ``size`` bytes (the
+    registry's) or takes longer than :func:`deadline_s` is stopped at once.
     """
-    import pooch
     import requests
 
     url = base + path
-    downloader = pooch.HTTPDownloader(progressbar=progress if progress is not None else False,
-                                      timeout=(CONNECT_TIMEOUT_S, READ_TIMEOUT_S))
     try:
-        got = Path(pup.fetch(path, downloader=downloader))
+        got = Path(pup.fetch(path, downloader=_BoundedDownloader(size, progress)))
         _honour_umask(got)
         return got
+    except _Refused as exc:
+        raise DownloadError(f"{exc}; nothing was kept. Address: {url}", path) from None
     except requests.exceptions.HTTPError as exc:
         r = exc.response
         status = f"{r.status_code} {r.reason}" if r is not None else "an error"
@@ -383,7 +479,9 @@ def fetch_data(identities: int | None = None, dest: str | os.PathLike | None = N
     index_before = _have(folder, index_path, registry.files.get(index_path, (None, -1))[1])
     echo(f"ICT-FaceKit model at commit {registry.commit[:7]} (MIT licence), from {base}")
     with _quiet_pooch():
-        index = _fetch_file(pup, index_path, base, None, registry.commit)  # the plan needs its expression list
+        remove_stale_parts(folder)
+        index = _fetch_file(pup, index_path, base, None, registry.commit,  # the plan needs its expression list
+                            size=registry.files.get(index_path, (None, None))[1])
         expressions = _expression_list(index)
         plan = fetch_plan(registry, expressions, n_id)
         total = registry.size(plan)
@@ -397,7 +495,7 @@ def fetch_data(identities: int | None = None, dest: str | os.PathLike | None = N
             adapter = _ByteProgress(bar) if progress else None
             for done, path in enumerate(plan, 1):
                 cached = path in have
-                _fetch_file(pup, path, base, None if cached else adapter, registry.commit)
+                _fetch_file(pup, path, base, None if cached else adapter, registry.commit, size=registry.files[path][1])
                 bar.set_description(f"{done}/{len(plan)} files", refresh=False)
             with contextlib.suppress(DownloadError):  # the licence text is a courtesy copy, never a blocker
                 _fetch_file(pup, LICENSE_PATH, base, None, registry.commit)
@@ -645,13 +743,14 @@ def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms
         return folder
     echo(f"{what} ({terms}, commit {registry.commit[:7]}): {names}, {_mb(registry.size(todo))} from {base}")
     staging = folder.parent / f".{folder.name}-{registry.commit[:7]}-download"
+    remove_stale_parts(staging)
     pup = pooch.create(path=staging, base_url=base, registry={p: f"sha256:{registry.files[p][0]}" for p in todo},
                        retry_if_failed=1)
     got = {}
     with _quiet_pooch():
         for path in todo:
             got[path] = _fetch_file(pup, path, base, None, registry.commit, what=f"the {what}", url_var=url_var,
-                                    retry=retry)
+                                    retry=retry, size=registry.files[path][1])
     folder.mkdir(parents=True, exist_ok=True)
     for path, f in got.items():  # every file verified: move them in (same file system as the cache)
         os.replace(f, folder / Path(path).name)
