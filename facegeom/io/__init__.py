@@ -13,6 +13,7 @@ from facegeom.io.files import (
     atomic_path,
     check_outputs,
     check_writable_folder,
+    parse_csv_text,
     read_csv_rows,
     same_file,
 )
@@ -57,6 +58,7 @@ __all__ = [
     "check_outputs",
     "check_writable_folder",
     "same_file",
+    "parse_csv_text",
     "read_csv_rows",
     "MESH_FORMATS",
     "read_mesh",

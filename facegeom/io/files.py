@@ -35,7 +35,7 @@ from typing import Iterable, Sequence
 from facegeom.errors import InputError
 
 __all__ = ["atomic_path", "new_file_mode", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
-           "read_csv_rows"]
+           "read_csv_rows", "parse_csv_text"]
 
 
 def _umask() -> int:
@@ -287,5 +287,18 @@ def read_csv_rows(path: Path, what: str) -> list[list[str]]:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
-    return list(csv.reader(_io.StringIO(text)))
+    return parse_csv_text(text, path)
+
+
+def parse_csv_text(text: str, path) -> list[list[str]]:
+    """The rows of CSV ``text`` read from ``path``; a malformed one (a cell over the csv module's 131,072
+    characters, a NUL) as one :class:`InputError` line naming the file and the line."""
+    reader = csv.reader(_io.StringIO(text))
+    rows = []
+    try:
+        for r in reader:
+            rows.append(r)
+    except csv.Error as exc:
+        raise InputError(f"line {reader.line_num}: not a CSV row ({exc})", path) from None
+    return rows
 

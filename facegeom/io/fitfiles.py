@@ -16,7 +16,6 @@ The model objects built from these files (rig, targets) are made by
 from __future__ import annotations
 
 import csv
-import io as _io
 import json
 import os
 from pathlib import Path
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.files import atomic_path, parse_csv_text, read_csv_rows
 from facegeom.io.formats import read_points
 from facegeom.io.ints import check_int64
 
@@ -280,7 +279,7 @@ def read_weights(path: str | os.PathLike, names) -> np.ndarray:
             if not isinstance(got, dict):
                 raise InputError("no 'weights' object (expected {\"weights\": {name: value}})", path)
         elif suffix == ".csv":
-            rows = [r for r in csv.reader(_io.StringIO(path.read_text(encoding="utf-8-sig"))) if r]
+            rows = [r for r in parse_csv_text(path.read_text(encoding="utf-8-sig"), path) if r]
             if not rows or [c.strip().lower() for c in rows[0]] != ["shape", "weight"]:
                 raise InputError("expected the header shape,weight", path)
             got = {}

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import csv
-import io as _io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io import atomic_path
+from facegeom.io import atomic_path, parse_csv_text
 
 __all__ = ["IndexMap"]
 
@@ -198,7 +197,11 @@ class IndexMap:
                     return cls(z["old_to_new"], z["new_to_old"], z["step"])
             except (KeyError, ValueError, OSError) as exc:
                 raise InputError(f"not an index map ({exc.__class__.__name__})", path) from None
-        rows = list(csv.reader(_io.StringIO(path.read_text())))
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+        rows = parse_csv_text(text, path)
         if not rows or [c.strip() for c in rows[0]] != ["old_id", "new_id", "status", "step"]:
             raise InputError("expected the header old_id,new_id,status,step", path)
         try:
