@@ -34,7 +34,13 @@ _SINGULAR = {"deformers": "deformer", "retargeters": "retargeter", "fitters": "f
 DEFAULTS = {"identity": "facegeom"}
 """The method :func:`create` builds when no name is given, per kind (only where one method is the obvious choice)."""
 
-__all__ = ["KINDS", "DEFAULTS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method",
+PRESETS: dict[str, dict[str, tuple[str, dict]]] = {
+    "fitters": {"sem+": ("sem", {"clamp": True, "stop": "ric"})},
+}
+"""Named presets per kind: ``name -> (registered method, parameters)``; usable wherever a method name is
+(``facegeom fit -m sem+``), listed by :func:`available`; parameters given with the name override the preset's."""
+
+__all__ = ["KINDS", "DEFAULTS", "PRESETS", "available", "get", "create", "MethodSpec", "parse_value", "parse_method",
            "parse_methods", "LINEUPS"]
 
 
@@ -59,14 +65,29 @@ def _group(kind: str) -> str:
 
 
 def available(kind: str) -> dict[str, str]:
-    """Map plugin name -> ``module:Class`` for every plugin of ``kind``, sorted by name."""
+    """Map plugin name -> ``module:Class`` for every plugin of ``kind``, and preset name -> ``name:k=v,...``
+    (:data:`PRESETS`), sorted by name."""
     eps = entry_points(group=_group(kind))
-    return {ep.name: ep.value for ep in sorted(eps, key=lambda e: e.name)}
+    out = {ep.name: ep.value for ep in eps}
+    for name, (base, params) in PRESETS.get(_kind(kind), {}).items():
+        if base in out:
+            out[name] = f"{base}:" + ",".join(f"{k}={str(v).lower() if isinstance(v, bool) else v}"
+                                            for k, v in params.items())
+    return dict(sorted(out.items()))
+
+
+def _preset(kind: str, name, params: dict):
+    """``(registered name, parameters)`` of ``name``: a preset's method with its parameters under ``params``."""
+    hit = PRESETS.get(_kind(kind), {}).get(name) if isinstance(name, str) else None
+    if hit is None:
+        return name, params
+    return hit[0], {**hit[1], **params}
 
 
 def get(kind: str, name: str) -> type:
-    """Load and return the class registered as ``name`` in ``kind``."""
+    """Load and return the class registered as ``name`` in ``kind`` (a preset's: its method's class)."""
     kind = _kind(kind)
+    name, _ = _preset(kind, name, {})
     eps = {ep.name: ep for ep in entry_points(group=_group(kind))}
     if name not in eps:
         names = ", ".join(sorted(eps)) or "none installed"
@@ -92,16 +113,18 @@ def create(kind: str, name: str | None = None, **params):
         if kind not in DEFAULTS:
             raise InputError(f"which {_one(kind)}? name one: {', '.join(available(kind)) or 'none installed'}")
         name = DEFAULTS[kind]
+    shown = name
+    name, params = _preset(kind, name, params)
     cls = get(kind, name)
     valid = cls.param_names() if hasattr(cls, "param_names") else None
     unknown = [k for k in params if valid is not None and k not in valid]
     if unknown:
-        raise InputError(f"{_one(kind)} {name!r} has no parameter {unknown[0]!r}; valid parameters: "
+        raise InputError(f"{_one(kind)} {shown!r} has no parameter {unknown[0]!r}; valid parameters: "
                          f"{', '.join(valid) or 'none'}")
     try:
         return cls(**params)
     except TypeError as exc:  # unknown keyword
-        raise InputError(f"{_one(kind)} {name!r}: {exc}") from None
+        raise InputError(f"{_one(kind)} {shown!r}: {exc}") from None
 
 
 @dataclass(frozen=True)
