@@ -24,6 +24,7 @@ __all__ = [
     "connected_components",
     "edge_lengths",
     "mean_edge_length",
+    "walkable_faces",
     "cotangent_laplacian",
     "mass_matrix",
     "boundary_band",
@@ -97,6 +98,23 @@ def mean_edge_length(V, F) -> float:
     return float(edge_lengths(V, F).mean())
 
 
+def walkable_faces(V, F) -> np.ndarray:
+    """The faces of ``F`` with an area: exact (MMP) geodesics loop without bound on a zero-area face.
+
+    A face whose doubled area is at most ``1e-12`` times the squared diagonal of
+    the mesh's box (two coincident vertices, or three on a line) carries no
+    distance its edges do not, so it is left out; a mesh of coincident
+    vertices has none left.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if F.size == 0:
+        return F.reshape(0, 3)
+    diag2 = float(((V.max(axis=0) - V.min(axis=0)) ** 2).sum()) if V.size else 0.0
+    a = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    return F[a > 1e-12 * diag2]
+
+
 def _edge_graph(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
     E = igl.edges(F)
     w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
@@ -157,7 +175,7 @@ def geodesic_rings(V, F, radius: float, method: str = "exact", chunk: int = 1024
     P.sort_indices()
     if method == "graph":
         return P
-    return _exact_on_patches(V, F, P, radius, progress)
+    return _exact_on_patches(V, walkable_faces(V, F), P, radius, progress)
 
 
 def _exact_on_patches(V, F, P: sp.csr_matrix, radius: float, progress: bool) -> sp.csr_matrix:

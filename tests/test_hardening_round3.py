@@ -57,3 +57,79 @@ def test_the_command_line_says_it_in_one_line_and_exits_2(tmp_path):
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "lm.csv" in r.stderr and "line 2" in r.stderr
     assert not Path(tmp_path / "w.json").exists()
+
+
+# ----------------------------------------------------------------------------- geodesics on degenerate meshes
+def _run(*args, timeout=120):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "facegeom", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _one_line(r, *words):
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+COINCIDENT = "v 0 0 0\nv 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\nf 2 3 4\n"  # 60 bytes: grew past 4 GB in exact geodesics
+
+
+def test_crop_of_coincident_vertices_ends_at_once_with_one_line(tmp_path):
+    import time
+
+    f = tmp_path / "c.obj"
+    f.write_text(COINCIDENT)
+    t0 = time.monotonic()
+    r = _run("crop", f, tmp_path / "o.obj", "--from-vertices", "0", "--radius", "5", timeout=60)
+    assert time.monotonic() - t0 < 30
+    _one_line(r, "no whole face")
+    assert not (tmp_path / "o.obj").exists()
+
+
+def test_exact_geodesics_skip_faces_without_area(tmp_path):
+    import numpy as np
+
+    from facegeom.geometry import geodesic_rings, walkable_faces
+    from facegeom.pipelines.cleanup.geodesic import geodesic_distance
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [2, 0, 0]], float)  # vertex 3 on vertex 1; 4 on a line
+    F = np.array([[0, 1, 2], [1, 3, 2], [0, 1, 4]])
+    np.testing.assert_array_equal(walkable_faces(V, F), F[:1])
+    d = geodesic_distance(V, F, [0], limit=5.0)
+    np.testing.assert_allclose(d[:3], [0.0, 1.0, 1.0])
+    assert np.isinf(d[3:]).all()  # only on faces without area: unreached
+    R = geodesic_rings(V, F, 1.5)
+    assert R[0, 1] and R[0, 2] and not R[0, 3]
+    assert walkable_faces(np.zeros((4, 3)), F[:2]).shape == (0, 3)
+
+
+def test_heat_geodesics_on_a_soup_or_a_degenerate_mesh_is_one_line(tmp_path):
+    soup = tmp_path / "soup.obj"
+    soup.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nv 6 5 5\nv 5 6 5\nf 1 2 3\nf 4 5 6\n")
+    _one_line(_run("crop", soup, tmp_path / "o.obj", "--from-vertices", "0", "--radius", "1", "--geodesic", "heat"),
+              "heat method")
+    c = tmp_path / "c.obj"
+    c.write_text(COINCIDENT)
+    _one_line(_run("crop", c, tmp_path / "o.obj", "--from-vertices", "0", "--radius", "1", "--geodesic", "heat"),
+              "no area")
+
+
+def test_a_huge_vertex_id_is_out_of_range_not_an_overflow(tmp_path):
+    f = tmp_path / "t.obj"
+    f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    _one_line(_run("crop", f, tmp_path / "o.obj", "--from-vertices", "99999999999999999999", "--radius", "1"),
+              "out of range", "t.obj")
+
+
+def test_a_preset_the_readme_names_is_a_method_name():
+    from facegeom.registry import available, create
+
+    f = create("fitters", "sem+")
+    assert f.clamp and f.stop == "ric"
+    assert create("fitters", "sem+", stop="none").stop == "none"
+    assert available("fitters")["sem+"] == "sem:clamp=true,stop=ric"

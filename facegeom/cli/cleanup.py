@@ -206,16 +206,17 @@ def crop_cmd(mesh_in, mesh_out, from_vertices, radius, geodesic, id_range, map_p
     src = rng = None
     if from_vertices is not None:
         try:
-            src = np.array([int(x) for x in from_vertices.split(",") if x.strip()], dtype=np.int64)
+            ids = [int(x) for x in from_vertices.split(",") if x.strip()]
         except ValueError:
             raise InputError(f"--from-vertices must be comma-separated vertex ids, got {from_vertices!r}") \
                 from None
-        if src.size == 0:
+        if not ids:
             raise InputError("--from-vertices is empty")
-        bad = src[(src < 0) | (src >= V.shape[0])]
-        if bad.size:
-            raise InputError(f"--from-vertices: vertex {int(bad[0])} is out of range: the mesh has "
+        bad = [i for i in ids if not 0 <= i < V.shape[0]]  # checked as Python ints: no overflow on huge ids
+        if bad:
+            raise InputError(f"--from-vertices: vertex {bad[0]} is out of range: the mesh has "
                              f"{V.shape[0]} vertices", mesh_in)
+        src = np.array(ids, dtype=np.int64)
     else:
         rng = parse_id_range(id_range, V.shape[0])
     sources = _prepare_markers(markers, markers_out, V.shape[0])

@@ -39,7 +39,7 @@ def geodesic_distance(V, F, sources, *, limit: float | None = None, method: str 
     import igl
     from scipy.sparse import csgraph
 
-    from facegeom.geometry import _edge_graph
+    from facegeom.geometry import _edge_graph, walkable_faces
 
     V = as_vertices(V)
     F = as_faces(F, V.shape[0])
@@ -51,9 +51,20 @@ def geodesic_distance(V, F, sources, *, limit: float | None = None, method: str 
         raise InputError(f"source vertex {int(src.max() if src.max() >= n else src.min())} is out of range: "
                          f"the mesh has {n} vertices")
     if method == "heat":
+        Fw = walkable_faces(V, F)
+        if Fw.shape[0] < F.shape[0]:
+            raise InputError(f"{F.shape[0] - Fw.shape[0]} of {F.shape[0]} faces have no area (coincident vertices): "
+                             f"the heat method needs a clean mesh; run `facegeom clean` first or use exact "
+                             f"geodesics")
         data = igl.HeatGeodesicsData()
-        igl.heat_geodesics_precompute(V, F, data)
+        try:
+            igl.heat_geodesics_precompute(V, F, data)
+        except RuntimeError:
+            raise InputError("the heat method failed on this mesh (disconnected or non-manifold pieces, a "
+                             "triangle soup?): use exact or graph geodesics") from None
         d = np.asarray(igl.heat_geodesics_solve(data, src), dtype=np.float64)
+        if not np.isfinite(d).all():
+            raise InputError("the heat method gave no distance on this mesh: use exact or graph geodesics")
         return np.maximum(d - d[src].min(), 0.0)
     G = _edge_graph(V, F)
     if method == "graph":
@@ -65,7 +76,7 @@ def geodesic_distance(V, F, sources, *, limit: float | None = None, method: str 
     patch = np.flatnonzero(np.isfinite(de))
     remap = np.full(n, -1, dtype=np.int64)
     remap[patch] = np.arange(patch.size)
-    Fl = remap[F]
+    Fl = remap[walkable_faces(V, F)]  # zero-area faces would keep MMP's window propagation going without bound
     Fl = Fl[(Fl >= 0).all(axis=1)]
     out = np.full(n, np.inf)
     if Fl.size == 0:
