@@ -38,7 +38,7 @@ from threadpoolctl import threadpool_limits
 
 from facegeom.baselines.eos_peer import _import_eos
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import Params, is_finite_number, is_integer
+from facegeom.interfaces import Params, check_range
 from facegeom.methods.identity import IdentityFit
 from facegeom.model import LandmarkTarget
 
@@ -64,11 +64,10 @@ class EosIdentityFitter(Params):
 
     def __init__(self, iterations: int = 5, lambda_identity: float = 30.0, lambda_expressions: float = 30.0):
         self._eos = _import_eos()
-        if not is_integer(iterations) or iterations < 1:
-            raise InputError(f"iterations must be a positive integer, got {iterations!r}")
+        iterations = check_range("iterations", iterations, 1, 1000, "eos alternates pose and shape a few times",
+                                 integer=True)
         for name, v in (("lambda_identity", lambda_identity), ("lambda_expressions", lambda_expressions)):
-            if not is_finite_number(v) or v <= 0:
-                raise InputError(f"{name} must be a positive number, got {v!r}")
+            check_range(name, v, 0, 1e12, "a regularisation weight; beyond it the fit is the mean face", above=True)
         self.iterations = int(iterations)
         self.lambda_identity = float(lambda_identity)
         self.lambda_expressions = float(lambda_expressions)

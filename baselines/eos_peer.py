@@ -41,7 +41,7 @@ import time
 import numpy as np
 
 from facegeom.errors import InputError, SolveError
-from facegeom.interfaces import FitResult, Params, is_integer
+from facegeom.interfaces import FitResult, Params, check_range
 from facegeom.methods.fitting import check_fit_inputs, result
 from facegeom.model import BlendshapeRig, LandmarkTarget
 
@@ -78,8 +78,8 @@ class EosFitter(Params):
 
     def __init__(self, iterations: int = 5, compact: bool = True):
         self._eos = _import_eos()
-        if isinstance(iterations, bool) or not is_integer(iterations) or iterations < 0:
-            raise InputError(f"iterations must be a non-negative integer, got {iterations!r}")
+        iterations = check_range("iterations", iterations, 0, 1000, "eos alternates pose and shape a few times",
+                                 integer=True)
         if not isinstance(compact, (bool, np.bool_)):
             raise InputError(f"compact must be true or false, got {compact!r}")
         self.iterations = int(iterations)

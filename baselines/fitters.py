@@ -95,7 +95,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult, Params, as_handles
+from facegeom.interfaces import FitResult, Params, as_handles, check_range
 from facegeom.methods.fitting import check_fit_inputs, fit_with_pose
 from facegeom.methods.marker_solve import split_markers
 from facegeom.model import (
@@ -125,18 +125,24 @@ _DEFAULTS = dict(
 def _check_weight(value, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, Real):
         raise InputError(f"{name} must be a number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v) or v < 0:
-        raise InputError(f"{name} must be a finite number >= 0, got {value!r}")
-    return v
+    return check_range(name, value, 0, 1e6, "the energy is normalised: beyond it the data no longer count")
+
+
+#: Upper bounds of the iteration counts, with the reason each is where it is.
+_COUNT_LIMITS = {
+    "icp_iterations": (10_000, "correspondence rounds stop when they repeat, within tens"),
+    "alternations": (100, "pose / expression rounds settle within a few"),
+    "max_iter": (1_000_000, "L-BFGS-B iterations of one solve"),
+    "max_active_set": (10_000, "active-set rounds end within the number of shapes"),
+    "chunk": (1_000_000, "targets solved together"),
+}
 
 
 def _check_count(value, name: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise InputError(f"{name} must be an integer, got {value!r}")
-    if int(value) < minimum:
-        raise InputError(f"{name} must be >= {minimum}, got {value!r}")
-    return int(value)
+    hi, why = _COUNT_LIMITS[name]
+    return check_range(name, value, minimum, hi, why, integer=True)
 
 
 def _check_region(region):
@@ -701,9 +707,7 @@ def _check_components(value):
     if isinstance(value, bool):
         raise InputError(f"n_components must be an int >= 1 or a variance fraction in (0, 1], got {value!r}")
     if isinstance(value, Integral):
-        if int(value) < 1:
-            raise InputError(f"n_components must be >= 1, got {value!r}")
-        return int(value)
+        return check_range("n_components", value, 1, 100_000, "components of a rig's shapes", integer=True)
     if isinstance(value, Real):
         v = float(value)
         if not (0 < v <= 1):

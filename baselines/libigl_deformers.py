@@ -6,7 +6,7 @@ import numpy as np
 
 from facegeom.baselines._common import apply_displacement_map, fit_inputs, require_handle_per_component
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_positions, check_fitted, is_integer
+from facegeom.interfaces import Params, as_positions, check_fitted, check_range, is_integer
 
 ENERGIES = {
     "spokes": igl.ARAP_ENERGY_TYPE_SPOKES,
@@ -31,8 +31,8 @@ class ARAPDeformer(Params):
     """
 
     def __init__(self, iterations: int = 10, energy: str = "spokes_and_rims"):
-        if not is_integer(iterations) or iterations < 1:
-            raise InputError(f"iterations must be a positive integer, got {iterations!r}")
+        iterations = check_range("iterations", iterations, 1, 1000, "ARAP settles within tens of iterations",
+                                 integer=True)
         if not isinstance(energy, str) or energy not in ENERGIES:
             raise InputError(f"energy must be one of {', '.join(ENERGIES)}, got {energy!r}")
         self.iterations, self.energy = int(iterations), energy

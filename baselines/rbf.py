@@ -6,7 +6,7 @@ from scipy.interpolate import RBFInterpolator
 
 from facegeom.baselines._common import apply_displacement_map, fit_inputs
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_positions, check_fitted, is_finite_number, is_integer
+from facegeom.interfaces import Params, as_positions, check_fitted, check_range
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric", "inverse_multiquadric",
            "inverse_quadratic", "gaussian")
@@ -41,13 +41,13 @@ class RBFDeformer(Params):
                  degree: int = 1):
         if kernel not in KERNELS:
             raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-        if not is_finite_number(smoothing) or smoothing < 0:
-            raise InputError(f"smoothing must be a non-negative number, got {smoothing!r}")
-        if epsilon is not None and (not is_finite_number(epsilon) or epsilon <= 0):
-            raise InputError(f"epsilon must be a positive number, got {epsilon!r}")
-        if not is_integer(degree) or degree < -1:
-            raise InputError(f"degree must be an integer >= -1, got {degree!r}")
-        self.kernel, self.smoothing, self.epsilon, self.degree = kernel, float(smoothing), epsilon, int(degree)
+        smoothing = check_range("smoothing", smoothing, 0, 1e6, "beyond it only the polynomial part is left")
+        if epsilon is not None:
+            epsilon = check_range("epsilon", epsilon, 0, 1e6, "the kernel's shape factor; beyond it the kernel "
+                                  "overflows", above=True)
+        degree = check_range("degree", degree, -1, 3, "a degree-d polynomial in 3-D has (d+1)(d+2)(d+3)/6 terms: "
+                             "3 needs 20 markers already", integer=True)
+        self.kernel, self.smoothing, self.epsilon, self.degree = kernel, smoothing, epsilon, degree
         self.map_ = None
 
     def fit(self, vertices, faces, handles) -> "RBFDeformer":

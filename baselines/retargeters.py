@@ -7,7 +7,7 @@ from scipy.interpolate import RBFInterpolator
 
 from facegeom.baselines.rbf import KERNELS
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, check_fitted, is_finite_number, is_integer
+from facegeom.interfaces import Params, check_fitted, check_range
 from facegeom.methods.tangent import TangentSolver
 from facegeom.methods.tangent_retarget import check_retarget_inputs, temporal_windows
 
@@ -115,14 +115,12 @@ class RBFRetargeter(Params):
                  smoothing: float = 1e-8, rel_tol: float = 1e-3):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
-        if not is_finite_number(smoothing) or smoothing < 0:
-            raise InputError(f"smoothing must be a non-negative number, got {smoothing!r}")
-        if not is_integer(degree) or degree < -1:
-            raise InputError(f"degree must be an integer >= -1, got {degree!r}")
+        smoothing = check_range("smoothing", smoothing, 0, 1e6, "beyond it only the polynomial part is left")
+        degree = check_range("degree", degree, -1, 3, "a degree-d polynomial in 3-D has (d+1)(d+2)(d+3)/6 terms: "
+                             "3 needs 20 markers already", integer=True)
         if not isinstance(kernel, str) or kernel not in KERNELS:
             raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-        if not is_finite_number(rel_tol) or rel_tol < 0:
-            raise InputError(f"rel_tol must be a non-negative number, got {rel_tol!r}")
+        rel_tol = check_range("rel_tol", rel_tol, 0, 1, "relative to the largest singular value")
         self.strategy, self.kernel, self.degree = strategy, kernel, int(degree)
         self.smoothing, self.rel_tol = float(smoothing), float(rel_tol)
         self.result_ = None
@@ -220,9 +218,8 @@ class LaplacianRetargeter(Params):
     """
 
     def __init__(self, window: int = 1):
-        if not is_integer(window) or window < 1:
-            raise InputError(f"window must be a positive integer, got {window!r}")
-        self.window = int(window)
+        self.window = check_range("window", window, 1, 1000, "frames on each side: 1000 is 40 s at 25 fps",
+                                  integer=True)
         self.result_ = None
 
     def fit(self, source, labelled_frames, target_labels) -> "LaplacianRetargeter":

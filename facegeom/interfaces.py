@@ -47,6 +47,7 @@ __all__ = [
     "as_handles",
     "as_positions",
     "as_sequence",
+    "check_range",
 ]
 
 
@@ -86,9 +87,43 @@ def is_finite_number(value) -> bool:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         return False
     try:
-        return bool(np.isfinite(value))
-    except OverflowError:  # an int beyond float
+        return bool(np.isfinite(float(value)))
+    except (OverflowError, TypeError):  # an int beyond float
         return False
+
+
+def check_range(name: str, value, lo, hi, why: str, integer: bool = False, above: bool = False):
+    """``value`` as int / float when it lies in ``[lo, hi]`` (``(lo, hi]`` with ``above``); else one InputError line.
+
+    Every numeric method parameter has an upper bound with a reason, so that
+    ``-p rings=1e9`` is refused at once instead of running without bound; the
+    message names the parameter, the range and the reason.
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name, as the user typed it.
+    value : object
+    lo, hi : number
+        The allowed range.
+    why : str
+        Why the upper bound is where it is (a few words).
+    integer : bool
+        Whether only integers are allowed.
+    above : bool
+        Whether ``lo`` itself is excluded.
+
+    Returns
+    -------
+    int or float
+    """
+    ok = (is_integer(value) if integer else is_finite_number(value)) and (
+        value > lo if above else value >= lo) and value <= hi
+    if not ok:
+        kind = "an integer" if integer else "a number"
+        left = "(" if above else "["
+        raise InputError(f"{name} must be {kind} in {left}{lo:g}, {hi:g}] ({why}), got {value!r}")
+    return int(value) if integer else float(value)
 
 
 class Params:

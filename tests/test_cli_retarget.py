@@ -59,7 +59,7 @@ def test_retarget_params_and_reordered_label_markers(files):
             "-p", "strategy=marker", "-p", "window=2")
     assert r.returncode == 0, r.stderr
     r = run("retarget", str(d / "actor.csv"), str(d / "labels.csv"), "-o", str(d / "c.npz"), "-p", "window=0")
-    assert r.returncode == 2 and "window must be a positive integer" in r.stderr
+    assert r.returncode == 2 and "window must be an integer in [1, 1000]" in r.stderr
 
 
 def test_retarget_fill_gaps(files):

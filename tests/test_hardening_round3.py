@@ -133,3 +133,77 @@ def test_a_preset_the_readme_names_is_a_method_name():
     assert f.clamp and f.stop == "ric"
     assert create("fitters", "sem+", stop="none").stop == "none"
     assert available("fitters")["sem+"] == "sem:clamp=true,stop=ric"
+
+
+# ----------------------------------------------------------------------------- method parameters
+def _numeric_parameters():
+    import inspect
+
+    from facegeom.registry import KINDS, available, get
+
+    out = []
+    for kind in KINDS:
+        for name in available(kind):
+            try:
+                cls = get(kind, name)
+            except Exception:  # an optional peer that is not installed
+                continue
+            for pn, par in inspect.signature(cls.__init__).parameters.items():
+                d = par.default
+                if pn != "self" and not isinstance(d, bool) and (isinstance(d, (int, float)) or d is None
+                                                                or d == "auto"):
+                    out.append((kind, name, pn))
+    return out
+
+
+NUMERIC = _numeric_parameters()
+HUGE = (1e308, 10 ** 20)  # past every bound; 1e9 is allowed where it is harmless (a label weight)
+#: parameters whose size is judged against the data (a mesh's edge length), when the method is fitted
+CHECKED_AT_FIT = {("deformers", "tangent", "radius")}
+
+
+@pytest.mark.parametrize("kind, name, param", NUMERIC, ids=["-".join(x) for x in NUMERIC])
+def test_every_numeric_parameter_has_an_upper_bound_and_says_why(kind, name, param):
+    """``-p rings=1e9``-style values are refused when the method is built, in one line naming the parameter; no
+    other exception escapes for any extreme value."""
+    from facegeom.registry import create
+
+    for v in HUGE + (10 ** 9, float("nan"), float("-inf"), -1, -(10 ** 20), "banana", True):
+        try:
+            create(kind, name, **{param: v})
+        except InputError as exc:
+            msg = str(exc)
+            assert "\n" not in msg and param in msg, msg
+            continue
+        except ImportError:
+            pytest.skip(f"{name} is not installed")
+        if v in HUGE and (kind, name, param) not in CHECKED_AT_FIT:
+            pytest.fail(f"{kind} {name}: {param}={v!r} was accepted")
+
+
+def test_a_radius_of_many_edges_is_refused_when_the_deformer_is_fitted():
+    import numpy as np
+
+    from facegeom.registry import create
+
+    n = 6
+    xs, ys = np.meshgrid(np.arange(n), np.arange(n))
+    V = np.c_[xs.ravel(), ys.ravel(), np.zeros(n * n)].astype(float)
+    F = np.array([(i * n + j, i * n + j + 1, (i + 1) * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+                 + [(i * n + j, (i + 1) * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)])
+    with pytest.raises(InputError, match="mean edge lengths"):
+        create("deformers", "tangent", neighbourhood="geodesic", radius=1e9).fit(V, F, np.array([0, 5, 30, 35]))
+
+
+def test_a_ridge_of_zero_is_plain_least_squares_even_with_labels_in_a_plane():
+    """``ridge=0`` with the labels' motion in a plane: the least-norm affine map, not a singular-matrix traceback."""
+    import numpy as np
+
+    from facegeom.registry import create
+
+    rng = np.random.default_rng(0)
+    T, p = 40, 8
+    src = rng.normal(size=(1, p, 3)) + 0.05 * rng.normal(size=(T, p, 3))
+    lab = np.array([0, 10, 20, 30])
+    out = create("retargeters", "tangent", ridge=0).fit(src, lab, src[lab] * 1.3).transform()
+    assert out.shape == (T, p, 3) and np.isfinite(out).all()

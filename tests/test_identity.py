@@ -320,7 +320,7 @@ def test_cli_fit_identity_mesh(face_model, person, tmp_path):
     (["identity", "missing.obj", "-o", "r.npz"], "file not found"),
     (["identity", "lm.csv", "-o", "r.npz"], "need the camera"),
     (["identity", "t.obj", "-o", "r.txt"], "unsupported rig format"),
-    (["identity", "t.obj", "-o", "r.npz", "-p", "noise_mm=0"], "noise_mm must be a positive number"),
+    (["identity", "t.obj", "-o", "r.npz", "-p", "noise_mm=0"], "noise_mm must be a number in (0, 10000]"),
     (["identity", "t.obj", "-o", "r.npz", "--coefficients", "c.txt"], "must be .json"),
     (["fit", "t.obj", "-o", "w.json", "--rig-out", "r.npz"], "go with --identity"),
     (["fit", "t.obj", "-o", "w.json", "--identity", "--rig", "t.obj"], "drop --rig"),

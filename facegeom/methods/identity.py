@@ -310,7 +310,7 @@ from threadpoolctl import threadpool_limits
 from facegeom.constants import CM_TO_MM, EXPRESSION_WEIGHT_SD, FACE_AREA
 from facegeom.errors import InputError
 from facegeom.geometry import boundary_band
-from facegeom.interfaces import FitResult, Params, is_finite_number, is_integer
+from facegeom.interfaces import FitResult, Params, check_range, is_finite_number
 from facegeom.model import (
     BlendshapeRig,
     LandmarkTarget,
@@ -548,15 +548,19 @@ class IdentityFitter(Params):
                  occam: bool = True, estimate_noise: bool = True, cloud_passes: int = 3, contour: bool = True):
         if isinstance(expression_prior, str) and expression_prior != "auto":
             raise InputError(f"expression_prior must be 'auto' or a positive number, got {expression_prior!r}")
-        for name, v in (("noise_px", noise_px), ("noise_mm", noise_mm), ("tol", tol)) + (
-                (("expression_prior", expression_prior),) if not isinstance(expression_prior, str) else ()):
-            if not is_finite_number(v) or v <= 0:
-                raise InputError(f"{name} must be a positive number, got {v!r}")
-        for name, v in (("rounds", rounds), ("icp_iterations", icp_iterations), ("cloud_passes", cloud_passes)):
-            if not is_integer(v) or v < 1:
-                raise InputError(f"{name} must be a positive integer, got {v!r}")
-        if n_identities is not None and (not is_integer(n_identities) or n_identities < 0):
-            raise InputError(f"n_identities must be a non-negative integer or None, got {n_identities!r}")
+        for name, v, hi, why in (("noise_px", noise_px, 1e4, "pixels: larger than any photo"),
+                                 ("noise_mm", noise_mm, 1e4, "millimetres: larger than any head"),
+                                 ("tol", tol, 1.0, "a relative change of the energy")) + (
+                (("expression_prior", expression_prior, 100.0, "the weights' range is [0, 1]"),)
+                if not isinstance(expression_prior, str) else ()):
+            check_range(name, v, 0, hi, why, above=True)
+        for name, v, hi, why in (("rounds", rounds, 1000, "a fit settles within tens of rounds"),
+                                 ("icp_iterations", icp_iterations, 10_000, "correspondence rounds settle within "
+                                  "tens"),
+                                 ("cloud_passes", cloud_passes, 100, "annealing passes over a point cloud")):
+            check_range(name, v, 1, hi, why, integer=True)
+        if n_identities is not None:
+            check_range("n_identities", n_identities, 0, 100_000, "identity modes of a face model", integer=True)
         for name, v in (("rigid", rigid), ("expressions", expressions), ("temper", temper), ("occam", occam),
                         ("contour", contour)):
             if not isinstance(v, (bool, np.bool_)):
@@ -572,8 +576,7 @@ class IdentityFitter(Params):
         self.noise_px = float(noise_px)
         self.noise_mm = float(noise_mm)
         self.expression_prior = expression_prior if isinstance(expression_prior, str) else float(expression_prior)
-        if not is_finite_number(expression_l1) or expression_l1 < 0:
-            raise InputError(f"expression_l1 must be a non-negative number, got {expression_l1!r}")
+        check_range("expression_l1", expression_l1, 0, 1e6, "a weight against the data's own scale")
         self.expression_l1 = float(expression_l1)
         self.n_identities = None if n_identities is None else int(n_identities)
         self.rigid = bool(rigid)
@@ -585,8 +588,8 @@ class IdentityFitter(Params):
         self._stats = _check_stats(expression_stats)  # (mean, precision)
         self.expression_stats = None if expression_stats is None else (self._stats[0], np.asarray(expression_stats[1]))
         if not (identity_scale in ("gcv", "dof") if isinstance(identity_scale, str)
-                else is_finite_number(identity_scale) and identity_scale > 0):
-            raise InputError(f"identity_scale must be a positive number, 'dof' or 'gcv', got {identity_scale!r}")
+                else is_finite_number(identity_scale) and 0 < identity_scale <= 1e6):
+            raise InputError(f"identity_scale must be a number in (0, 1e6] (a factor on the identity prior), 'dof' or 'gcv', got {identity_scale!r}")
         self.identity_scale = identity_scale if isinstance(identity_scale, str) else float(identity_scale)
         if not isinstance(estimate_noise, (bool, np.bool_)):
             raise InputError(f"estimate_noise must be true or false, got {estimate_noise!r}")

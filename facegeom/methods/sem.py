@@ -61,7 +61,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
-from facegeom.interfaces import FitResult, Params, is_integer
+from facegeom.interfaces import FitResult, Params, check_range
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights, population_prior
 from facegeom.methods.marker_solve import split_markers
@@ -453,11 +453,10 @@ class SEMFitter(Params):
                  stop: str = "none", coefficients: str = "greedy", prior_sd="auto"):
         if prior_sd in ("evidence", "auto"):
             self.prior_sd = prior_sd
-        elif (isinstance(prior_sd, (int, float)) and not isinstance(prior_sd, bool) and np.isfinite(prior_sd)
-              and prior_sd > 0):
-            self.prior_sd = float(prior_sd)
-        else:
+        elif isinstance(prior_sd, str):
             raise InputError(f"prior_sd must be 'auto', a positive number or 'evidence', got {prior_sd!r}")
+        else:
+            self.prior_sd = check_range("prior_sd", prior_sd, 0, 100, "the weights' range is [0, 1]", above=True)
         if coefficients not in ("greedy", "lsq", "map", "auto"):
             raise InputError(f"coefficients must be 'greedy' (the paper), 'lsq', 'map' or 'auto', "
                              f"got {coefficients!r}")
@@ -474,10 +473,10 @@ class SEMFitter(Params):
         for name, v in (("exclusion", exclusion), ("clamp", clamp), ("refit", refit)):
             if not isinstance(v, (bool, np.bool_)):
                 raise InputError(f"{name} must be true or false, got {v!r}")
-        if not is_integer(alternations) or alternations < 0:
-            raise InputError(f"alternations must be a non-negative integer, got {alternations!r}")
-        if not is_integer(max_points) or max_points < 0:
-            raise InputError(f"max_points must be a non-negative integer, got {max_points!r}")
+        alternations = check_range("alternations", alternations, 0, 100, "pose / expression rounds settle within a "
+                                   "few", integer=True)
+        max_points = check_range("max_points", max_points, 0, 1_000_000, "scan points sampled per fit: a million "
+                                 "hold any face", integer=True)
         self.exclusion, self.clamp, self.refit = bool(exclusion), bool(clamp), bool(refit)
         self.alternations, self.max_points = int(alternations), int(max_points)
         self.region = None if region is None else _region_ids(region)

@@ -32,6 +32,7 @@ from facegeom.interfaces import (
     as_positions,
     as_vertices,
     check_fitted,
+    check_range,
     is_finite_number,
     is_integer,
 )
@@ -344,6 +345,10 @@ class TangentSolver:
 
 
 # --------------------------------------------------------------------------- face driving
+
+
+#: neighbourhood="geodesic": the largest radius, in mean edge lengths of the mesh (the default is 2.5).
+MAX_RADIUS_EDGES = 20
 
 
 def kabsch_many(P: np.ndarray, Q: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -721,20 +726,22 @@ class TangentDeformer(Params):
                  smoothness: float = SMOOTHNESS_DEFAULT, select: str = "gcv", prior: str = "uniform"):
         if neighbourhood not in ("kring", "geodesic"):
             raise InputError(f"neighbourhood must be 'kring' or 'geodesic', got {neighbourhood!r}")
-        if not is_integer(rings) or rings < 1:
-            raise InputError(f"rings must be a positive integer, got {rings!r}")
+        rings = check_range("rings", rings, 1, 10, "ten edge rings hold a face's features; the cost grows with "
+                            "a ring's area", integer=True)
         if radius is not None and (not is_finite_number(radius) or radius <= 0):
             raise InputError(f"radius must be a positive number, got {radius!r}")
         if not is_integer(d) or not 1 <= d <= 3:
             raise InputError(f"d must be 1, 2 or 3 for mesh vertices, got {d!r}")
-        if beta is not None and beta != "auto" and (not is_finite_number(beta) or beta <= 0):
-            raise InputError(f"beta must be 'auto', a positive number or None (hard constraints), got {beta!r}")
+        if beta is not None and beta != "auto":
+            if isinstance(beta, str):
+                raise InputError(f"beta must be 'auto', a positive number or None (hard constraints), got {beta!r}")
+            beta = check_range("beta", beta, 0, 1e12, "beyond it the labels are hard constraints: use None", above=True)
         if field not in ("displacement", "position"):
             raise InputError(f"field must be 'displacement' or 'position', got {field!r}")
         if align not in ("robust", "rigid", "none"):
             raise InputError(f"align must be 'robust', 'rigid' or 'none', got {align!r}")
-        if not is_finite_number(smoothness) or smoothness < 0:
-            raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
+        smoothness = check_range("smoothness", smoothness, 0, 1e6, "a weight relative to the framework's term, "
+                                 "which vanishes beyond it")
         if select not in ("ml", "gcv"):
             raise InputError(f"select must be 'ml' or 'gcv', got {select!r}")
         if prior not in ("amplitude", "uniform"):
@@ -755,7 +762,11 @@ class TangentDeformer(Params):
 
         if self.neighbourhood == "kring":
             return geometry.k_ring(F, V.shape[0], self.rings)
-        radius = self.radius if self.radius is not None else 2.5 * geometry.mean_edge_length(V, F)
+        edge = geometry.mean_edge_length(V, F)
+        radius = self.radius if self.radius is not None else 2.5 * edge
+        if radius > MAX_RADIUS_EDGES * edge:
+            raise InputError(f"radius {radius:g} is {radius / edge:.0f} mean edge lengths of this mesh: at most "
+                             f"{MAX_RADIUS_EDGES} (a neighbourhood's cost grows with its area)")
         R = geometry.geodesic_rings(V, F, radius, method="exact")
         return (R + geometry.k_ring(F, V.shape[0], 1)).astype(bool).tocsr()
 

@@ -22,7 +22,7 @@ from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.sparse import csgraph
 
 from facegeom.errors import InputError
-from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted, is_finite_number, is_integer
+from facegeom.interfaces import Params, as_handles, as_sequence, check_fitted, check_range
 from facegeom.linalg import banded_inverse_diagonal, factorize_spd
 from facegeom.methods.tangent import TangentSolver, alignment_matrix
 
@@ -304,7 +304,10 @@ def marker_affine_fit(S, lab, Yh, ridge: float | str = 1e-4, return_loo: bool = 
         priors += neighbour_maps(S.mean(axis=0), C, Cy, pool)
 
     def solve(lam, prior):
-        Ainv = np.linalg.inv(C + lam[:, None, None] * eye)
+        try:
+            Ainv = np.linalg.inv(C + lam[:, None, None] * eye)
+        except np.linalg.LinAlgError:  # ridge 0 and labels in a plane or on a line: the least-norm map
+            Ainv = np.linalg.pinv(C + lam[:, None, None] * eye, hermitian=True)
         A = Ainv @ (Cy + lam[:, None, None] * prior)
         res = Yc - np.einsum("lpi,pij->lpj", Pc, A)
         H = np.einsum("lpi,pij,lpj->lp", Pc, Ainv, Pc) + 1.0 / L  # leverage of each label
@@ -594,26 +597,30 @@ class TangentRetargeter(Params):
                  pool: bool = False, select: str = "auto", label_noise: float | str | None = "auto"):
         if strategy not in ("marker", "frame"):
             raise InputError(f"strategy must be 'marker' or 'frame', got {strategy!r}")
-        if not is_integer(window) or window < 1:
-            raise InputError(f"window must be a positive integer, got {window!r}")
-        if not is_integer(d) or d < 1:
-            raise InputError(f"d must be a positive integer, got {d!r}")
-        if beta is not None and beta != "auto" and (isinstance(beta, str) or not is_finite_number(beta) or beta <= 0):
-            raise InputError(f"beta must be a positive number, 'auto' or None (hard constraints), got {beta!r}")
+        window = check_range("window", window, 1, 1000, "frames on each side: 1000 is 40 s at 25 fps", integer=True)
+        d = check_range("d", d, 1, 100, "tangent directions of a window's local PCA", integer=True)
+        if beta is not None and beta != "auto":
+            if isinstance(beta, str):
+                raise InputError(f"beta must be a positive number, 'auto' or None (hard constraints), got {beta!r}")
+            beta = check_range("beta", beta, 0, 1e12, "beyond it the labels are hard constraints: use None", above=True)
         if field not in ("position", "offset", "affine"):
             raise InputError(f"field must be 'position', 'offset' or 'affine', got {field!r}")
-        if not is_finite_number(smoothness) or smoothness < 0:
-            raise InputError(f"smoothness must be a non-negative number, got {smoothness!r}")
+        smoothness = check_range("smoothness", smoothness, 0, 1e6, "a weight relative to the framework's term, "
+                                 "which vanishes beyond it")
         self.strategy, self.window, self.d, self.beta = strategy, int(window), int(d), beta
-        if ridge != "auto" and (isinstance(ridge, str) or not is_finite_number(ridge) or ridge < 0):
-            raise InputError(f"ridge must be a non-negative number or 'auto', got {ridge!r}")
-        if not is_finite_number(rank_tol) or rank_tol < 0:
-            raise InputError(f"rank_tol must be a non-negative number, got {rank_tol!r}")
+        if ridge != "auto":
+            ridge = check_range("ridge", ridge, 0, 1e6, "relative to each marker's largest spread: beyond it every map "
+                                "is the face-wide one") if not isinstance(ridge, str) else ridge
+            if isinstance(ridge, str):
+                raise InputError(f"ridge must be a non-negative number or 'auto', got {ridge!r}")
+        rank_tol = check_range("rank_tol", rank_tol, 0, 1, "relative to the largest singular value")
         self.field, self.smoothness, self.rank_tol = field, float(smoothness), float(rank_tol)
         self.ridge = ridge if ridge == "auto" else float(ridge)
-        if source_smoothing != "auto" and (isinstance(source_smoothing, str) or not is_finite_number(source_smoothing)
-                                           or source_smoothing < 0):
-            raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
+        if source_smoothing != "auto":
+            if isinstance(source_smoothing, str):
+                raise InputError(f"source_smoothing must be a non-negative number or 'auto', got {source_smoothing!r}")
+            source_smoothing = check_range("source_smoothing", source_smoothing, 0, 1e12, "beyond it the smoothed "
+                                           "capture is a straight line in time")
         self.source_smoothing = source_smoothing
         if not isinstance(kernel, (bool, np.bool_)):
             raise InputError(f"kernel must be true or false, got {kernel!r}")
@@ -624,9 +631,11 @@ class TangentRetargeter(Params):
         if select not in ("auto", "shared", "marker"):
             raise InputError(f"select must be 'auto', 'shared' or 'marker', got {select!r}")
         self.select = select
-        if label_noise is not None and label_noise != "auto" and (
-                isinstance(label_noise, str) or not is_finite_number(label_noise) or label_noise < 0):
-            raise InputError(f"label_noise must be 'auto', a non-negative number or None, got {label_noise!r}")
+        if label_noise is not None and label_noise != "auto":
+            if isinstance(label_noise, str):
+                raise InputError(f"label_noise must be 'auto', a non-negative number or None, got {label_noise!r}")
+            label_noise = check_range("label_noise", label_noise, 0, 1e6, "in the data's units: no capture is that "
+                                      "noisy")
         self.label_noise = label_noise if label_noise in (None, "auto") else float(label_noise)
         self.result_ = None
 
