@@ -207,3 +207,30 @@ def test_a_ridge_of_zero_is_plain_least_squares_even_with_labels_in_a_plane():
     lab = np.array([0, 10, 20, 30])
     out = create("retargeters", "tangent", ridge=0).fit(src, lab, src[lab] * 1.3).transform()
     assert out.shape == (T, p, 3) and np.isfinite(out).all()
+
+
+# ----------------------------------------------------------------------------- no silent wrong results
+def test_fit_refuses_an_obj_cut_inside_a_face_line_as_other_commands_do(tmp_path):
+    f = tmp_path / "cut.obj"
+    f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4")  # the last face line cut short
+    _one_line(_run("fit", f, "-o", tmp_path / "w.json"), "cut.obj", "line 6")
+    assert not (tmp_path / "w.json").exists()
+
+
+def test_an_npz_capture_without_marker_names_is_not_taken_for_vertices(tmp_path, face_model):
+    import numpy as np
+
+    from facegeom.methods.sem import SEMLSFitter
+    from facegeom.model import BlendshapeRig
+    from facegeom.model.layouts import layout
+    from facegeom.pipelines.solve import solve_file
+
+    rig = BlendshapeRig.from_face_model(face_model)
+    ids = layout(face_model, "ict80")
+    P = np.repeat(rig.neutral[ids][None], 3, axis=0)
+    np.savez(tmp_path / "cap.npz", markers=P)
+    with pytest.raises(InputError, match="names no markers") as e:
+        solve_file(tmp_path / "cap.npz", rig, SEMLSFitter())
+    assert "cap.npz" in str(e.value)
+    solved = solve_file(tmp_path / "cap.npz", rig, SEMLSFitter(), markers="ict80")  # a layout: file order
+    assert np.abs(solved.solve.weights).max() < 0.05

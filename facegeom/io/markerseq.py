@@ -139,7 +139,7 @@ def _read_npz(path: Path) -> MarkerSequence:
             raise InputError("'marker_names' has a repeated name", path)
     else:
         nm = tuple(str(j) for j in range(p))
-    return MarkerSequence(fr, nm, P, str(path))
+    return MarkerSequence(fr, nm, P, str(path), named="marker_names" in a)
 
 
 def read_marker_sequence(path: str | os.PathLike) -> MarkerSequence:

@@ -37,6 +37,10 @@ class MarkerSequence:
     unit : str or None
         Length unit when the file states one (``"mm"``, ``"cm"`` or ``"m"``),
         else ``None``.
+    named : bool
+        Whether the file names its markers (an ``.npz`` without
+        ``marker_names`` does not: its ``names`` are then ``0 .. p-1``, which
+        must not be taken for vertex ids).
     """
 
     frames: np.ndarray  # (T,) int64 frame indices
@@ -45,6 +49,7 @@ class MarkerSequence:
     path: str = ""
     fps: float | None = None
     unit: str | None = None
+    named: bool = True
 
     @property
     def n_frames(self) -> int:
@@ -81,7 +86,7 @@ class MarkerSequence:
         if unit == self.unit:
             return self
         factor = UNIT_SCALE[self.unit] / UNIT_SCALE[unit]
-        return MarkerSequence(self.frames, self.names, self.positions * factor, self.path, self.fps, unit)
+        return MarkerSequence(self.frames, self.names, self.positions * factor, self.path, self.fps, unit, self.named)
 
     def reorder(self, names, what: str = "markers") -> "MarkerSequence":
         """The same frames with the markers in the order of ``names`` (same set required).
@@ -106,4 +111,4 @@ class MarkerSequence:
             raise InputError(f"{what}: marker {unknown[0]!r} is missing (the file has {', '.join(self.names[:6])}"
                              f"{'...' if self.n_markers > 6 else ''})", self.path)
         order = np.array([index[n] for n in names])
-        return MarkerSequence(self.frames, names, self.positions[:, order], self.path, self.fps, self.unit)
+        return MarkerSequence(self.frames, names, self.positions[:, order], self.path, self.fps, self.unit, self.named)

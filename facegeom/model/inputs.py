@@ -192,11 +192,14 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         if tp.suffix.lower() in (".csv", ".pts"):
             kind = "landmarks"
         elif tp.suffix.lower() in MESH_FORMATS:
-            try:
+            from facegeom.io.formats import read_mesh_data
+
+            data = read_mesh_data(tp)  # a malformed file is refused here, as every other command refuses it
+            if data.n_faces == 0:  # vertices only: a point cloud
+                kind = "points"
+            else:
                 V, _ = read_mesh(tp)
                 kind = "mesh" if V.shape[0] == rig.n_vertices else "points"
-            except InputError:  # no faces: a point cloud
-                kind = "points"
         else:
             kind = "points"
     if kind == "landmarks":

@@ -172,6 +172,11 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
         notes.append(f"{Path(capture).name}: states no length unit; read in the rig's own unit, {own}")
     if getattr(seq, "unit", None) is not None:
         seq = seq.in_unit(RIG_UNIT)
+    if not getattr(seq, "named", True) and (markers is None or str(markers).lower().endswith(".csv")
+                                            or Path(str(markers)).exists()):
+        raise InputError("the capture names no markers (no 'marker_names' array), so neither vertex ids nor a map "
+                         "can place them: add 'marker_names', or name a layout (markers=ict80, landmarks68, "
+                         "random<k>) to take them in file order", capture)
     try:
         ids = marker_vertices(seq.names, rig, markers)
     except InputError as exc:  # a map file's own errors name it; the others are about the capture's markers
