@@ -234,3 +234,17 @@ def test_an_npz_capture_without_marker_names_is_not_taken_for_vertices(tmp_path,
     assert "cap.npz" in str(e.value)
     solved = solve_file(tmp_path / "cap.npz", rig, SEMLSFitter(), markers="ict80")  # a layout: file order
     assert np.abs(solved.solve.weights).max() < 0.05
+
+
+@pytest.mark.parametrize("rows, words", [
+    ("vertex_id,u,v\n1,100,100\n2,5400,120\n3,130,160\n4,110,190\n", "far outside the 640 x 480 photo"),
+    ("vertex_id,u,v\n1,100,100\n2,120,120\n3,140,140\n4,160,160\n", "on one line"),
+    ("vertex_id,u,v\n1,100,100\n2,1e308,120\n3,140,140\n4,160,190\n", "far outside"),
+])
+def test_photo_landmarks_no_photo_has_are_refused(tmp_path, rows, words):
+    f = tmp_path / "lm.csv"
+    f.write_text(rows)
+    for cmd in (["fit", f, "--no-identity"], ["fit", f, "--identity"]):
+        r = _run(*cmd, "--focal", "800", "--cx", "320", "--cy", "240", "-o", tmp_path / "w.json")
+        _one_line(r, words, "lm.csv")
+    assert not (tmp_path / "w.json").exists()

@@ -221,6 +221,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             ids, uv = read_landmarks(tp)
         if ids.max() >= rig.n_vertices:
             raise InputError(f"vertex_id {int(ids.max())} is out of range: the rig has {rig.n_vertices} vertices", tp)
+        check_photo_landmarks(uv, cx, cy, tp)
         tgt = LandmarkTarget(uv, ids, PinholeCamera(focal, cx, cy), outline)
     elif kind == "mesh":
         V, _ = read_mesh(tp)
@@ -232,6 +233,37 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         P = read_point_cloud(tp)
         tgt = PointCloudTarget(P * _factor(P, rig, scale, tp, notes))
     return kind, tgt
+
+
+#: Landmarks may lie this many photo sizes outside the photo (a face cut by the frame) before they are refused.
+PHOTO_MARGIN = 1.0
+
+
+def check_photo_landmarks(uv, cx, cy, path=None) -> None:
+    """Refuse landmarks no photo of a face has, in one line naming the file.
+
+    The photo is taken as ``[0, 2 cx] x [0, 2 cy]`` (the principal point at its
+    centre, as :func:`photo_camera` puts it; not checked when ``cx`` or ``cy``
+    is not positive). Refused: a landmark more than
+    :data:`PHOTO_MARGIN` photo sizes outside it (a coordinate in another unit or
+    from another image), and landmarks that all coincide or lie on one line
+    (no face, no pose to estimate).
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    w, h = 2.0 * float(cx), 2.0 * float(cy)
+    out = np.zeros(len(uv), bool)
+    if w > 0 and h > 0:  # a principal point at or left of the origin describes no photo to compare with
+        out = (np.abs(uv[:, 0] - 0.5 * w) > (0.5 + PHOTO_MARGIN) * w) | \
+              (np.abs(uv[:, 1] - 0.5 * h) > (0.5 + PHOTO_MARGIN) * h)
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        raise InputError(f"landmark {k + 1} at ({uv[k, 0]:.6g}, {uv[k, 1]:.6g}) px is far outside the "
+                         f"{w:.0f} x {h:.0f} photo the camera describes: another unit, or another photo's "
+                         f"coordinates?", path)
+    if uv.shape[0] >= 2:
+        sv = np.linalg.svd(uv - uv.mean(axis=0), compute_uv=False)
+        if sv[0] <= 1e-9 * max(w, h, 1.0) or (sv.size > 1 and sv[1] <= 1e-3 * sv[0]):
+            raise InputError("the landmarks all lie on one line (or at one point): no face to fit", path)
 
 
 def photo_camera(focal, cx, cy, image) -> tuple[float, float, float, bool]:
