@@ -248,3 +248,32 @@ def test_photo_landmarks_no_photo_has_are_refused(tmp_path, rows, words):
         r = _run(*cmd, "--focal", "800", "--cx", "320", "--cy", "240", "-o", tmp_path / "w.json")
         _one_line(r, words, "lm.csv")
     assert not (tmp_path / "w.json").exists()
+
+
+@pytest.mark.parametrize("how, words", [
+    ("huge", "face sizes from the origin"),
+    ("point", "all at one point"),
+    ("scale", "times the face's size apart"),
+])
+def test_a_capture_no_face_has_is_refused_before_the_solve(tmp_path, face_model, how, words):
+    import time
+
+    import numpy as np
+
+    from facegeom.io import write_marker_sequence
+    from facegeom.model import BlendshapeRig
+    from facegeom.model.layouts import layout
+
+    rig = BlendshapeRig.from_face_model(face_model)
+    ids = layout(face_model, "ict80")
+    P = np.repeat(rig.neutral[ids][None], 4, axis=0)
+    if how == "huge":
+        P[2, 5, 1] = 1e308
+    elif how == "point":
+        P[1] = 3.0
+    else:  # a frame blown up 20,000 times about its centre (the 1e30 of the report is also far from the origin)
+        P[3] = P[3].mean(axis=0) + 2e4 * (P[3] - P[3].mean(axis=0))
+    write_marker_sequence(tmp_path / "cap.csv", P, names=[f"v{i}" for i in ids])
+    t0 = time.monotonic()
+    _one_line(_run("solve", tmp_path / "cap.csv", "-o", tmp_path / "c.npz"), words, "cap.csv")
+    assert time.monotonic() - t0 < 60 and not (tmp_path / "c.npz").exists()

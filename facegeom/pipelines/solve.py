@@ -156,6 +156,42 @@ def marker_vertices(names, rig, markers=None) -> np.ndarray:
     return ids
 
 
+#: A capture's markers may lie this many face sizes from the origin (a head anywhere in a large capture volume) ...
+CAPTURE_REACH = 1e5
+#: ... and span, per frame, between these factors of the rig's markers' span (another unit is 10-1000x off).
+CAPTURE_SPAN = (1e-4, 1e4)
+
+
+def check_capture_range(P, rest, path=None) -> None:
+    """Refuse a capture no real face capture is, before any solve (one line naming the file).
+
+    ``P (T, p, 3)`` markers in the rig's units (NaN where lost), ``rest (p, 3)``
+    the rig's marker vertices. Refused: a coordinate more than
+    :data:`CAPTURE_REACH` face sizes from the origin (1e308 ran a solve
+    without end), and a frame whose markers span less or more than
+    :data:`CAPTURE_SPAN` times the rig's (all markers at one point; a scale of
+    1e30). The rig's face size is the RMS distance of ``rest`` from its centre.
+    """
+    face = float(np.sqrt(((rest - rest.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    if not face > 0:
+        return
+    ok = np.isfinite(P).all(axis=2)  # (T, p)
+    far = np.abs(np.where(ok[..., None], P, 0.0)).max(initial=0.0)
+    if far > CAPTURE_REACH * face:
+        raise InputError(f"a marker coordinate of {far:.3g} is {far / face:.3g} face sizes from the origin: no "
+                         f"capture of a face has it (another unit, or a corrupt value?)", path)
+    cnt = ok.sum(axis=1)
+    X = np.where(ok[..., None], P, 0.0)
+    mean = X.sum(axis=1) / np.maximum(cnt, 1)[:, None]
+    span = np.sqrt((((X - mean[:, None]) ** 2).sum(axis=2) * ok).sum(axis=1) / np.maximum(cnt, 1)) / face
+    bad = np.flatnonzero((cnt >= 3) & ((span < CAPTURE_SPAN[0]) | (span > CAPTURE_SPAN[1])))
+    if bad.size:
+        t = int(bad[0])
+        what = "all at one point" if span[t] < CAPTURE_SPAN[0] else f"{span[t]:.3g} times the face's size apart"
+        raise InputError(f"frame {t}: the markers are {what}: no capture of this face (another unit, or markers "
+                         f"that were not tracked?)", path)
+
+
 def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem-ls", markers=None,
                smooth="off", progress=None) -> SolvedCapture:
     """Read the marker sequence ``capture`` and solve it on ``rig`` with ``fitter``.
@@ -183,6 +219,7 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
         if exc.path:
             raise
         raise InputError(exc.reason, capture) from None
+    check_capture_range(seq.positions, rig.neutral[ids], capture)
     try:
         res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
     except InputError as exc:
