@@ -277,3 +277,58 @@ def test_a_capture_no_face_has_is_refused_before_the_solve(tmp_path, face_model,
     t0 = time.monotonic()
     _one_line(_run("solve", tmp_path / "cap.csv", "-o", tmp_path / "c.npz"), words, "cap.csv")
     assert time.monotonic() - t0 < 60 and not (tmp_path / "c.npz").exists()
+
+
+# ----------------------------------------------------------------------------- npz: declared against held
+def _forged_npz(path, declared=(50_000, 10_000, 3), extra=None):
+    """An npz whose 'deltas' header declares 12 GB and whose data is 80 bytes (the file is a few hundred bytes)."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, arr in (extra or {}).items():
+            buf = io.BytesIO()
+            np.save(buf, arr)
+            zf.writestr(name + ".npy", buf.getvalue())
+        buf = io.BytesIO()
+        np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": declared})
+        buf.write(b"\0" * 80)
+        zf.writestr("deltas.npy", buf.getvalue())
+
+
+def test_a_rig_npz_declaring_more_than_it_holds_is_refused_before_allocating(tmp_path):
+    import numpy as np
+
+    from facegeom.model import BlendshapeRig
+
+    f = tmp_path / "rig.npz"
+    _forged_npz(f, extra={"neutral": np.zeros((4, 3)), "names": np.array(["a"]), "triangles": np.zeros((1, 3), int),
+                          "landmark_ids": np.zeros(0, int)})
+    with pytest.raises(InputError, match=r"array 'deltas' declares shape \(50000, 10000, 3\) \(12.0 GB\) but holds"):
+        BlendshapeRig.from_npz(f)
+    _one_line(_run("fit", "--rig", f, tmp_path / "x.csv", "-o", tmp_path / "w.json"), "rig.npz", "declares shape")
+
+
+def test_npz_captures_curves_and_index_maps_check_their_headers_too(tmp_path):
+    import numpy as np
+
+    from facegeom.io import read_marker_sequence
+    from facegeom.io.npzcheck import check_npz
+    from facegeom.pipelines.cleanup.indexmap import IndexMap
+
+    f = tmp_path / "cap.npz"
+    _forged_npz(f)
+    for read in (read_marker_sequence, IndexMap.load):
+        with pytest.raises(InputError, match="declares shape"):
+            read(f)
+    obj = tmp_path / "obj.npz"
+    np.savez(obj, markers=np.array([object(), 1], dtype=object))
+    with pytest.raises(InputError, match="Python objects"):
+        check_npz(obj)
+    ok = tmp_path / "ok.npz"
+    np.savez_compressed(ok, markers=np.zeros((5, 4, 3)))
+    assert check_npz(ok) == 5 * 4 * 3 * 8
+    with pytest.raises(InputError, match="more than this machine can spare"):
+        check_npz(ok, budget=100)

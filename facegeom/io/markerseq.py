@@ -100,6 +100,9 @@ def _read_csv(path: Path) -> MarkerSequence:
 
 
 def _read_npz(path: Path) -> MarkerSequence:
+    from facegeom.io.npzcheck import check_npz
+
+    check_npz(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             a = {k: z[k] for k in z.files}

@@ -452,6 +452,9 @@ class BlendshapeRig:
         path = Path(path)
         if not path.is_file():
             raise InputError("file not found" if not path.exists() else "not a file", path)
+        from facegeom.io.npzcheck import check_npz
+
+        check_npz(path)  # declared shapes against what the file holds, before anything is allocated
         try:
             with np.load(path, allow_pickle=False) as z:
                 missing = [k for k in cls.NPZ_KEYS if k not in z.files]

@@ -416,6 +416,9 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
         W = _onto_rig(path, rig, take.names, take.weights)
         fps = take_fps(take)
         return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))
+    from facegeom.io.npzcheck import check_npz
+
+    check_npz(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             if "weights" not in z or "names" not in z:

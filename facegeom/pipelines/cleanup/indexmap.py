@@ -192,8 +192,11 @@ class IndexMap:
         if not path.is_file():
             raise InputError("file not found", path)
         if path.suffix.lower() == ".npz":
+            from facegeom.io.npzcheck import check_npz
+
+            check_npz(path)
             try:
-                with np.load(path) as z:
+                with np.load(path, allow_pickle=False) as z:
                     return cls(z["old_to_new"], z["new_to_old"], z["step"])
             except (KeyError, ValueError, OSError) as exc:
                 raise InputError(f"not an index map ({exc.__class__.__name__})", path) from None

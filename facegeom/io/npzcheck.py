@@ -1,0 +1,86 @@
+"""What an ``.npz`` says against what it holds, before any array is loaded.
+
+An ``.npz`` is a zip of ``.npy`` members, each with a header that declares its
+array's shape and dtype. ``numpy.load`` allocates what the header declares
+before reading the data, so a 4.6 MB file declaring 4.5 GB of deltas used to
+be allocated (and then fail with a traceback). :func:`check_npz` reads only the
+zip directory and each member's header: a member that declares more bytes than
+it holds, an object array, or arrays larger than this machine can spare are
+refused in one line naming the file and the member.
+"""
+from __future__ import annotations
+
+import os
+import zipfile
+from math import prod
+from pathlib import Path
+
+import numpy as np
+
+from facegeom.errors import InputError
+
+__all__ = ["check_npz", "memory_budget"]
+
+
+def memory_budget() -> int:
+    """Bytes a file's arrays may take: half of this machine's memory (8 GiB when it cannot be told)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")) // 2
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:,.1f} MB" if n < 1e9 else f"{n / 1e9:,.1f} GB"
+
+
+def _header(fh):
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        return np.lib.format.read_array_header_1_0(fh)
+    if version == (2, 0):
+        return np.lib.format.read_array_header_2_0(fh)
+    return np.lib.format._read_array_header(fh, version)  # 3.0: a utf-8 header, same fields
+
+
+def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
+    """Check every member's declared array against the bytes it holds -> the arrays' total bytes.
+
+    Raises
+    ------
+    InputError
+        Not a zip; a member whose header cannot be read; an object array (a
+        pickle); a member declaring more bytes than it holds; arrays larger in
+        all than ``budget`` (default :func:`memory_budget`).
+    """
+    path = Path(path)
+    budget = memory_budget() if budget is None else int(budget)
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                name = info.filename[:-4]
+                try:
+                    with zf.open(info) as fh:
+                        shape, _, dtype = _header(fh)
+                        start = fh.tell()
+                except (ValueError, OSError, EOFError, zipfile.BadZipFile, RuntimeError) as exc:
+                    raise InputError(f"array {name!r}: unreadable header ({type(exc).__name__})", path) from None
+                if dtype.hasobject:
+                    raise InputError(f"array {name!r} holds Python objects (a pickle), which are not read", path)
+                need = prod(int(s) for s in shape) * dtype.itemsize
+                held = info.file_size - start
+                if need > held:
+                    raise InputError(f"array {name!r} declares shape {tuple(shape)} ({_mb(need)}) but holds "
+                                     f"{_mb(max(held, 0))}: a damaged or forged file", path)
+                total += need
+                if total > budget:
+                    raise InputError(f"its arrays need more than {_mb(budget)}, more than this machine can spare "
+                                     f"(half of its memory)", path)
+    except zipfile.BadZipFile:
+        raise InputError("cannot read as npz (not a zip archive)", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
+    return total
