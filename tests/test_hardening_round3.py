@@ -332,3 +332,40 @@ def test_npz_captures_curves_and_index_maps_check_their_headers_too(tmp_path):
     assert check_npz(ok) == 5 * 4 * 3 * 8
     with pytest.raises(InputError, match="more than this machine can spare"):
         check_npz(ok, budget=100)
+
+
+# ----------------------------------------------------------------------------- .glb animations
+def test_a_glb_accessor_without_data_cannot_ask_for_gigabytes(tmp_path):
+    import json
+    import struct
+
+    from facegeom.io.gltf import read_glb_animation
+
+    doc = {"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+           "accessors": [{"componentType": 5126, "count": 100_000_000, "type": "VEC3"}]}
+    j = json.dumps(doc).encode()
+    j += b" " * (-len(j) % 4)
+    f = tmp_path / "bomb.glb"
+    f.write_bytes(b"glTF" + struct.pack("<II", 2, 20 + len(j)) + struct.pack("<II", len(j), 0x4E4F534A) + j)
+    with pytest.raises(InputError, match="more than a file of this size can describe"):
+        read_glb_animation(f)
+
+
+def test_playing_a_glb_rig_without_an_animation_says_so(tmp_path):
+    import numpy as np
+    import pygltflib
+
+    from facegeom.io.gltf import write_rig_glb
+    from facegeom.pipelines.solve import read_animation
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    D = np.zeros((2, 4, 3))
+    D[0, 3, 2] = 0.5
+    write_rig_glb(tmp_path / "a.glb", V, np.array([[0, 1, 2], [1, 3, 2]]), D, ["a", "b"], np.full((3, 2), 0.5), 30.0)
+    g = pygltflib.GLTF2().load(str(tmp_path / "a.glb"))
+    g.animations = []
+    g.save(str(tmp_path / "still.glb"))
+    with pytest.raises(InputError, match="no weights animation to play") as e:
+        read_animation(tmp_path / "still.glb")
+    assert "still.glb" in str(e.value)

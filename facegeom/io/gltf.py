@@ -894,7 +894,7 @@ def _accessor(doc, blob: bytes, index, path, what: str) -> np.ndarray:
         return blob
 
     return _decode_accessor(doc, own, index, path, what, dtypes=_DTYPES, kinds=_COMPONENTS, sparse=False,
-                            normalize=False)
+                            normalize=False, max_values=_BASE_VALUES + _VALUES_PER_BYTE * len(blob))
 
 
 def _decode_accessor(doc, data_of, index, path, what: str, *, dtypes=None, kinds=None, sparse: bool = True,

@@ -402,6 +402,9 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
         from facegeom.io.gltf import read_glb_animation
 
         g = read_glb_animation(path)
+        if g.weights.shape[0] == 0:
+            raise InputError("the .glb has no weights animation to play (a rig without curves: drive or fit it "
+                             "first, or play curves solved for it)", path)
         fps = g.fps if g.fps else DEFAULT_FPS
         return RigAnimation(g.neutral / GLB_SCALE, g.faces, g.deltas / GLB_SCALE, tuple(g.names), g.weights,
                             float(fps), str(path))
