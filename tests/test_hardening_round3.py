@@ -369,3 +369,13 @@ def test_playing_a_glb_rig_without_an_animation_says_so(tmp_path):
     with pytest.raises(InputError, match="no weights animation to play") as e:
         read_animation(tmp_path / "still.glb")
     assert "still.glb" in str(e.value)
+
+
+def test_all_methods_into_an_existing_file_is_one_line_exit_2(tmp_path):
+    mesh = tmp_path / "m.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 2 4 3\n")
+    markers = tmp_path / "mk.csv"
+    markers.write_text("vertex_id,x,y,z\n0,0,0,0\n1,1,0,0\n2,0,1,0\n")
+    (tmp_path / "afile").write_text("keep me")
+    _one_line(_run("drive", mesh, markers, "-m", "all", "-o", tmp_path / "afile"), "afile", "is a file")
+    assert (tmp_path / "afile").read_text() == "keep me"

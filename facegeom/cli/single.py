@@ -11,11 +11,21 @@ from facegeom.cli.identity import IMAGE_HELP
 from facegeom.cli.rigopts import load_cli_rig, rig_options, rig_options_given
 
 
-def _make_folder(folder) -> list[Path]:
-    """Create ``folder`` and its missing parents; return the folders created (outermost first)."""
+def _make_folder(folder, role: str = "with --method all the output is a folder (one file per method)") -> list[Path]:
+    """Create ``folder`` and its missing parents; return the folders created (outermost first).
+
+    A file in the way is one line naming it and ``role`` (why a folder is expected there)."""
+    from facegeom.errors import InputError
+
     folder = Path(folder)
+    for p in [folder, *folder.parents]:
+        if p.exists() and not p.is_dir():
+            raise InputError(f"is a file; {role}", p)
     missing = [p for p in [folder, *folder.parents] if not p.exists()][::-1]
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder ({exc.strerror or exc})", folder) from None
     return missing
 
 
@@ -299,7 +309,7 @@ def animate(obj: Context, take_path, takes_path, start, frames, labels, seed, re
     out = Path(output)
     if out.suffix.lower() != ".npz":
         raise InputError("the output must be a .npz file", out)
-    created = _make_folder(obj_dir) if obj_dir else []
+    created = _make_folder(obj_dir, "the OBJ frames go into a folder") if obj_dir else []
     try:  # the npz and every OBJ, or nothing (a folder made here is removed again)
         with all_or_nothing([out] + objs) as tmps:
             write_animation_npz(tmps[0], anim, ids)
