@@ -379,3 +379,13 @@ def test_all_methods_into_an_existing_file_is_one_line_exit_2(tmp_path):
     (tmp_path / "afile").write_text("keep me")
     _one_line(_run("drive", mesh, markers, "-m", "all", "-o", tmp_path / "afile"), "afile", "is a file")
     assert (tmp_path / "afile").read_text() == "keep me"
+
+
+def test_a_mesh_vertex_at_1e308_is_refused_by_every_mesh_command(tmp_path):
+    f = tmp_path / "far.obj"
+    f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e308 1 1\nf 1 2 3\nf 2 4 3\n")
+    for args in (["clean", f, tmp_path / "o.obj", "--merge-tol", "1%"], ["decimate", f, tmp_path / "o.obj",
+                                                                         "--vertices", "4"],
+                 ["crop", f, tmp_path / "o.obj", "--id-range", "0:3"]):
+        _one_line(_run(*args), "far.obj", "vertex 4 has a coordinate of 1e+308")
+    assert not (tmp_path / "o.obj").exists()

@@ -31,6 +31,9 @@ __all__ = [
 
 MESH_FORMATS = (".obj", ".ply", ".off")
 
+#: The largest vertex coordinate read (a light year is 1e19 mm; squared distances of 1e154 overflow double precision).
+MAX_COORDINATE = 1e12
+
 
 def _check_mesh_path(path: Path) -> None:
     if not path.exists():
@@ -59,7 +62,7 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     Raises
     ------
     InputError
-        Missing, empty, unreadable or malformed file; NaN/inf coordinates;
+        Missing, empty, unreadable or malformed file; NaN/inf coordinates or beyond :data:`MAX_COORDINATE`;
         faces indexing past the vertex count. The message names the file.
     """
     mesh = read_polygon_mesh(path)
@@ -93,6 +96,11 @@ def read_polygon_mesh(path: str | os.PathLike) -> MeshData:
         raise InputError("malformed mesh: no vertex could be read", path)
     if mesh.n_faces == 0:
         raise InputError("the mesh has no face", path)
+    big = np.abs(mesh.vertices).max(axis=1) > MAX_COORDINATE
+    if big.any():
+        k = int(np.flatnonzero(big)[0])
+        raise InputError(f"vertex {k + 1} has a coordinate of {np.abs(mesh.vertices[k]).max():.3g}: beyond "
+                         f"{MAX_COORDINATE:g} in any unit no real mesh reaches, and distances overflow", path)
     return mesh
 
 
