@@ -389,3 +389,25 @@ def test_a_mesh_vertex_at_1e308_is_refused_by_every_mesh_command(tmp_path):
                  ["crop", f, tmp_path / "o.obj", "--id-range", "0:3"]):
         _one_line(_run(*args), "far.obj", "vertex 4 has a coordinate of 1e+308")
     assert not (tmp_path / "o.obj").exists()
+
+
+def test_image_size_follows_the_exif_orientation_and_ignores_the_bomb_guard(tmp_path):
+    import warnings
+
+    from PIL import Image
+
+    from facegeom.io.fitfiles import image_size
+
+    im = Image.new("RGB", (64, 48))
+    exif = Image.Exif()
+    exif[0x0112] = 6  # shown turned by 90 degrees: a phone held upright
+    im.save(tmp_path / "portrait.jpg", exif=exif)
+    im.save(tmp_path / "plain.jpg")
+    assert image_size(tmp_path / "portrait.jpg") == (48, 64)
+    assert image_size(tmp_path / "plain.jpg") == (64, 48)
+    big = tmp_path / "big.png"
+    Image.new("1", (12_000, 9_000)).save(big)  # 108 megapixels, a small file
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert image_size(big) == (12_000, 9_000)
+    assert Image.MAX_IMAGE_PIXELS is not None  # the guard is back for whoever decodes pixels
