@@ -411,3 +411,43 @@ def test_image_size_follows_the_exif_orientation_and_ignores_the_bomb_guard(tmp_
         warnings.simplefilter("error")
         assert image_size(big) == (12_000, 9_000)
     assert Image.MAX_IMAGE_PIXELS is not None  # the guard is back for whoever decodes pixels
+
+
+# ----------------------------------------------------------------------------- C3D: what the file says against what it holds
+def _c3d(path, T=4, fps=100.0):
+    import numpy as np
+
+    from facegeom.io.c3d import write_c3d
+
+    P = np.random.default_rng(0).normal(size=(T, 3, 3)) * 10 + 100
+    write_c3d(path, P, ["a", "b", "c"], fps)
+    return path
+
+
+def test_a_c3d_whose_data_block_points_into_its_parameters_is_refused(tmp_path):
+    import struct
+
+    from facegeom.io.c3d import read_c3d
+
+    f = _c3d(tmp_path / "a.c3d")
+    b = bytearray(f.read_bytes())
+    b[16:18] = struct.pack("<H", b[0])  # the data section now starts at the parameter section's first block
+    f.write_bytes(bytes(b))
+    with pytest.raises(InputError, match="starts inside the parameter section"):
+        read_c3d(f)
+
+
+def test_a_c3d_longer_than_its_16_bit_frame_count_says_so(tmp_path):
+    from facegeom.io.c3d import read_c3d
+
+    f = _c3d(tmp_path / "long.c3d", T=65_535, fps=200.0)
+    f.write_bytes(f.read_bytes() + b"\0" * (3 * 16 * 100))  # 100 frames more than the header can count
+    with pytest.raises(InputError, match=r"16-bit limit, but the data holds 65,63\d"):
+        read_c3d(f)
+
+
+def test_a_c3d_frame_rate_no_capture_has_is_refused(tmp_path):
+    from facegeom.io.c3d import read_c3d
+
+    with pytest.raises(InputError, match="POINT:RATE is 1e"):
+        read_c3d(_c3d(tmp_path / "fast.c3d", fps=1e38))

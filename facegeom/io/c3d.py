@@ -48,6 +48,9 @@ __all__ = ["read_c3d", "write_c3d", "C3D_UNITS"]
 #: Length units a C3D file may state in ``POINT:UNITS`` (case-insensitive).
 C3D_UNITS: tuple[str, ...] = tuple(UNIT_SCALE)
 
+#: The fastest frame rate read (high-speed optical systems reach a few thousand frames a second).
+MAX_RATE = 10_000
+
 _KEY = 0x50
 _MAX_FRAMES = 65535  # ezc3d writes the frame count in 16 bits: a longer sequence would read back cut short
 _PROCESSORS = {84: "<", 85: "<", 86: ">"}  # Intel, DEC (VAX floats, little-endian words), MIPS (big-endian)
@@ -132,6 +135,10 @@ def _check_header(path: Path, size: int) -> None:
     if data_block < 2 or (data_block - 1) * 512 > size:
         raise InputError(f"truncated or corrupt C3D: the data section (block {data_block}) lies outside the "
                          f"{size}-byte file", path)
+    if param_block <= data_block < param_block + n_blocks:
+        raise InputError(f"corrupt C3D: the data section (block {data_block}) starts inside the parameter section "
+                         f"(blocks {param_block}-{param_block + n_blocks - 1}): its samples would be parameter "
+                         f"bytes", path)
     if last < first:
         raise InputError(f"corrupt C3D: last frame {last} before first frame {first}", path)
     if n_points == 0:
@@ -142,6 +149,13 @@ def _check_header(path: Path, size: int) -> None:
     if need > size:
         raise InputError(f"truncated C3D: {frames} frames of {n_points} markers need {need} bytes, the file has "
                          f"{size}", path)
+    per_frame = (4 * n_points + n_analog) * word
+    held = (size - (data_block - 1) * 512) // per_frame
+    if last == _MAX_FRAMES and (held - frames) * per_frame >= 512:  # the count saturated and the data goes on
+        # (beyond the padding to a 512-byte block that writers add)
+        raise InputError(f"the header counts {frames:,} frames, its 16-bit limit, but the data holds {held:,}: "
+                         f"only the first {frames:,} could be read; export the capture in parts of at most "
+                         f"{_MAX_FRAMES:,} frames", path)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -254,6 +268,8 @@ def _to_sequence(a: dict, path: Path) -> MarkerSequence:
     fps = float(rate[0])
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"POINT:RATE is {fps}, not a positive frame rate", path)
+    if fps > MAX_RATE:
+        raise InputError(f"POINT:RATE is {fps:g} frames a second: no capture runs faster than {MAX_RATE:,}", path)
 
     unit = None
     if a["units"].size:

@@ -203,7 +203,10 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
     seq = read_marker_sequence(capture)
     notes = []
     own = getattr(getattr(rig, "frame", None), "units", RIG_UNIT)
-    if getattr(seq, "unit", None) is None and own != RIG_UNIT:
+    if getattr(seq, "unit", None) is None and Path(capture).suffix.lower() == ".c3d":
+        seq = replace(seq, unit="mm")  # what motion-capture systems write when they leave POINT:UNITS out
+        notes.append(f"{Path(capture).name}: states no POINT:UNITS; read in millimetres, the unit C3D files use")
+    elif getattr(seq, "unit", None) is None:
         seq = replace(seq, unit=own)
         notes.append(f"{Path(capture).name}: states no length unit; read in the rig's own unit, {own}")
     if getattr(seq, "unit", None) is not None:
