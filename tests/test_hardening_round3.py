@@ -451,3 +451,37 @@ def test_a_c3d_frame_rate_no_capture_has_is_refused(tmp_path):
 
     with pytest.raises(InputError, match="POINT:RATE is 1e"):
         read_c3d(_c3d(tmp_path / "fast.c3d", fps=1e38))
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "geteuid") or __import__("os").geteuid() == 0,
+                    reason="root writes into read-only folders")
+def test_a_rig_folder_in_a_read_only_folder_is_named_not_its_hidden_temporary(tmp_path, face_model):
+    import os
+
+    from facegeom.cli.identity import write_rig
+    from facegeom.model import BlendshapeRig
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    os.chmod(ro, 0o555)
+    try:
+        with pytest.raises(InputError) as e:
+            write_rig(BlendshapeRig.from_face_model(face_model), ro / "rig")
+    finally:
+        os.chmod(ro, 0o755)
+    assert "ro/rig" in str(e.value) and "/." not in str(e.value) and not list(ro.iterdir())
+
+
+def test_a_rig_folder_that_cannot_be_made_is_named_not_its_hidden_temporary(tmp_path, face_model, monkeypatch):
+    import tempfile
+
+    from facegeom.cli.identity import write_rig
+    from facegeom.model import BlendshapeRig
+
+    def refuse(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refuse)
+    with pytest.raises(InputError, match="cannot create the rig folder") as e:
+        write_rig(BlendshapeRig.from_face_model(face_model), tmp_path / "rig")
+    assert str(e.value).startswith(str(tmp_path / "rig") + ":")

@@ -96,12 +96,23 @@ def write_rig(rig, path) -> Path:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError("the parent folder does not exist", path)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write here: the folder {parent} is not writable", path)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
+    except OSError as exc:  # the error names the rig folder, not the hidden one it would be built in
+        raise InputError(f"cannot create the rig folder ({exc.strerror or exc})", path) from None
     try:
         rig.write_obj_folder(tmp)
         if path.exists():
             path.rmdir()
         os.replace(tmp, path)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise InputError(f"cannot write the rig folder ({exc.strerror or exc})", path) from None
+    except InputError as exc:  # named after the rig folder, not the hidden one it was built in
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise InputError(str(exc.reason).replace(str(tmp), str(path)), path) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
