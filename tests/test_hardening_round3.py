@@ -485,3 +485,11 @@ def test_a_rig_folder_that_cannot_be_made_is_named_not_its_hidden_temporary(tmp_
     with pytest.raises(InputError, match="cannot create the rig folder") as e:
         write_rig(BlendshapeRig.from_face_model(face_model), tmp_path / "rig")
     assert str(e.value).startswith(str(tmp_path / "rig") + ":")
+
+
+def test_a_batch_output_through_dot_dot_makes_no_folder_on_the_way(tmp_path):
+    from facegeom.pipelines.batch.job import job_from_dict
+
+    j = job_from_dict({"operation": "fit", "inputs": "in/*.csv", "output": "o7/../o7b",
+                       "shared": {"focal": 800.0, "cx": 320.0, "cy": 240.0}}, base=tmp_path, source="job.toml")
+    assert j.output == tmp_path / "o7b"

@@ -256,7 +256,7 @@ def job_from_dict(d: dict, base: str | os.PathLike | None = None, source: str = 
     def absolute(x: str) -> str:
         return str(Path(os.path.expanduser(x)) if os.path.isabs(os.path.expanduser(x)) else base / x)
 
-    out = Path(absolute(output))
+    out = Path(os.path.normpath(absolute(output)))  # o7/../o7b is o7b: no o7 made on the way
     if out.exists() and not out.is_dir():
         raise job_error(source, f"output {out}: is a file; the output is a folder")
     return Job(operation=op_name, inputs=[absolute(x) for x in inputs], output=out,
