@@ -493,3 +493,16 @@ def test_a_batch_output_through_dot_dot_makes_no_folder_on_the_way(tmp_path):
     j = job_from_dict({"operation": "fit", "inputs": "in/*.csv", "output": "o7/../o7b",
                        "shared": {"focal": 800.0, "cx": 320.0, "cy": 240.0}}, base=tmp_path, source="job.toml")
     assert j.output == tmp_path / "o7b"
+
+
+def test_a_display_without_a_server_is_one_line_and_nothing_after_it(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "DISPLAY": ":99", "WAYLAND_DISPLAY": ""}
+    r = subprocess.run([sys.executable, "-m", "facegeom", "view", "drive"], capture_output=True, text=True, env=env,
+                       timeout=120, cwd=tmp_path)
+    if r.returncode == 0:
+        pytest.skip("a display answered on :99")
+    _one_line(r, "could not start a renderer")

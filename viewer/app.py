@@ -85,10 +85,27 @@ def init_polyscope(headless: bool = False) -> str:
         try:
             ps.init()
         except Exception as exc:  # noqa: BLE001
+            _forget_polyscope_shutdown()
             hint = (" (headless rendering needs EGL: apt install libegl1 libegl-mesa0 libgl1-mesa-dri)"
                     if headless else "")
             raise InputError(f"polyscope could not start a renderer: {exc}{hint}") from None
     return ps.get_render_engine_backend_name()
+
+
+def _forget_polyscope_shutdown() -> None:
+    """Polyscope's bindings shut it down at exit, which raises when it never started: a block after our one line.
+
+    Python reports an exception of an exit callback through ``sys.unraisablehook``; that one report is dropped,
+    any other goes to the hook as before.
+    """
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if isinstance(unraisable.exc_value, RuntimeError) and "has not been initialized" in str(unraisable.exc_value):
+            return
+        previous(unraisable)
+
+    sys.unraisablehook = hook
 
 
 def parse_size(text: str) -> tuple[int, int]:
