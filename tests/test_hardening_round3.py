@@ -506,3 +506,26 @@ def test_a_display_without_a_server_is_one_line_and_nothing_after_it(tmp_path):
     if r.returncode == 0:
         pytest.skip("a display answered on :99")
     _one_line(r, "could not start a renderer")
+
+
+def test_a_ply_of_triangle_strips_is_read_as_triangles(tmp_path):
+    """Scanners' and old Stanford PLYs (igea.ply) hold a ``tristrips`` element, -1 restarting a strip."""
+    import numpy as np
+
+    from facegeom.io import read_mesh
+
+    V = [(x, y, 0.0) for y in range(3) for x in range(3)]
+    strips = [0, 3, 1, 4, 2, 5, -1, 3, 6, 4, 7, 5, 8]
+    head = ("ply\nformat ascii 1.0\nelement vertex 9\nproperty float x\nproperty float y\nproperty float z\n"
+            "element tristrips 1\nproperty list int int vertex_indices\nend_header\n")
+    f = tmp_path / "strips.ply"
+    f.write_text(head + "".join(f"{x} {y} {z}\n" for x, y, z in V) + f"{len(strips)} "
+                 + " ".join(map(str, strips)) + "\n")
+    V2, F = read_mesh(f)
+    assert F.shape == (8, 3)
+    n = np.cross(V2[F[:, 1]] - V2[F[:, 0]], V2[F[:, 2]] - V2[F[:, 0]])[:, 2]
+    assert (np.sign(n) == np.sign(n[0])).all()  # one winding across both strips
+    assert sorted(map(tuple, np.sort(F, axis=1))) == sorted({tuple(sorted(t)) for t in map(tuple, F)})
+    f.write_text(head + "".join(f"{x} {y} {z}\n" for x, y, z in V) + "4 0 3 1 -7\n")
+    with pytest.raises(InputError, match="negative index other than -1"):
+        read_mesh(f)

@@ -5,7 +5,8 @@ have any numeric type, next to any other properties (normals, colours,
 quality, texture coordinates, lists); a ``face`` element with a list
 ``vertex_indices`` (or ``vertex_index``) of any integer count and index types,
 next to other properties, other lists included (per-face texture coordinates);
-polygons of any size, mixed; every other element (edges, materials, ...) is
+polygons of any size, mixed; a ``tristrips`` element (triangle strips, ``-1``
+restarting a strip, as in scanners' and old Stanford files), as triangles; every other element (edges, materials, ...) is
 skipped, in every encoding; ``comment`` and ``obj_info`` lines.
 
 Checked before anything is allocated: the magic, the format, element counts
@@ -120,14 +121,38 @@ def _wanted(elem: _Element, path: Path) -> dict[int, str]:
                 raise InputError(f"the vertex property {axis!r} is a list", path)
             want[k] = axis
         return want
-    if elem.name == "face":
+    if elem.name in ("face", "tristrips"):
         for k, p in enumerate(elem.props):
             if p.name in _INDEX_LISTS:
                 if p.count_code is None or p.code[0] not in "iu":
-                    raise InputError(f"the face property {p.name!r} must be a list of integers", path)
-                return {k: "corners"}
-        raise InputError("the face element has no list 'vertex_indices'", path)
+                    raise InputError(f"the {elem.name} property {p.name!r} must be a list of integers", path)
+                return {k: "corners" if elem.name == "face" else "strips"}
+        raise InputError(f"the {elem.name} element has no list 'vertex_indices'", path)
     return {}
+
+
+def _strip_triangles(counts: np.ndarray, items: np.ndarray, path: Path) -> np.ndarray:
+    """Triangle strips (``-1`` restarts a strip) -> triangles ``(t, 3)``, every other one turned to keep the winding;
+    triangles with a repeated corner (the joints of stitched strips) left out."""
+    if items.size > 50_000_000:
+        raise InputError(f"the tristrips hold {items.size:,} indices, more than a mesh reader takes", path)
+    ends = np.cumsum(counts)
+    restart = items == -1
+    if (items[~restart] < 0).any():
+        raise InputError("a triangle strip holds a negative index other than -1", path)
+    # a strip id per index: a new strip at every row start and after every -1
+    starts = np.zeros(items.size, bool)
+    starts[np.r_[0, ends[:-1]][counts > 0]] = True
+    starts[1:] |= restart[:-1]
+    sid = np.cumsum(starts) - 1
+    pos = np.arange(items.size) - np.maximum.accumulate(np.where(starts, np.arange(items.size), 0))
+    ok = ~restart
+    i = np.flatnonzero(ok[:-2] & ok[1:-1] & ok[2:] & (sid[:-2] == sid[2:]) & (pos[:-2] + 2 == pos[2:]))
+    a, b, c = items[i], items[i + 1], items[i + 2]
+    odd = (pos[i] % 2) == 1
+    tri = np.stack([np.where(odd, b, a), np.where(odd, a, b), c], axis=1)
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    return tri[keep].astype(np.int64)
 
 
 def _truncated(elem: _Element, row: int, path: Path) -> InputError:
@@ -416,7 +441,7 @@ def read_ply(path: Path, data: bytes, faces: bool = True) -> MeshData:
     """
     fmt, elements, body = _header(data, path)
     names = [e.name for e in elements]
-    for name in ("vertex", "face"):
+    for name in ("vertex", "face", "tristrips"):
         if names.count(name) > 1:
             raise InputError(f"the PLY header has {names.count(name)} {name} elements", path)
     if "vertex" not in names:
@@ -441,6 +466,10 @@ def read_ply(path: Path, data: bytes, faces: bool = True) -> MeshData:
     V = np.stack([found["x"], found["y"], found["z"]], axis=1)
     check_finite(V, lambda i: f"vertex {i} (0-based)", path)
     counts, corners = found.get("corners", (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    if faces and "strips" in found:  # triangle strips (scanners' and old Stanford files): as triangles
+        tri = _strip_triangles(*found["strips"], path)
+        counts = np.r_[counts, np.full(len(tri), 3, np.int64)]
+        corners = np.r_[corners, tri.ravel()]
     if not faces:
         return MeshData(V, np.zeros(0, np.int64), np.zeros(1, np.int64))
     short = np.flatnonzero(counts < 3)
