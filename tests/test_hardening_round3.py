@@ -529,3 +529,21 @@ def test_a_ply_of_triangle_strips_is_read_as_triangles(tmp_path):
     f.write_text(head + "".join(f"{x} {y} {z}\n" for x, y, z in V) + "4 0 3 1 -7\n")
     with pytest.raises(InputError, match="negative index other than -1"):
         read_mesh(f)
+
+
+def test_decimating_a_fan_around_one_vertex_is_refused_at_once(tmp_path):
+    import time
+
+    import numpy as np
+
+    n = 100_000
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    V = np.r_[[[0.0, 0.0, 0.0]], np.c_[np.cos(t), np.sin(t), np.zeros(n)]]
+    F = np.c_[np.zeros(n, int), 1 + np.arange(n), 1 + (np.arange(n) + 1) % n]
+    f = tmp_path / "fan.obj"
+    with open(f, "w") as fh:
+        np.savetxt(fh, V, fmt="v %.6f %.6f %.6f")
+        np.savetxt(fh, F + 1, fmt="f %d %d %d")
+    t0 = time.monotonic()
+    _one_line(_run("decimate", f, tmp_path / "o.obj", "--vertices", "100"), "fan.obj", "corner of 100,000 faces")
+    assert time.monotonic() - t0 < 60

@@ -153,6 +153,7 @@ def decimate_cmd(mesh_in, mesh_out, n_vertices, preserve_boundary, preserve_topo
     """
     import numpy as np
 
+    from facegeom.errors import InputError
     from facegeom.pipelines.cleanup import decimate
     from facegeom.pipelines.meshinput import read_input_mesh
 
@@ -160,9 +161,14 @@ def decimate_cmd(mesh_in, mesh_out, n_vertices, preserve_boundary, preserve_topo
     V, F = read_input_mesh(mesh_in)
     sources = _prepare_markers(markers, markers_out, V.shape[0])
     keep = np.concatenate([s.ids for s in sources]) if sources else None
-    V2, F2, imap, report = decimate(V, F, n_vertices, preserve_boundary=preserve_boundary,
-                                    preserve_topology=preserve_topology, keep=keep,
-                                    progress=_progress(progress, V.shape[0]))
+    try:
+        V2, F2, imap, report = decimate(V, F, n_vertices, preserve_boundary=preserve_boundary,
+                                        preserve_topology=preserve_topology, keep=keep,
+                                        progress=_progress(progress, V.shape[0]))
+    except InputError as exc:  # about the mesh: name it
+        if exc.path:
+            raise
+        raise InputError(exc.reason, mesh_in) from None
     _finish("decimate", mesh_out, V2, F2, imap, report, sources, markers_out, drop_lost_markers, map_path,
             report_path)
 

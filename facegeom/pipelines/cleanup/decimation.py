@@ -15,6 +15,10 @@ from facegeom.pipelines.cleanup.report import Report, StepReport
 __all__ = ["decimate"]
 
 
+#: The most faces a vertex may be a corner of (a scan's poles have tens; a 100,000-face fan ran past 120 s).
+MAX_VALENCE = 10_000
+
+
 def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_topology: bool = False,
              keep=None, progress: Progress = None) -> tuple[np.ndarray, np.ndarray, IndexMap, Report]:
     """Quadric edge-collapse decimation (pymeshlab) down to about ``vertices`` vertices.
@@ -65,6 +69,11 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
     target = int(vertices)
     if target < 4:
         raise InputError(f"the vertex target must be at least 4, got {vertices}")
+    valence = np.bincount(np.asarray(F, dtype=np.int64).ravel(), minlength=V.shape[0])
+    if valence.size and valence.max() > MAX_VALENCE:
+        k = int(valence.argmax())
+        raise InputError(f"vertex {k} is a corner of {int(valence[k]):,} faces: edge collapses around it cost "
+                         f"time quadratic in that (at most {MAX_VALENCE:,}; a fan or a pole no surface mesh has)")
     keep = np.unique(np.asarray([] if keep is None else keep, dtype=np.int64))
     if keep.size and (keep.min() < 0 or keep.max() >= V.shape[0]):
         raise InputError(f"vertex to preserve out of range: the mesh has {V.shape[0]} vertices")
