@@ -250,12 +250,14 @@ def test_photo_landmarks_no_photo_has_are_refused(tmp_path, rows, words):
     assert not (tmp_path / "w.json").exists()
 
 
-@pytest.mark.parametrize("how, words", [
-    ("huge", "face sizes from the origin"),
-    ("point", "all at one point"),
-    ("scale", "times the face's size apart"),
+@pytest.mark.parametrize("how, words, suffix", [
+    ("huge", "face sizes from the origin", ".csv"),
+    ("point", "all at one point", ".csv"),
+    ("scale", "times the face's size apart", ".csv"),
+    ("point", "all at one point", ".c3d"),
+    ("scale30", "face sizes from the origin", ".c3d"),
 ])
-def test_a_capture_no_face_has_is_refused_before_the_solve(tmp_path, face_model, how, words):
+def test_a_capture_no_face_has_is_refused_before_the_solve(tmp_path, face_model, how, words, suffix):
     import time
 
     import numpy as np
@@ -271,11 +273,19 @@ def test_a_capture_no_face_has_is_refused_before_the_solve(tmp_path, face_model,
         P[2, 5, 1] = 1e308
     elif how == "point":
         P[1] = 3.0
+    elif how == "scale30":  # a C3D frame 1e30 times the face about its centre (float32 holds it)
+        P[3] = P[3].mean(axis=0) + 1e30 * (P[3] - P[3].mean(axis=0))
     else:  # a frame blown up 20,000 times about its centre (the 1e30 of the report is also far from the origin)
         P[3] = P[3].mean(axis=0) + 2e4 * (P[3] - P[3].mean(axis=0))
-    write_marker_sequence(tmp_path / "cap.csv", P, names=[f"v{i}" for i in ids])
+    names = [f"v{i}" for i in ids]
+    if suffix == ".c3d":
+        from facegeom.io.c3d import write_c3d
+
+        write_c3d(tmp_path / "cap.c3d", P, names, 60.0, unit="cm")
+    else:
+        write_marker_sequence(tmp_path / "cap.csv", P, names=names)
     t0 = time.monotonic()
-    _one_line(_run("solve", tmp_path / "cap.csv", "-o", tmp_path / "c.npz"), words, "cap.csv")
+    _one_line(_run("solve", tmp_path / f"cap{suffix}", "-o", tmp_path / "c.npz"), words, f"cap{suffix}")
     assert time.monotonic() - t0 < 60 and not (tmp_path / "c.npz").exists()
 
 

@@ -50,17 +50,32 @@ def _remove_folders(created: list[Path]) -> None:
               help="Method parameter, repeatable (e.g. -p d=3 -p rings=2).")
 @click.option("--format", "fmt", type=click.Choice(["obj", "ply", "off"]), default=None,
               help="Mesh format of the per-method files with --method all (default: the input's).")
-def drive(mesh, markers, output, method, params, fmt):
+@click.option("--proxy", default="auto", show_default=True, metavar="auto|off|N",
+              help="Large meshes: solve on a decimated copy of N vertices (markers kept exactly) and move every "
+                   "vertex as its closest point on it; auto: 100,000 for meshes over 150,000 vertices; off: always "
+                   "solve on the mesh itself.")
+def drive(mesh, markers, output, method, params, fmt, proxy):
     """Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."""
     from facegeom import registry
     from facegeom.io import all_or_nothing, check_outputs, read_markers, read_mesh
+    from facegeom.pipelines.proxy import PROXY_ABOVE, ProxyDeformer, proxy_policy
 
     check_outputs([mesh, markers], [] if method == "all" else [output])
+    size = proxy_policy(proxy)
     V, F = read_mesh(mesh)
     ids, pos = read_markers(markers, n_vertices=V.shape[0])
     kw = parse_params(params)
+    shared: dict = {}  # with --method all: one proxy for every method
+
+    def make(name, **kwargs):
+        deformer = registry.create("deformers", name, **kwargs)
+        if size is None:
+            return deformer
+        above = PROXY_ABOVE if proxy.strip().lower() == "auto" else size
+        return ProxyDeformer(deformer, vertices=size, above=above, progress=lambda msg: click.echo(msg, err=True), shared=shared)
+
     if method != "all":
-        _drive_one(registry.create("deformers", method, **kw), method, V, F, ids, pos, output, output)
+        _drive_one(make(method, **kw), method, V, F, ids, pos, output, output)
         return
     if kw:
         raise click.BadParameter("parameters apply to one method; drop --param with --method all",
@@ -74,7 +89,7 @@ def drive(mesh, markers, output, method, params, fmt):
     try:  # every method's mesh or none (and no folder left behind)
         with all_or_nothing(targets) as tmps:
             for name, target, tmp in zip(names, targets, tmps):
-                _drive_one(registry.create("deformers", name), name, V, F, ids, pos, tmp, target)
+                _drive_one(make(name), name, V, F, ids, pos, tmp, target)
     except BaseException:
         _remove_folders(created)
         raise

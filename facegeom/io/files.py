@@ -35,7 +35,7 @@ from typing import Iterable, Sequence
 from facegeom.errors import InputError
 
 __all__ = ["atomic_path", "new_file_mode", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
-           "read_csv_rows", "parse_csv_text"]
+           "read_csv_rows", "iter_csv_rows", "parse_csv_text"]
 
 
 def _umask() -> int:
@@ -273,21 +273,51 @@ def check_writable_folder(path: str | os.PathLike) -> None:
         os.unlink(probe)
 
 
+def _check_csv_path(path: Path, what: str) -> None:
+    if not path.exists():
+        raise InputError("file not found", path)
+    if path.is_dir():
+        raise InputError(f"is a folder, not a {what} file", path)
+
+
 def read_csv_rows(path: Path, what: str) -> list[list[str]]:
     """Every row of the text CSV ``path`` (blank rows included, so indices are line numbers - 1).
 
     One-line errors naming ``path``: missing, a folder (``what`` names the
     expected kind of file), not decodable as UTF-8 text.
     """
-    if not path.exists():
-        raise InputError("file not found", path)
-    if path.is_dir():
-        raise InputError(f"is a folder, not a {what} file", path)
+    _check_csv_path(path, what)
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
     return parse_csv_text(text, path)
+
+
+def iter_csv_rows(path: Path, what: str):
+    """The rows of the text CSV ``path`` one at a time, as ``(line_number, row)``, never the whole file in memory.
+
+    For files that may be large (captures of hundreds of megabytes): memory
+    stays at one row plus what the caller keeps. The same one-line errors as
+    :func:`read_csv_rows`; a decoding error or a malformed row found part-way
+    names its line.
+    """
+    _check_csv_path(path, what)
+    try:
+        f = open(path, encoding="utf-8-sig", newline="")
+    except OSError as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+    with f:
+        reader = csv.reader(f)
+        try:
+            for row in reader:
+                yield reader.line_num, row
+        except UnicodeDecodeError:
+            raise InputError(f"line {reader.line_num + 1}: cannot read as text (UnicodeDecodeError)", path) from None
+        except csv.Error as exc:
+            raise InputError(f"line {reader.line_num}: not a CSV row ({exc})", path) from None
+        except OSError as exc:
+            raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
 
 
 def parse_csv_text(text: str, path) -> list[list[str]]:

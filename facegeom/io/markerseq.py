@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.files import atomic_path, iter_csv_rows
 from facegeom.io.ints import check_int64
 from facegeom.io.sequence import UNIT_SCALE, MarkerSequence
 
@@ -48,17 +48,21 @@ def _check_path(path: Path) -> None:
 
 
 def _read_csv(path: Path) -> MarkerSequence:
-    rows = [r for r in read_csv_rows(path, "marker sequence") if any(c.strip() for c in r)]
-    if not rows:
+    """Stream the long-format CSV: memory is the arrays it fills (about the size of the numbers in the file),
+    never the text or per-row Python objects, so a capture of hundreds of megabytes reads in bounded memory."""
+    from array import array
+
+    rows = ((n, r) for n, r in iter_csv_rows(path, "marker sequence") if any(c.strip() for c in r))
+    first = next(rows, None)
+    if first is None:
         raise InputError("no rows (expected the header frame,marker,x,y,z)", path)
-    header = tuple(c.strip().lower() for c in rows[0])
+    header = tuple(c.strip().lower() for c in first[1])
     if header != SEQUENCE_HEADER:
-        raise InputError(f"wrong columns {','.join(rows[0])}; expected the header frame,marker,x,y,z", path)
-    if len(rows) == 1:
-        raise InputError("no marker rows after the header", path)
+        raise InputError(f"wrong columns {','.join(first[1])}; expected the header frame,marker,x,y,z", path)
     names: dict[str, int] = {}
-    frames: dict[int, dict[int, list[float]]] = {}
-    for line_no, r in enumerate(rows[1:], start=2):
+    frame_of, marker_of, line_of, xyz = array("q"), array("q"), array("q"), array("d")
+    nan = float("nan")
+    for line_no, r in rows:
         if len(r) != 5:
             raise InputError(f"line {line_no}: expected 5 values (frame,marker,x,y,z), got {len(r)}", path)
         try:
@@ -74,29 +78,41 @@ def _read_csv(path: Path) -> MarkerSequence:
         if not name:
             raise InputError(f"line {line_no}: empty marker name", path)
         try:
-            xyz = [float(c) if c.strip() else float("nan") for c in r[2:]]
+            xyz.extend([float(c) if c.strip() else nan for c in r[2:]])
         except ValueError:
             raise InputError(f"line {line_no}: a coordinate is not a number", path) from None
-        if any(np.isinf(xyz)):
-            raise InputError(f"line {line_no}: a coordinate is infinite", path)
-        j = names.setdefault(name, len(names))
-        row = frames.setdefault(f, {})
-        if j in row:
-            raise InputError(f"line {line_no}: marker {name!r} appears twice in frame {f}", path)
-        row[j] = xyz
-    p = len(names)
-    order = sorted(frames)
-    P = np.full((len(order), p, 3), np.nan)
-    inv = list(names)
-    for i, f in enumerate(order):
-        row = frames[f]
-        if len(row) != p:
-            missing = next(inv[j] for j in range(p) if j not in row)
-            raise InputError(f"frame {f} has {len(row)} markers but the file has {p} (marker {missing!r} is "
-                             f"absent; write an empty or nan coordinate for a lost marker)", path)
-        for j, xyz in row.items():
-            P[i, j] = xyz
-    return MarkerSequence(np.array(order, dtype=np.int64), tuple(inv), P, str(path))
+        frame_of.append(f)
+        marker_of.append(names.setdefault(name, len(names)))
+        line_of.append(line_no)
+    if not frame_of:
+        raise InputError("no marker rows after the header", path)
+    X = np.frombuffer(xyz, dtype=np.float64).reshape(-1, 3)
+    lines = np.frombuffer(line_of, dtype=np.int64)
+    bad = np.isinf(X).any(axis=1)
+    if bad.any():
+        raise InputError(f"line {int(lines[bad].min())}: a coordinate is infinite", path)
+    order, t = np.unique(np.frombuffer(frame_of, dtype=np.int64), return_inverse=True)
+    j = np.frombuffer(marker_of, dtype=np.int64)
+    p, inv = len(names), list(names)
+    key = t * p + j
+    srt = np.argsort(key, kind="stable")
+    again = np.zeros(len(key), dtype=bool)
+    again[srt[1:]] = key[srt[1:]] == key[srt[:-1]]
+    if again.any():
+        k = int(np.flatnonzero(again)[np.argmin(lines[again])])
+        raise InputError(f"line {int(lines[k])}: marker {inv[j[k]]!r} appears twice in frame {int(order[t[k]])}",
+                         path)
+    count = np.bincount(t, minlength=len(order))
+    if (count != p).any():
+        i = int(np.flatnonzero(count != p)[0])
+        present = np.zeros(p, dtype=bool)
+        present[j[t == i]] = True
+        missing = inv[int(np.flatnonzero(~present)[0])]
+        raise InputError(f"frame {int(order[i])} has {int(count[i])} markers but the file has {p} (marker "
+                         f"{missing!r} is absent; write an empty or nan coordinate for a lost marker)", path)
+    P = np.empty((len(order), p, 3))
+    P[t, j] = X
+    return MarkerSequence(order.astype(np.int64), tuple(inv), P, str(path))
 
 
 def _read_npz(path: Path) -> MarkerSequence:

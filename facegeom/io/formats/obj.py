@@ -55,6 +55,66 @@ def _records(lines: list[bytes], index: np.ndarray, keyword: bytes) -> tuple[lis
     return list(compress(tokens, (~marks).tolist())), np.diff(np.r_[at, len(tokens)]) - 1
 
 
+#: Bytes parsed at a time: the per-line and per-token Python objects of one part stay around 30 times its size,
+#: so a 250 MB file reads in about its own size plus the arrays, not 4 GB.
+CHUNK_BYTES = 8 << 20
+
+
+def _parts(data: bytes, size: int):
+    """``data`` in pieces of about ``size`` bytes cut after a newline, each with the number of lines before it."""
+    start, line0 = 0, 0
+    while start < len(data):
+        end = data.find(b"\n", min(start + size, len(data)) - 1)
+        end = len(data) if end < 0 else end + 1
+        part = data[start:end]
+        yield part, line0
+        line0 += part.count(b"\n")
+        start = end
+
+
+def _parse_part(path: Path, data: bytes, line0: int, faces: bool):
+    """The ``v`` and ``f`` records of one part starting after line ``line0``: vertices, their line numbers, the
+    raw face corner indices, corners per face and the faces' line numbers (1-based, of the whole file)."""
+    lines = data.split(b"\n")
+    starts = np.r_[0, np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1]
+    padded = np.r_[np.frombuffer(data, dtype=np.uint8), 10, 10]
+    if _INDENT[padded[starts]].any():
+        lines = list(map(bytes.lstrip, lines))
+        head = np.array([ln[:2].ljust(2, b"\n") for ln in lines], dtype="S2").view(np.uint8).reshape(-1, 2)
+        first, second = head[:, 0], head[:, 1]
+    else:
+        first, second = padded[starts], padded[starts + 1]
+    vlines = np.flatnonzero((first == ord("v")) & _BLANK[second])
+    vtok, vsizes = _records(lines, vlines, b"v")
+    vlines = vlines + 1 + line0
+    short = np.flatnonzero(vsizes < 3)
+    if short.size:
+        raise InputError(f"line {vlines[short[0]]}: a vertex needs three coordinates", path)
+    if (vsizes != 3).any():  # keep x y z of longer rows (w, colours)
+        begin = np.cumsum(vsizes) - vsizes
+        keep = (begin[:, None] + np.arange(3)).ravel()
+        vtok = pick(vtok, keep)
+    row_of_token = lambda i: f"line {vlines[i // 3]}"  # noqa: E731
+    V = parse_floats(vtok, row_of_token, path).reshape(-1, 3)
+    del vtok
+    empty = np.zeros(0, np.int64)
+    if not faces:
+        return V, vlines, empty, empty, empty
+    flines = np.flatnonzero((first == ord("f")) & _BLANK[second])
+    ftok, fsizes = _records(lines, flines, b"f")
+    del lines
+    if b"/" in data:
+        ftok = [_SLASH.sub(rb"\1", t) if b"/" in t else t for t in ftok]
+    flines = flines + 1 + line0
+    short = np.flatnonzero(fsizes < 3)
+    if short.size:
+        k = short[0]
+        raise InputError(f"line {flines[k]}: a face needs at least 3 vertices, got {fsizes[k]}", path)
+    face_of = np.repeat(np.arange(fsizes.size), fsizes)
+    raw = parse_ints(ftok, lambda i: f"line {flines[face_of[i]]}", path)
+    return V, vlines, raw, fsizes, flines
+
+
 def read_obj(path: Path, data: bytes, faces: bool = True) -> MeshData:
     """Parse the OBJ ``data`` read from ``path``.
 
@@ -81,44 +141,22 @@ def read_obj(path: Path, data: bytes, faces: bool = True) -> MeshData:
         data = data.replace(b"\r", b"\n")
     if b"\\" in data:  # join continued lines; the empty lines added after them keep the line numbers
         data = _CONTINUED.sub(_join, data)
-    lines = data.split(b"\n")
-    starts = np.r_[0, np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1]
-    padded = np.r_[np.frombuffer(data, dtype=np.uint8), 10, 10]
-    if _INDENT[padded[starts]].any():
-        lines = list(map(bytes.lstrip, lines))
-        head = np.array([ln[:2].ljust(2, b"\n") for ln in lines], dtype="S2").view(np.uint8).reshape(-1, 2)
-        first, second = head[:, 0], head[:, 1]
-    else:
-        first, second = padded[starts], padded[starts + 1]
-    vlines = np.flatnonzero((first == ord("v")) & _BLANK[second])
-    vtok, vsizes = _records(lines, vlines, b"v")
-    vlines = vlines + 1
-    short = np.flatnonzero(vsizes < 3)
-    if short.size:
-        raise InputError(f"line {vlines[short[0]]}: a vertex needs three coordinates", path)
-    if (vsizes != 3).any():  # keep x y z of longer rows (w, colours)
-        begin = np.cumsum(vsizes) - vsizes
-        keep = (begin[:, None] + np.arange(3)).ravel()
-        vtok = pick(vtok, keep)
-    row_of_token = lambda i: f"line {vlines[i // 3]}"  # noqa: E731
-    V = parse_floats(vtok, row_of_token, path).reshape(-1, 3)
+    got = [_parse_part(path, part, line0, faces) for part, line0 in _parts(data, CHUNK_BYTES)]
+    if not got:
+        got = [_parse_part(path, data, 0, faces)]
+    V = np.concatenate([g[0] for g in got]) if len(got) > 1 else got[0][0]
+    vlines = np.concatenate([g[1] for g in got])
     check_finite(V, lambda i: f"vertex {i + 1} (line {vlines[i]})", path)
     n = V.shape[0]
     if not faces:
         return MeshData(V, np.zeros(0, np.int64), np.zeros(1, np.int64))
-    flines = np.flatnonzero((first == ord("f")) & _BLANK[second])
-    ftok, fsizes = _records(lines, flines, b"f")
-    if b"/" in data:
-        ftok = [_SLASH.sub(rb"\1", t) if b"/" in t else t for t in ftok]
-    before = np.searchsorted(vlines, flines + 1)  # vertices defined before each face
-    flines = flines + 1
-    short = np.flatnonzero(fsizes < 3)
-    if short.size:
-        k = short[0]
-        raise InputError(f"line {flines[k]}: a face needs at least 3 vertices, got {fsizes[k]}", path)
+    raw = np.concatenate([g[2] for g in got])
+    fsizes = np.concatenate([g[3] for g in got])
+    flines = np.concatenate([g[4] for g in got])
+    del got
+    before = np.searchsorted(vlines, flines)  # vertices defined before each face
     offsets = np.r_[0, np.cumsum(fsizes)].astype(np.int64)
     face_of = np.repeat(np.arange(fsizes.size), fsizes)
-    raw = parse_ints(ftok, lambda i: f"line {flines[face_of[i]]}", path)
     before = before[face_of]
     idx = np.where(raw < 0, before + raw, raw - 1)
     bad = np.flatnonzero((raw == 0) | (idx < 0) | (idx >= n))
