@@ -1,4 +1,4 @@
-# Two entry points for a fresh machine: `make demo` and `make test`.
+# Entry points for a fresh machine: `make demo`, `make test` and `make docs`.
 # Each creates .venv (if missing or stale) and installs the project into it, then makes sure the face
 # data is there: found by the data lookup, else downloaded once (ICT-FaceKit, about 400 MB, verified) into
 # the user cache (`facegeom data fetch`; $FACEGEOM_CACHE, $FACEGEOM_DATA_URL for a mirror), and one public real
@@ -7,8 +7,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.facegeom-installed
+DOCS_STAMP = $(VENV)/.facegeom-docs-installed
 
-.PHONY: demo test face-data install images clean
+.PHONY: demo test face-data install images docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,12 +25,23 @@ face-data: $(STAMP)
 demo: face-data
 	$(BIN)/facegeom demo
 
+# one test process per core (pytest-xdist), each with single-threaded BLAS so they do not oversubscribe the cores
 test: face-data
-	$(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto
 
 # the viewer's README images (renders of the ICT face data: generated here, never committed)
 images: $(STAMP)
 	$(BIN)/python -m facegeom.viewer.make_images --out docs/images
 
+# the documentation site into site/: the pictures from the face data (docs/make_images.py; redrawn only when
+# the code or the data changed), then `mkdocs build --strict` (every warning is an error)
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: face-data $(DOCS_STAMP)
+	$(BIN)/python docs/make_images.py --out docs/images
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info site

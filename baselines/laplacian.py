@@ -89,6 +89,8 @@ class LaplacianDeformer(Params):
         vertex ``i`` from the weighted mean of its 1-ring (the same scale on
         fine and coarse parts of the mesh).
 
+    Notes
+    -----
     ``fit`` builds and factorizes the normal equations once (sparse Cholesky);
     the solution is linear in the marker displacements, so ``deform`` is a
     dense product or one back-substitution.

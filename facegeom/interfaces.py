@@ -15,8 +15,8 @@ Shapes
   :class:`FitResult` (``weights (B,)``, ``vertices (n, 3)``), :func:`fit_many`
   a list of them, one per target
 
-Parameters
-----------
+Method parameters
+-----------------
 Every method class derives from :class:`Params`: each constructor argument is
 stored under its own name, so ``get_params()`` reads them back from the
 ``__init__`` signature, ``set_params(**kw)`` changes some (checked by the

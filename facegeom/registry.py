@@ -260,7 +260,7 @@ LINEUPS: dict[str, list[str]] = {
         "arap",
         "biharmonic",
         "tangent-paper=tangent:d=3,rings=1,field=position,align=none,smoothness=0,beta=None",
-        "tangent-issue3=tangent:smoothness=1,align=rigid,beta=None",
+        "tangent-rigid=tangent:smoothness=1,align=rigid,beta=None",
         "tangent-exact=tangent:beta=None",
         "tangent",
     ],

@@ -147,6 +147,23 @@ def test_solve_onto_the_character(capture, character, tmp_path, capsys, validato
     assert ((motion["rotation"][1:] * motion["rotation"][:-1]).sum(axis=1) > 0).all()  # slerp the short way
 
 
+def test_solve_onto_the_character_reports_the_smoothing_it_applied(capture, tmp_path, capsys):
+    from facegeom.cli.main import main
+
+    d, rig, W, R, t = capture
+    main(["solve", str(d / "cap.npz"), "--smooth", "30", "-o", str(tmp_path / "a.npz")])
+    actor_line = capsys.readouterr().out
+    main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "30", "-o",
+          str(tmp_path / "c.npz")])
+    out = capsys.readouterr().out
+    assert "smoothing off" not in out and "smoothing off" not in actor_line
+    a, c = np.load(tmp_path / "a.npz"), np.load(tmp_path / "c.npz")
+    names = list(c["names"])
+    # a character curve driven by one actor curve carries that curve's strength; an undriven one none
+    assert c["smoothing"][names.index("jawOpen")] == a["smoothing"][list(a["names"]).index("jawOpen")] > 0
+    assert c["smoothing"][names.index("tongueOut")] == 0.0
+
+
 def test_livelink_out_fills_head_and_eye_columns(capture, tmp_path):
     """A solve's Live Link take has the head's yaw, pitch and roll and the eyes' rotations from their looks."""
     from facegeom.cli.main import main

@@ -7,7 +7,22 @@
     inputs" runs as written in a folder made by ``facegeom data examples`` (exit 0, every output it names
     exists); the ``view`` commands skip, with the reason, only where no headless renderer can start;
 (c) every ``facegeom ...`` command written inline in the README's prose (without placeholders) names a
-    subcommand and options the command line has (click's ``make_context``, nothing invoked).
+    subcommand and options the command line has (click's ``make_context``, nothing invoked);
+(d) the how-to pages ``docs/howto/*.md`` the same way: each page's ```bash blocks run as written, in order, in a
+    fresh copy of a folder made by ``facegeom data examples`` (exit 0, every output named exists; ``view`` commands
+    must use ``--screenshot`` and skip, with the reason, only where no headless renderer starts); then its
+    ```python blocks run in that folder, in order, each as its own ``python -c`` with the face data (exit 0);
+    every inline ``facegeom ...`` command of its prose parses as in (c).
+
+Convention: a block whose fence line directly follows a line ``<!-- not run -->`` (invisible on the site) is not
+run — for examples on the user's own files (``head.obj``) and file contents (TOML). Its ``facegeom ...`` lines are
+parsed as in (c) instead, and a marked ```python block is compiled (syntax checked).
+
+Runtime: a command already run successfully in this session — by the README section or an earlier page — with
+the same words on input files of the same bytes (the arguments that name existing files or folders) is not run
+again: the files it wrote then (every file it created or changed in its folder) are copied into this folder and
+its result is reused. The example folders are byte for byte the same, so this is the same command on the same
+inputs; pages share the README's long commands (``facegeom transfer face.obj``, the point-cloud identity) for free.
 """
 from __future__ import annotations
 
@@ -15,6 +30,7 @@ import hashlib
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import time
@@ -26,6 +42,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+HOWTO = ROOT / "docs" / "howto"
+HOWTO_PAGES = sorted(HOWTO.glob("*.md"))
+HOWTO_SECTIONS = ("## Try it", "## With your own files", "## What you get", "## When it goes wrong", "## Further")
+NOT_RUN = "<!-- not run -->"
 HEADING = "## Try it: every task on example inputs"
 OUTPUT_OPTIONS = ("-o", "--output", "--out", "--screenshot", "--mesh-out", "--rig-out", "--markers-out", "--map",
                   "--report", "--save-key-labels")
@@ -81,6 +101,67 @@ SECTION_TEXT = section(README.read_text(encoding="utf-8"))
 COMMANDS = section_commands(README.read_text(encoding="utf-8"))
 
 
+# --------------------------------------------------------------------------- reading the how-to pages
+
+
+def runnable(text: str) -> str:
+    """``text`` without its blocks marked ``<!-- not run -->`` (the marker line and the block)."""
+    return re.sub(rf"^{re.escape(NOT_RUN)}\n```\w*\n.*?^```$\n?", "", text, flags=re.DOTALL | re.MULTILINE)
+
+
+def marked_blocks(text: str, lang: str) -> list[str]:
+    """The bodies of the ```lang blocks marked ``<!-- not run -->``."""
+    return re.findall(rf"^{re.escape(NOT_RUN)}\n```{lang}\n(.*?)^```$", text, flags=re.DOTALL | re.MULTILINE)
+
+
+def python_blocks(text: str) -> list[str]:
+    """The bodies of the ```python blocks of ``text``."""
+    return re.findall(r"^```python\n(.*?)^```$", text, flags=re.DOTALL | re.MULTILINE)
+
+
+def facegeom_parts(lines: list[str]) -> list[str]:
+    """The ``facegeom ...`` commands of command lines (a line may chain commands with ``&&``)."""
+    parts = (p.strip() for line in lines for p in line.split("&&"))
+    return [p for p in parts if p.startswith("facegeom ")]
+
+
+def page_commands(text: str) -> list[str]:
+    """Every ``facegeom ...`` command of a how-to page's ```bash blocks that run (not marked)."""
+    return facegeom_parts(bash_lines(runnable(text)))
+
+
+PAGES = {p.stem: p.read_text(encoding="utf-8") for p in HOWTO_PAGES}
+PAGE_COMMANDS = [c for text in PAGES.values() for c in page_commands(text)]
+TRY_TEXT = SECTION_TEXT + "".join(runnable(text) for text in PAGES.values())  # all the commands users run as written
+
+
+def test_the_page_extractor():
+    text = ("# p\n## Try it\n```bash\nfacegeom drive a.obj m.csv \\\n  -o x.ply   # c\n```\n"
+            "<!-- not run -->\n```bash\nfacegeom transfer head.obj -o h.glb\n```\n"
+            "```python\nprint(1)\n```\n<!-- not run -->\n```python\nimport nothing_here\n```\n")
+    assert page_commands(text) == ["facegeom drive a.obj m.csv -o x.ply   # c"]
+    assert marked_blocks(text, "bash") == ["facegeom transfer head.obj -o h.glb\n"]
+    assert python_blocks(runnable(text)) == ["print(1)\n"]
+    assert marked_blocks(text, "python") == ["import nothing_here\n"]
+
+
+@pytest.mark.parametrize("page", sorted(PAGES), ids=str)
+def test_howto_page_follows_the_template(page):
+    text = PAGES[page]
+    assert text.startswith("# "), f"{page}.md: starts with its title"
+    at = [text.find("\n" + h + "\n") for h in HOWTO_SECTIONS]
+    assert all(i >= 0 for i in at) and at == sorted(at), f"{page}.md: sections {HOWTO_SECTIONS} in this order"
+    try_it = section(text, "## Try it")
+    assert bash_lines(runnable(try_it)), f"{page}.md: `Try it` has commands that run"
+    for line in bash_lines(runnable(text)):
+        assert line.startswith("facegeom "), f"{page}.md: a command that runs starts with `facegeom`: {line!r}"
+    assert text.count(NOT_RUN) == sum(len(marked_blocks(text, lang)) for lang in ("bash", "python", "toml", "text")), \
+        f"{page}.md: every `{NOT_RUN}` line is followed directly by a fenced block"
+    assert not re.search(r"\b[Ii]ssues? \d|\bstop \d", text), f"{page}.md: user-facing text names no issue numbers"
+    for code in marked_blocks(text, "python"):  # not run, but valid Python
+        compile(code, f"docs/howto/{page}.md", "exec")
+
+
 def test_the_extractor():
     text = ("# t\n## Try it: every task on example inputs\n```bash\nfacegeom data examples ex && cd ex\n```\n"
             "text `facegeom nope`\n```bash\nfacegeom clean a.obj b.obj \\\n    --map m.csv   # c\nls\n```\n"
@@ -90,18 +171,19 @@ def test_the_extractor():
 
 
 def test_the_section_covers_every_task():
+    """Every task has a command users run as written: in the README section or on a how-to page."""
     lines = bash_lines(SECTION_TEXT)
     assert lines[0] == "facegeom data examples examples && cd examples", "the section starts by making the folder"
-    words = [shlex.split(c, comments=True) for c in COMMANDS]
+    words = [shlex.split(c, comments=True) for c in COMMANDS + PAGE_COMMANDS]
     heads = {" ".join(w[1:3]) for w in words} | {w[1] for w in words}
     missing = [t for t in TASKS if t not in heads]
-    assert not missing, f"tasks without a command in the README section: {missing}"
-    joined = "\n".join(COMMANDS)
+    assert not missing, f"tasks without a command in the README section or a how-to page: {missing}"
+    joined = "\n".join(COMMANDS + PAGE_COMMANDS)
     for needle in ("-m all", "--rig ict", "-o anim.npz", "capture.c3d -o curves.npz", "capture.c3d -o curves.glb",
                    "capture.c3d -o curves.csv", "photo.pts --image photo.png", "scan.ply", "landmarks.csv",
                    "--screenshot"):
         assert needle in joined, needle
-    for c in COMMANDS:
+    for c in COMMANDS + PAGE_COMMANDS:
         if shlex.split(c, comments=True)[1] == "view":
             assert "--screenshot" in shlex.split(c, comments=True), f"a view command must render headless: {c}"
 
@@ -109,9 +191,10 @@ def test_the_section_covers_every_task():
 def test_readme_txt_commands_are_in_the_section():
     from facegeom.pipelines.examples import FILES
 
-    ran = {without_comment(c) for c in COMMANDS}
+    ran = {without_comment(c) for c in COMMANDS + PAGE_COMMANDS}
     for f in FILES:
-        assert without_comment(f.command) in ran, f"README.txt's command for {f.name} is not in the README: {f.command}"
+        assert without_comment(f.command) in ran, \
+            f"README.txt's command for {f.name} is neither in the README section nor on a how-to page: {f.command}"
 
 
 # --------------------------------------------------------------------------- (a) the command
@@ -218,8 +301,8 @@ def test_every_file_reads_back(made, face_model):
     for f in FILES:
         assert f.name in text and f.command in text, f.name
     nose = int(face_model.landmarks[30])
-    assert f"--from-vertices {nose} " in text and f"--from-vertices {nose} " in SECTION_TEXT, "the nose tip's vertex"
-    assert f"--id-range 0:{FACE_AREA} " in SECTION_TEXT
+    assert f"--from-vertices {nose} " in text and f"--from-vertices {nose} " in TRY_TEXT, "the nose tip's vertex"
+    assert f"--id-range 0:{FACE_AREA} " in TRY_TEXT
 
 
 def test_second_run_refuses_then_force_rewrites_the_same_bytes(made, face_model):
@@ -297,8 +380,58 @@ def test_outputs_of():
     assert outputs_of(["view", "fit", "--screenshot", "v.png"]) == ["v.png"]
 
 
+def _files(folder: Path) -> dict[str, tuple[int, int]]:
+    """Size and modification time of every file below ``folder`` by relative path."""
+    return {p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in folder.rglob("*") if p.is_file()}
+
+
+def _inputs(args: list[str], cwd: Path) -> tuple:
+    """SHA-256 of the existing files and folders that ``args`` name in ``cwd``, outputs left out."""
+    outs = set(outputs_of(args))
+    named = [a for a in args if a not in outs] + [a.split("=", 1)[1] for a in args if a.startswith("--") and "=" in a]
+    found = []
+    for a in dict.fromkeys(named):
+        path = cwd / a
+        if a.startswith("-") or not path.exists():
+            continue
+        files = [path] if path.is_file() else sorted(q for q in path.rglob("*") if q.is_file())
+        found.append((a, tuple((q.relative_to(cwd).as_posix(), hashlib.sha256(q.read_bytes()).hexdigest())
+                                for q in files)))
+    return tuple(found)
+
+
 @pytest.fixture(scope="module")
-def readme_run(tmp_path_factory, face_model):
+def done():
+    """Commands run successfully so far in this module: ``{(args, inputs): (folder, written files, result)}``."""
+    return {}
+
+
+def run_once(args: list[str], cwd: Path, env: dict, done: dict) -> tuple[subprocess.CompletedProcess, bool]:
+    """Run ``facegeom ARGS`` in ``cwd`` -> ``(result, reused)``; a command already run successfully with the same
+    arguments on inputs of the same bytes is not run again: the files it wrote are copied here (module docstring)."""
+    key = (tuple(args), _inputs(args, cwd))
+    if key in done:
+        folder, written, r = done[key]
+        if all((folder / rel).is_file() and _sha(folder / rel) == sha for rel, sha in written):  # not overwritten since
+            for rel, _ in written:
+                (cwd / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(folder / rel, cwd / rel)
+            return r, True
+    before = _files(cwd)
+    r = facegeom(args, cwd=cwd, env=env)
+    if r.returncode == 0:
+        written = [(rel, _sha(cwd / rel)) for rel, sig in _files(cwd).items() if before.get(rel) != sig]
+        done[key] = (cwd, written, r)
+    return r, False
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def readme_run(tmp_path_factory, face_model, done):
     """Run the section's commands in order in a fresh folder, as written (``cd`` moves the runner):
     ``[(command, args, folder, result, seconds)]``."""
     env = _env(face_model)
@@ -316,7 +449,7 @@ def readme_run(tmp_path_factory, face_model):
                 continue
             assert words[0] == "facegeom", f"README section: only facegeom commands and cd run here: {line!r}"
             t = time.perf_counter()
-            r = facegeom(words[1:], cwd=cwd, env=env)
+            r, _ = run_once(words[1:], cwd, env, done)
             runs.append((part, words[1:], cwd, r, time.perf_counter() - t))
     print(f"\nREADME section: {len(runs)} commands in {time.perf_counter() - t_all:.1f} s")
     for part, _, _, r, s in runs:
@@ -324,20 +457,20 @@ def readme_run(tmp_path_factory, face_model):
     return runs
 
 
-def _failure(part, cwd, r) -> str:
-    return (f"README command failed (exit {r.returncode}) in {cwd}:\n  {part}\n"
+def _failure(part, cwd, r, where="README") -> str:
+    return (f"{where} command failed (exit {r.returncode}) in {cwd}:\n  {part}\n"
             f"stdout (end):\n{r.stdout[-1500:]}\nstderr (end):\n{r.stderr[-2500:]}")
 
 
-def _check(runs) -> list[str]:
+def _check(runs, where="README") -> list[str]:
     problems = []
     for part, args, cwd, r, _ in runs:
         if r.returncode != 0:
-            problems.append(_failure(part, cwd, r))
+            problems.append(_failure(part, cwd, r, where))
             continue
         missing = [o for o in outputs_of(args) if not (cwd / o).exists()]
         if missing:
-            problems.append(f"README command exited 0 but did not write {', '.join(missing)} in {cwd}:\n  {part}")
+            problems.append(f"{where} command exited 0 but did not write {', '.join(missing)} in {cwd}:\n  {part}")
     return problems
 
 
@@ -414,6 +547,12 @@ def parse_command(words: list[str]) -> None:
 
 
 INLINE = list(dict.fromkeys(inline_commands(README.read_text(encoding="utf-8"))))
+# the how-to pages: inline commands, and the commands of their blocks marked not run (parsed, never run)
+HOWTO_INLINE = list(dict.fromkeys(
+    [(page, c) for page, text in PAGES.items() for c in inline_commands(text)]
+    + [(page, " ".join(shlex.split(c, comments=True))) for page, text in PAGES.items()
+       for c in facegeom_parts(bash_lines("".join(f"```bash\n{b}```\n" for b in marked_blocks(text, "bash"))))
+       if not PLACEHOLDER.search(" ".join(shlex.split(c, comments=True)))]))
 
 
 def test_the_inline_extractor():
@@ -436,3 +575,78 @@ def test_inline_readme_command_parses(command):
         parse_command(shlex.split(command)[1:])
     except click.UsageError as exc:
         pytest.fail(f"README prose names `{command}`, which the command line does not accept: {exc.format_message()}")
+
+
+@pytest.mark.parametrize("page,command", HOWTO_INLINE, ids=[f"{p}: {c}" for p, c in HOWTO_INLINE])
+def test_inline_howto_command_parses(page, command):
+    try:
+        parse_command(shlex.split(command)[1:])
+    except click.UsageError as exc:
+        pytest.fail(f"docs/howto/{page}.md names `{command}`, which the command line does not accept: "
+                    f"{exc.format_message()}")
+
+
+# --------------------------------------------------------------------------- (d) the how-to pages
+
+
+@pytest.fixture(scope="module")
+def howto_runs(tmp_path_factory, made, face_model, done):
+    """Each page's commands, in order, in a fresh copy of the examples folder, then its python blocks there:
+    ``{page: ([(command, args, folder, result, seconds)], [(block, result)])}``."""
+    env = _env(face_model)
+    out = {}
+    t_all = time.perf_counter()
+    lines = []
+    for page, text in PAGES.items():
+        cwd = tmp_path_factory.mktemp("howto") / page
+        shutil.copytree(made, cwd)
+        runs, blocks = [], []
+        for part in page_commands(text):
+            words = shlex.split(part, comments=True)
+            t = time.perf_counter()
+            r, reused = run_once(words[1:], cwd, env, done)
+            runs.append((part, words[1:], cwd, r, time.perf_counter() - t))
+            lines.append(f"  {time.perf_counter() - t:5.1f} s  rc={r.returncode}{' reused' if reused else ''}  "
+                         f"{page}: {without_comment(part)}")
+        for code in python_blocks(runnable(text)):
+            t = time.perf_counter()
+            r = subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
+                               timeout=300, check=False)
+            blocks.append((code, r))
+            lines.append(f"  {time.perf_counter() - t:5.1f} s  rc={r.returncode}  {page}: python block {len(blocks)}")
+        out[page] = (runs, blocks)
+    print(f"\nhow-to pages: {sum(len(r) for r, _ in out.values())} commands and "
+          f"{sum(len(b) for _, b in out.values())} python blocks in {time.perf_counter() - t_all:.1f} s")
+    print("\n".join(lines))
+    return out
+
+
+@pytest.mark.parametrize("page", sorted(PAGES), ids=str)
+def test_howto_commands_run(howto_runs, page):
+    runs = [x for x in howto_runs[page][0] if x[1][0] != "view"]
+    problems = _check(runs, f"docs/howto/{page}.md")
+    assert not problems, "\n\n".join(problems)
+
+
+@pytest.mark.parametrize("page", sorted(p for p, t in PAGES.items()
+                                        if any(shlex.split(c, comments=True)[1] == "view" for c in page_commands(t))),
+                         ids=str)
+def test_howto_view_commands_render_headless(howto_runs, page):
+    runs = [x for x in howto_runs[page][0] if x[1][0] == "view"]
+    for part, args, *_ in runs:
+        assert "--screenshot" in args, f"docs/howto/{page}.md: a view command that runs must render headless: {part}"
+    no_renderer = [r for *_, r, _ in runs if r.returncode != 0 and "could not start a renderer" in r.stderr]
+    if no_renderer:
+        pytest.skip(f"headless rendering unavailable here: {no_renderer[0].stderr.strip()}")
+    problems = _check(runs, f"docs/howto/{page}.md")
+    assert not problems, "\n\n".join(problems)
+    for _, args, cwd, _, _ in runs:
+        png = cwd / outputs_of(args)[0]
+        assert png.stat().st_size > 10_000, f"{png.name}: an almost empty image"
+
+
+@pytest.mark.parametrize("page", sorted(p for p, t in PAGES.items() if python_blocks(runnable(t))), ids=str)
+def test_howto_python_blocks_run(howto_runs, page):
+    for code, r in howto_runs[page][1]:
+        assert r.returncode == 0 and "Traceback" not in r.stderr, \
+            f"docs/howto/{page}.md: a python block failed (exit {r.returncode}):\n{code}\nstderr (end):\n{r.stderr[-2500:]}"

@@ -20,7 +20,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = {"facegeom": "facegeom", "baselines": "facegeom/baselines", "viewer": "facegeom/viewer"}
 IGNORE = shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache",
-                                ".hypothesis", "out", "bench-out", "docs")
+                                ".hypothesis", "out", "bench-out", "docs", "site")
 
 
 def _run(cmd, cwd, env, timeout=600):

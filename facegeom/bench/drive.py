@@ -2,7 +2,7 @@
 
 Two protocols, reported one after the other.
 
-**Realistic** (first; :func:`run_realistic`, issue 19), seeded: random
+**Realistic** (first; :func:`run_realistic`), seeded: random
 identities; even cases a random frame of a real ARKit take (dense weights),
 odd cases a random sparse expression; every case its own random layout of
 40-120 markers (``random<k>`` with a per-case seed); the labels are the true
@@ -30,11 +30,12 @@ gives, per noise level, every method's mean error and the ratio of the default
   error ``||Y - Y_true||_F`` over all vertices in mm. Times: ``fit`` and the
   median of 5 ``deform`` calls.
 
-Two studies of the default ``tangent`` deformer (issue 19), run as
+Two studies of the default ``tangent`` deformer, run as
 ``python -m facegeom.bench.drive study SEED CASES`` (:func:`run_selection_study`:
 how its self-tuning chooses, against exact interpolation, REML and an oracle)
 and ``python -m facegeom.bench.drive speed [REPEATS]`` (:func:`run_speed`: fit,
-deform and ``deform_many`` times against the issue-3 default).
+deform and ``deform_many`` times against the former default,
+``tangent:smoothness=1,align=rigid,beta=None``).
 """
 from __future__ import annotations
 
@@ -353,7 +354,7 @@ def main(model, specs, cases: int, seed: int, layout_name: str, layout_seed: int
 
 def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30.0, 100.0, 1e5),
                         noise_mm=(0.0, 0.2, 0.5), layout_name: str | None = None) -> list[dict]:
-    """How well does ``beta="auto"`` choose? Every candidate of the self-tuned tangent deformer, scored (issue 19).
+    """How well does ``beta="auto"`` choose? Every candidate of the self-tuned tangent deformer, scored.
 
     For every case, noise level and ``smoothness``, the deformer is fitted
     with ``select="ml"`` (whose candidates hold all of GCV's: the power 1) and
@@ -439,7 +440,7 @@ def run_selection_study(model, cases: list[RealisticDrivingCase], smoothness=(30
                 for rule, e in (("exact", err[one][0]), ("gcv", err[one][g_gcv]), ("ml", err[g_ml]),
                                 ("oracle (power 1)", err[one].min()), ("oracle", err.min())):
                     rows.append({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": float(e)})
-                # the amplitude prior (prior="amplitude"), issue 19 §2, at every smoothness
+                # the amplitude prior (prior="amplitude") at every smoothness
                 rows.extend({"case": case.index, "noise_mm": level, "rule": f"s={s:g} {rule}", "mean_mm": e}
                             for rule, e in _amplitude_rows(d, Z, gcv, zz, z, Ztrue_of(Rm, t), face_err))
             rows.append({"case": case.index, "noise_mm": level, "rule": "joint gcv", "mean_mm": min(joint)[1]})
@@ -538,7 +539,7 @@ def run_speed(model, specs: list[MethodSpec], layouts=("ict80", "random120"), re
             for k, (f, d, m, r) in res.items()]
 
 
-if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | speed [REPEATS]: issue 19's studies
+if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | speed [REPEATS]: the default's studies
     import sys
 
     from facegeom.model import load_face_model
@@ -546,7 +547,7 @@ if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | 
 
     _model = load_face_model(None)
     if sys.argv[1:2] == ["speed"]:
-        _specs = parse_methods("issue3=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
+        _specs = parse_methods("tangent-rigid=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
         _reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
         print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)",
                             "deform_many (x first)"],

@@ -1,4 +1,4 @@
-"""Realistic blendshape-fitting protocols, reported before the paper's idealised ones (issue 18).
+"""Realistic blendshape-fitting protocols, reported before the paper's idealised ones.
 
 The paper's experiments (:mod:`facegeom.bench.fit`) fit sparse expressions (2 to
 6 shapes) with the true identity's rig and exact intrinsics. Real inputs differ
@@ -443,7 +443,7 @@ def main(model, specs, experiments, takes, count, seed, report, identity_fitters
 
 def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed: int = 0,
                      reference: str | None = None) -> dict:
-    """How far below the generic neutral a method's 3-D error is, per run and pooled over runs (issue 18's target).
+    """How far below the generic neutral a method's 3-D error is, per run and pooled over runs (the one-photo target).
 
     Each run (one ``bench fit`` seed) gives the per-case ``vertex_mm`` of the
     ``generic`` mode's ``reference`` method (default: its first, the first
@@ -491,7 +491,7 @@ def pooled_reduction(row_sets, method: str = JOINT, resamples: int = 4000, seed:
     return {"runs": runs, "pooled": (int(gv.size), float(fv.mean() / gv.mean() - 1.0), float(low), float(high))}
 
 
-if __name__ == "__main__":  # python -m facegeom.bench.fit_realistic pool OUT_DIR...: issue 18's one-photo target
+if __name__ == "__main__":  # python -m facegeom.bench.fit_realistic pool OUT_DIR...: the one-photo identity target
     import csv
     import sys
     from pathlib import Path

@@ -486,7 +486,7 @@ def main(model, takes, specs, count, seed, out, layout_name="ict80", layout_seed
     return rows, table
 
 
-if __name__ == "__main__":  # python -m facegeom.bench.retarget study SEED [SEQUENCES]: issue 19 §3's map study
+if __name__ == "__main__":  # python -m facegeom.bench.retarget study SEED [SEQUENCES]: the map study
     import sys
 
     from facegeom.io import find_takes, ict_weights, read_take

@@ -72,7 +72,8 @@ def drive(mesh, markers, output, method, params, fmt, proxy):
         if size is None:
             return deformer
         above = PROXY_ABOVE if proxy.strip().lower() == "auto" else size
-        return ProxyDeformer(deformer, vertices=size, above=above, progress=lambda msg: click.echo(msg, err=True), shared=shared)
+        return ProxyDeformer(deformer, vertices=size, above=above, progress=lambda msg: click.echo(msg, err=True),
+                             shared=shared)
 
     if method != "all":
         _drive_one(make(method, **kw), method, V, F, ids, pos, output, output)

@@ -68,8 +68,8 @@ expressions and poses are unaffected. Measured on 10 validation people
 Neutral images (``expressions=False``, the SEM protocol) are not tempered:
 there, more images do add up.
 
-Prior scale of one image (issue 18)
------------------------------------
+Prior scale of one image
+------------------------
 On the realistic protocol of ``bench fit`` (40 landmarks, real-take
 expressions, yaw +-30 deg, 0.5-2 px, focal off by up to 30 %; seed 0, 40
 cases, sem-ls on the fitted rig; generic neutral 4.19 mm, true identity 1.25),
@@ -127,8 +127,8 @@ price, on the synthetic realistic photos of ``bench fit`` (seed 0, 40 cases,
 real-take expressions), is the joint fit's 3-D error: 2.85 mm with ``s_w = 1``,
 3.05 with 0.2.
 
-Landmark noise (issue 18)
--------------------------
+Landmark noise
+--------------
 ``noise_px`` sets the weight of the data against the identity prior, and the
 realistic protocol's images carry 0.5-2 px: on its tuning seed (0, 40 cases)
 the one-image error was 3.12 mm at 1 px, 3.04 at 1.5, 3.22 at 2, 3.73 at 0.7,
@@ -162,8 +162,8 @@ fixed vertices with Gaussian noise, so a robust or silhouette-aware contour
 has nothing to correct here (on detected landmarks it would, and needs a
 protocol with silhouette landmarks to be measured).
 
-Jaw contour (issue 18, real photos)
------------------------------------
+Jaw contour (real photos)
+-------------------------
 Annotators and landmark detectors put the jaw contour of the 68-point
 convention on the face's outline in the photo, not on fixed points of the
 face: as the head turns, the far side's outline moves in over the cheek (on

@@ -35,7 +35,7 @@ nothing tuned to a protocol:
 
 Sparsity is not the goal but falls out where the data allow it: the bounds put
 the weights whose posterior mode would be negative at exactly zero. Tried and
-not kept (see ``docs/fitting-real-faces.md``): the paper's greedy with a
+not kept (see ``docs/benchmarks/fitting-real-faces.md``): the paper's greedy with a
 noise-aware stop (~5 shapes where real faces move ~40; 1.16x L1Reg's error on
 held-out landmarks of real photos), the same greedy with an evidence stop (also
 ~5 shapes), a prior scale chosen per photo by leave-one-landmark-out

@@ -221,9 +221,8 @@ class TangentSolver:
         back-substitutions at once) and ``solve`` is one dense product, the
         fastest per-frame path for a few hundred labels; with ``False``
         ``solve`` back-substitutes every call. ``auto``: the map when it holds
-        at most 8 million entries (64 MB).
-
-    ``solve(Y_hat)`` then costs one back-substitution or one dense product.
+        at most 8 million entries (64 MB). ``solve(Y_hat)`` then costs one
+        back-substitution or one dense product.
 
     Raises
     ------
@@ -520,8 +519,8 @@ def robust_kabsch_many(P: np.ndarray, Q: np.ndarray, iterations: int = ROBUST_IT
     return np.ascontiguousarray(R.transpose(2, 0, 1)), t
 
 
-#: Default weight of the biharmonic prior relative to the tangent alignment energy (see docs/driving.md: tuned on
-#: ``bench drive`` seeds 1000-3000, not the reported seed 0).
+#: Default weight of the biharmonic prior relative to the tangent alignment energy (see docs/benchmarks/driving.md:
+#: tuned on ``bench drive`` seeds 1000-3000, not the reported seed 0).
 SMOOTHNESS_DEFAULT = 30.0
 
 #: Candidate label regularisations of ``beta="auto"``, relative to the mean eigenvalue of the labels' energy ``K``:
@@ -692,7 +691,7 @@ class TangentDeformer(Params):
         The prior of the markers' displacements with ``beta="auto"``.
         ``uniform`` (default): the labels' energy alone (every marker's
         displacement equally large a priori; smoothed by ``select``).
-        ``amplitude`` (issue 19 §2, with ``select="gcv"``): the same energy
+        ``amplitude`` (with ``select="gcv"``): the same energy
         with a per-marker amplitude estimated from the markers (the lengths of
         the ``uniform``-smoothed displacements, spread over neighbouring
         markers), so still regions are smoothed more than moving ones; its
@@ -702,11 +701,13 @@ class TangentDeformer(Params):
         realistic protocol 5-8 % better than ``uniform`` at 0.5 mm noise, the
         same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
         ~1.2 ms more per deform and ~7x the ``deform_many`` time per frame, so
-        it is not the default (see docs/driving.md).
+        it is not the default (see docs/benchmarks/driving.md).
 
+    Notes
+    -----
     Defaults (``kring``, 1 ring, ``d=2``, displacement, robust alignment,
-    smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see docs/driving.md for how they were chosen
-    (``facegeom bench drive``, tuning seeds apart from the reported ones); the
+    smoothness 30 = :data:`SMOOTHNESS_DEFAULT`, ``beta="auto"``): see docs/benchmarks/driving.md for how they were
+    chosen (``facegeom bench drive``, tuning seeds apart from the reported ones); the
     paper's plain configuration is ``d=3, field="position", align="none",
     smoothness=0, beta=None``.
 

@@ -1,4 +1,4 @@
-"""A marker prior with spatially varying amplitude for the self-tuned tangent deformer (issue 19 §2).
+"""A marker prior with spatially varying amplitude for the self-tuned tangent deformer.
 
 The ``beta="auto"`` smoother (``prior="uniform"``, the default) treats the markers' displacements as one
 Gaussian field of prior covariance ``K^+`` (``K`` the labels' energy): every

@@ -564,9 +564,9 @@ class TangentRetargeter(Params):
         spatial roughness of the base map's leave-one-label-out residuals
         (:func:`label_noise_estimate`, times :data:`LABEL_NOISE_SAFETY`); a
         number: known (``0`` = exact labels, reproduced); ``None``: no noise
-        model, ``beta`` by leave-one-label-out prediction alone (before issue
-        19's fourth pass; it cannot see that clean labels are best reproduced,
-        and lost 5-10 % on clean data). Labels whose noise is small against
+        model, ``beta`` by leave-one-label-out prediction alone (the former
+        default; it cannot see that clean labels are best reproduced, and
+        lost 5-10 % on clean data). Labels whose noise is small against
         the base map's held-out error (:data:`CLEAN_LABELS_MAX_NOISE`) also get
         the whole-frame kernel correction (:func:`frame_kernel_fit`; with
         ``kernel=True``). Without an affine base map (``field`` other than

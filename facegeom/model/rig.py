@@ -164,6 +164,8 @@ class BlendshapeRig:
         :func:`facegeom.methods.landmark_map.population_prior`). ``None`` for
         one person's rig or a character's.
 
+    Notes
+    -----
     All arrays are copied to float64 / int64 and made read-only, so the cached
     :meth:`delta_matrix` and :meth:`gram` stay valid.
 

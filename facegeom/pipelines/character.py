@@ -71,8 +71,11 @@ def onto_character(solved: SolvedCapture, character, actor=None) -> SolvedCaptur
         raise InputError(f"none of the character's shapes is reached by the actor's names ({', '.join(s.names[:4])}, "
                          f"...); give a mapping file with names=MAP.csv")
     k = size_ratio(character, actor if actor is not None else solved.rig)
+    # each character curve is a mix of the actor's smoothed curves: it carries the strongest smoothing among them
+    drives = np.asarray(m.matrix) != 0
+    smoothing = np.where(drives, np.asarray(s.smoothing, dtype=np.float64)[None, :], 0.0).max(axis=1, initial=0.0)
     out = replace(s, weights=m.apply(s.weights), raw_weights=m.apply(s.raw_weights), names=tuple(character.names),
-                  translations=s.translations * k, smoothing=np.zeros(len(character.names)),
+                  translations=s.translations * k, smoothing=smoothing,
                   info={**s.info, "character_scale": k, "head_motion": True})
     notes = list(solved.notes) + _map_notes(m, character, "actor's rig")
     notes.append(f"character: {int(m.matrix.any(axis=1).sum())} of its {len(character.names)} shapes driven; head "

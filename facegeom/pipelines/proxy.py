@@ -16,10 +16,13 @@ scale of the mesh's edges, so it does not need every vertex to be solved:
    the proxy, every marker among them, moves exactly as the proxy's.
 
 The full mesh keeps all its detail (vertices are moved, never resampled); what
-the proxy changes is only how finely the displacement field is solved. Measured
-on the ICT face upsampled to 148,402 vertices with 30 markers (the tangent
-framework, proxy of 37,000 vertices): see :func:`ProxyDeformer` and the README's
-Driving section for the error against the direct solve.
+the proxy changes is only how finely the displacement field is solved. On the
+ICT face upsampled to 148,402 vertices, driven by its 68 landmark vertices to a
+performed expression (jaw open, smile, brow, blink), the tangent framework's
+RMS error to that expression is 0.350 cm solved on every vertex, 0.344 cm on a
+37,000-vertex proxy and 0.364 cm on a 10,000-vertex one; the proxy and direct
+results differ by 0.043 cm RMS (6 % of the 0.69 cm displacement), about what the
+framework's own dependence on the mesh's resolution gives.
 """
 from __future__ import annotations
 
@@ -161,7 +164,10 @@ class ProxyDeformer:
 
         t = time.perf_counter()
         self._say(f"{V.shape[0]:,} vertices: driving a proxy of about {self.vertices:,} (markers kept exactly)")
-        V2, F2, imap, _ = decimate(V, F, self.vertices, keep=H, progress=self.progress)
+        # with the link condition from the start: a collapse that would make a non-manifold edge is refused
+        # (without it pymeshlab made some on a 2.4-million-vertex face and the whole decimation ran twice)
+        V2, F2, imap, _ = decimate(V, F, self.vertices, keep=H, preserve_topology=True,
+                                   progress=self.progress)
         self._say(f"  proxy: {V2.shape[0]:,} vertices in {time.perf_counter() - t:.1f} s")
         t = time.perf_counter()
         n, m = V.shape[0], V2.shape[0]
