@@ -23,9 +23,18 @@ class InputError(FacegeomError, ValueError):
     """
 
     def __init__(self, message: str, path=None):
-        self.path = None if path is None else str(path)
-        self.reason = message
-        super().__init__(f"{self.path}: {message}" if self.path else message)
+        self.path = None if path is None else _one_line(str(path))
+        self.reason = _one_line(str(message))
+        super().__init__(f"{self.path}: {self.reason}" if self.path else self.reason)
+
+
+# every character str.splitlines() breaks a line at, written as an escape: a message quoting a file's text (a CSV
+# header cell "a\nb", a file name) stays the one line the command line promises
+_LINE_BREAKS = {c: ascii(chr(c))[1:-1] for c in (0x0A, 0x0B, 0x0C, 0x0D, 0x1C, 0x1D, 0x1E, 0x85, 0x2028, 0x2029)}
+
+
+def _one_line(text: str) -> str:
+    return text.translate(_LINE_BREAKS)
 
 
 class DataNotFoundError(InputError):

@@ -104,6 +104,11 @@ def find_neutral(folder: str | os.PathLike, neutral_name: str | None = None) -> 
 
 
 _PART_FIELDS = ("vertex_start", "vertex_stop", "face_start", "face_stop")
+# what each array of a rig file must hold (numpy dtype kinds): numbers or text, never bytes of another kind
+_NPZ_KINDS = tuple((k, "fiu", "numbers") for k in ("neutral", "deltas", "map_gain")) + tuple(
+    (k, "iu", "integers") for k in ("triangles", "landmark_ids", "part_slices", "map_line")) + tuple(
+    (k, "US", "text") for k in ("names", "part_names", "map_rig", "map_source", "map_path", "units", "up")) + (
+    ("part_targets", "b", "true/false values"),)
 
 
 def _as_parts(parts, n_vertices: int, n_faces: int):
@@ -467,6 +472,9 @@ class BlendshapeRig:
             raise
         except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
             raise InputError(f"cannot read as npz ({exc})", path) from None
+        for key, kinds, what in _NPZ_KINDS:
+            if key in a and a[key].dtype.kind not in kinds:
+                raise InputError(f"'{key}' must be {what}, is {a[key].dtype}", path)
         lm = a["landmark_ids"]
         try:
             units, up = _npz_frame(a)

@@ -197,9 +197,15 @@ class IndexMap:
             check_npz(path)
             try:
                 with np.load(path, allow_pickle=False) as z:
-                    return cls(z["old_to_new"], z["new_to_old"], z["step"])
+                    arrays = z["old_to_new"], z["new_to_old"], z["step"]
             except (KeyError, ValueError, OSError) as exc:
                 raise InputError(f"not an index map ({exc.__class__.__name__})", path) from None
+            if arrays[0].dtype.kind not in "iu" or arrays[1].dtype.kind not in "iu" or arrays[2].dtype.kind != "U":
+                raise InputError("not an index map (old_to_new and new_to_old must be integers, step text)", path)
+            try:
+                return cls(*arrays)
+            except InputError as exc:
+                raise InputError(exc.reason, path) from None
         try:
             text = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
@@ -207,11 +213,34 @@ class IndexMap:
         rows = parse_csv_text(text, path)
         if not rows or [c.strip() for c in rows[0]] != ["old_id", "new_id", "status", "step"]:
             raise InputError("expected the header old_id,new_id,status,step", path)
-        try:
-            old = [(int(r[0]), int(r[1]), r[2], r[3]) for r in rows[1:] if r[2] in ("kept", "merged", "removed")]
-            new = [(int(r[0]), int(r[1]), r[2]) for r in rows[1:] if r[2] in ("split", "new")]
-        except (ValueError, IndexError):
-            raise InputError("malformed index map row", path) from None
+        n_rows = len(rows) - 1  # no id of a map can reach its own number of rows
+        old, new = [], []
+        for line, r in enumerate(rows[1:], start=2):
+            if not any(c.strip() for c in r):
+                continue
+            if len(r) != 4:
+                raise InputError(f"line {line}: expected 4 values (old_id,new_id,status,step), got {len(r)}", path)
+            try:
+                o, j = int(r[0]), int(r[1])
+            except ValueError:
+                raise InputError(f"line {line}: old_id and new_id must be integers", path) from None
+            status = r[2].strip()
+            if not (-1 <= o < n_rows and -1 <= j < n_rows):
+                raise InputError(f"line {line}: an id outside -1..{n_rows - 1} (a map of {n_rows} rows)", path)
+            if status in ("kept", "merged", "removed"):
+                if o != len(old):
+                    raise InputError(f"line {line}: old vertex {o} out of order (expected {len(old)})", path)
+                if (j < 0) != (status == "removed"):
+                    raise InputError(f"line {line}: a {status} vertex " + ("has a new id" if j >= 0 else
+                                     "needs a new id"), path)
+                old.append((o, j, status, r[3]))
+            elif status in ("split", "new"):
+                if j < 0:
+                    raise InputError(f"line {line}: a {status} vertex needs a new id", path)
+                new.append((o, j, status))
+            else:
+                raise InputError(f"line {line}: unknown status {status!r} (kept, merged, removed, split or new)",
+                                 path)
         o2n = np.array([r[1] for r in old], dtype=np.int64)
         n_new = max([r[1] for r in old] + [r[1] for r in new] + [-1]) + 1
         n2o = np.full(n_new, -1, dtype=np.int64)
@@ -219,5 +248,10 @@ class IndexMap:
             if s == "kept":
                 n2o[j] = o
         for o, j, _ in new:
+            if o >= len(old):
+                raise InputError(f"a {_} vertex comes from old vertex {o}, past the map's {len(old)}", path)
             n2o[j] = o
-        return cls(o2n, n2o, np.array([r[3] for r in old], dtype=str))
+        try:
+            return cls(o2n, n2o, np.array([r[3] for r in old], dtype=str))
+        except InputError as exc:
+            raise InputError(exc.reason, path) from None
