@@ -151,6 +151,9 @@ def _read_npz(path: Path) -> MarkerSequence:
     else:
         fr = np.arange(T, dtype=np.int64)
     if "marker_names" in a:
+        from facegeom.io.npzcheck import check_text
+
+        check_text(a["marker_names"], "marker_names", path)
         nm = tuple(str(x) for x in np.asarray(a["marker_names"]).ravel())
         if len(nm) != p:
             raise InputError(f"'marker_names' has {len(nm)} names for {p} markers", path)

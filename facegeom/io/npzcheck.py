@@ -19,7 +19,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 
-__all__ = ["check_npz", "memory_budget"]
+__all__ = ["check_npz", "check_text", "memory_budget"]
 
 
 def memory_budget() -> int:
@@ -85,3 +85,13 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
     return total
+
+
+def check_text(array: np.ndarray, name: str, path) -> None:
+    """Refuse a text array (numpy ``U``) of an npz holding code points no string has (above U+10FFFF): numpy
+    cannot turn them into Python strings and fails with a SystemError."""
+    a = np.asarray(array)
+    if a.dtype.kind == "U" and a.size and a.dtype.itemsize:
+        points = np.ascontiguousarray(a).view(np.uint32)
+        if points.size and int(points.max()) > 0x10FFFF:
+            raise InputError(f"'{name}' holds characters no text has: a damaged file", path)

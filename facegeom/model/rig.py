@@ -472,9 +472,13 @@ class BlendshapeRig:
             raise
         except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
             raise InputError(f"cannot read as npz ({exc})", path) from None
+        from facegeom.io.npzcheck import check_text
+
         for key, kinds, what in _NPZ_KINDS:
             if key in a and a[key].dtype.kind not in kinds:
                 raise InputError(f"'{key}' must be {what}, is {a[key].dtype}", path)
+            if key in a:
+                check_text(a[key], key, path)
         lm = a["landmark_ids"]
         try:
             units, up = _npz_frame(a)

@@ -422,7 +422,7 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
         W = _onto_rig(path, rig, take.names, take.weights)
         fps = take_fps(take)
         return RigAnimation(rig.neutral, rig.triangles, rig.deltas, tuple(rig.names), W, float(fps), str(path))
-    from facegeom.io.npzcheck import check_npz
+    from facegeom.io.npzcheck import check_npz, check_text
 
     check_npz(path)
     try:
@@ -430,7 +430,11 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
             if "weights" not in z or "names" not in z:
                 raise InputError("curves need the arrays 'weights' and 'names' (as `facegeom solve` writes)", path)
             Wf = np.asarray(z["weights"], dtype=np.float64)
-            names = [str(n) for n in np.asarray(z["names"]).reshape(-1)]
+            raw_names = np.asarray(z["names"])
+            if raw_names.dtype.kind not in "US":
+                raise InputError(f"'names' must be text, is {raw_names.dtype}", path)
+            check_text(raw_names, "names", path)
+            names = [str(n) for n in raw_names.reshape(-1)]
             fps = float(z["fps"]) if "fps" in z and np.asarray(z["fps"]).size == 1 else DEFAULT_FPS
     except InputError:
         raise

@@ -192,7 +192,7 @@ class IndexMap:
         if not path.is_file():
             raise InputError("file not found", path)
         if path.suffix.lower() == ".npz":
-            from facegeom.io.npzcheck import check_npz
+            from facegeom.io.npzcheck import check_npz, check_text
 
             check_npz(path)
             try:
@@ -202,6 +202,7 @@ class IndexMap:
                 raise InputError(f"not an index map ({exc.__class__.__name__})", path) from None
             if arrays[0].dtype.kind not in "iu" or arrays[1].dtype.kind not in "iu" or arrays[2].dtype.kind != "U":
                 raise InputError("not an index map (old_to_new and new_to_old must be integers, step text)", path)
+            check_text(arrays[2], "step", path)
             try:
                 return cls(*arrays)
             except InputError as exc:
