@@ -25,9 +25,10 @@ face-data: $(STAMP)
 demo: face-data
 	$(BIN)/facegeom demo
 
-# one test process per core (pytest-xdist), each with single-threaded BLAS so they do not oversubscribe the cores
+# one test process per core (pytest-xdist; a test file stays on one process, so its fixtures are made once), each
+# with single-threaded BLAS so the processes do not oversubscribe the cores
 test: face-data
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 # the viewer's README images (renders of the ICT face data: generated here, never committed)
 images: $(STAMP)

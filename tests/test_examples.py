@@ -411,7 +411,7 @@ def run_once(args: list[str], cwd: Path, env: dict, done: dict) -> tuple[subproc
     """Run ``facegeom ARGS`` in ``cwd`` -> ``(result, reused)``; a command already run successfully with the same
     arguments on inputs of the same bytes is not run again: the files it wrote are copied here (module docstring)."""
     key = (tuple(args), _inputs(args, cwd))
-    if key in done:
+    if key in done and done[key][0] != cwd:  # in its own folder a command runs again (a second batch run resumes)
         folder, written, r = done[key]
         if all((folder / rel).is_file() and _sha(folder / rel) == sha for rel, sha in written):  # not overwritten since
             for rel, _ in written:
