@@ -479,6 +479,8 @@ class BlendshapeRig:
                 raise InputError(f"'{key}' must be {what}, is {a[key].dtype}", path)
             if key in a:
                 check_text(a[key], key, path)
+        if np.ndim(a["names"]) > 1:
+            raise InputError(f"'names' must be a list of shape names, has shape {a['names'].shape}", path)
         lm = a["landmark_ids"]
         try:
             units, up = _npz_frame(a)
@@ -564,6 +566,8 @@ def _npz_parts(a: dict):
         raise InputError(f"the parts need all of {', '.join(keys)}")
     from facegeom.io.gltf import RigPart
 
+    if np.ndim(a["part_names"]) > 1 or np.ndim(a["part_targets"]) > 1:
+        raise InputError("part_names and part_targets must be lists (one entry per part)")
     names = [str(n) for n in np.atleast_1d(a["part_names"])]
     slices, targets = np.asarray(a["part_slices"]), np.atleast_1d(a["part_targets"])
     if slices.shape != (len(names), 4) or not np.issubdtype(slices.dtype, np.integer) or len(targets) != len(names):
@@ -577,6 +581,8 @@ def _npz_map(a: dict):
         return None
     if not all(k in a for k in keys):
         raise InputError(f"the shape mapping needs all of {', '.join(keys)}")
+    if any(np.ndim(a[k]) > 1 for k in keys):
+        raise InputError("map_rig, map_source, map_gain and map_line must be lists (one entry per row)")
     rig, src = np.atleast_1d(a["map_rig"]), np.atleast_1d(a["map_source"])
     gain, line = np.atleast_1d(a["map_gain"]), np.atleast_1d(a["map_line"])
     if not (len(rig) == len(src) == len(gain) == len(line)) or not np.isfinite(gain.astype(float)).all():
