@@ -401,6 +401,19 @@ def test_a_mesh_vertex_at_1e308_is_refused_by_every_mesh_command(tmp_path):
     assert not (tmp_path / "o.obj").exists()
 
 
+def test_a_rig_shape_at_1e308_is_refused_like_a_mesh(tmp_path):
+    from facegeom.errors import InputError
+    from facegeom.model.inputs import load_rig
+
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    (rig / "neutral.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (rig / "jawOpen.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1e308 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match="a coordinate of 1e\\+308") as e:
+        load_rig(rig)
+    assert "jawOpen.obj" in str(e.value) and len(str(e.value).splitlines()) == 1
+
+
 def test_image_size_follows_the_exif_orientation_and_ignores_the_bomb_guard(tmp_path):
     import warnings
 

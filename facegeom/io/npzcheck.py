@@ -22,6 +22,13 @@ from facegeom.errors import InputError
 __all__ = ["check_npz", "check_text", "memory_budget"]
 
 
+#: No dimension of a real array reaches this (2**40 elements of one byte are a terabyte); a larger one, with a
+#: zero elsewhere in the shape so that no bytes are declared, made numpy fail with an OverflowError.
+MAX_DIMENSION = 1 << 40
+#: Items of zero width (``<U0``, ``S0``, ``V0``) a member may declare: their count is not bounded by bytes.
+MAX_EMPTY_ITEMS = 1 << 20
+
+
 def memory_budget() -> int:
     """Bytes a file's arrays may take: half of this machine's memory (8 GiB when it cannot be told)."""
     try:
@@ -71,7 +78,16 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
                     raise InputError(f"array {name!r}: unreadable header ({type(exc).__name__})", path) from None
                 if dtype.hasobject:
                     raise InputError(f"array {name!r} holds Python objects (a pickle), which are not read", path)
-                need = prod(int(s) for s in shape) * dtype.itemsize
+                dims = [int(s) for s in shape]
+                if any(d > MAX_DIMENSION for d in dims):
+                    raise InputError(f"array {name!r} declares a dimension of {max(dims):,}, more than any array "
+                                     f"holds: a damaged or forged file", path)
+                count = prod(dims)
+                if dtype.itemsize == 0 and count > MAX_EMPTY_ITEMS:
+                    # items of no bytes cost nothing to hold but a loop over them costs time all the same
+                    raise InputError(f"array {name!r} declares {count:,} items of zero width: a damaged or forged "
+                                     f"file", path)
+                need = count * dtype.itemsize
                 held = info.file_size - start
                 if need > held:
                     raise InputError(f"array {name!r} declares shape {tuple(shape)} ({_mb(need)}) but holds "

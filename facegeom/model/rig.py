@@ -398,6 +398,7 @@ class BlendshapeRig:
             shape with another vertex count than the neutral's, an unreadable OBJ.
         """
         from facegeom.io import read_mesh
+        from facegeom.io.mesh import MAX_COORDINATE
         from facegeom.model.face import read_obj_positions
 
         folder = Path(folder)
@@ -409,6 +410,9 @@ class BlendshapeRig:
         deltas = np.empty((len(files), V0.shape[0], 3))
         for b, p in enumerate(files):
             V = read_obj_positions(p)
+            if V.size and np.abs(V).max() > MAX_COORDINATE:  # as every mesh reader refuses it
+                raise InputError(f"a coordinate of {np.abs(V).max():.3g}: beyond {MAX_COORDINATE:g} in any unit no "
+                                 f"real mesh reaches, and distances overflow", p)
             if V.shape[0] != V0.shape[0]:
                 raise InputError(
                     f"has {V.shape[0]} vertices but the neutral {neutral_path.name!r} has {V0.shape[0]}", p)
