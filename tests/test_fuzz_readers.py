@@ -11,8 +11,8 @@ it for a long, random run). Inputs found to break a reader are kept in
 Further targets below: the ``-p KEY=VALUE`` method parameters (``parse_params`` and
 ``registry.create`` for every registered method, then a fit on a tiny problem); rigs as
 ``load_rig`` reads them (``.glb``, ``.npz`` bytes and arrays, a folder of OBJs); the
-shape-mapping, key-labels, vertex, Live Link take and index-map CSVs; a photo's size. Bugs
-they found that are not fixed yet are :data:`KNOWN_BUGS`, pinned by :data:`KNOWN_BUG_CORPUS`.
+shape-mapping, key-labels, vertex, Live Link take and index-map CSVs; a photo's size. What
+they found is kept, once fixed, in :data:`FOUND_CORPUS`.
 """
 from __future__ import annotations
 
@@ -45,6 +45,18 @@ from facegeom.io import (
 EXAMPLES = int(os.environ.get("FACEGEOM_FUZZ_EXAMPLES", "100"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize="FACEGEOM_FUZZ_EXAMPLES" not in os.environ,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow], database=None)
+
+def fuzz_file(strategy, path, check, fuzz=None) -> None:
+    """Write each example ``strategy`` draws to ``path`` and run ``check(path)`` on it (hypothesis, ``fuzz`` or
+    :data:`FUZZ` settings)."""
+    @(fuzz or FUZZ)
+    @given(data=strategy)
+    def run(data):
+        path.write_bytes(data)
+        check(path)
+
+    run()
+
 
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1]])
 
@@ -342,16 +354,7 @@ def test_c3d_seed_is_valid(tmp_path):
 
 
 def test_mutated_c3d_reads_or_raises_input_error(tmp_path, quick_c3d_timeout):
-    seed = _c3d_seed()
-
-    @settings(FUZZ, max_examples=C3D_EXAMPLES)
-    @given(data=mutated_c3d(seed))
-    def run(data):
-        path = tmp_path / "f.c3d"
-        path.write_bytes(data)
-        _check_c3d(path)
-
-    run()
+    fuzz_file(mutated_c3d(_c3d_seed()), tmp_path / "f.c3d", _check_c3d, settings(FUZZ, max_examples=C3D_EXAMPLES))
 
 
 def test_c3d_regression_corpus(tmp_path, quick_c3d_timeout):
@@ -430,16 +433,7 @@ def test_glb_seed_is_valid(tmp_path):
 
 
 def test_mutated_glb_reads_or_raises_input_error(tmp_path):
-    seed = _glb_seed()
-
-    @FUZZ
-    @given(data=mutated_glb(seed))
-    def run(data):
-        path = tmp_path / "f.glb"
-        path.write_bytes(data)
-        _check_glb(path)
-
-    run()
+    fuzz_file(mutated_glb(_glb_seed()), tmp_path / "f.glb", _check_glb)
 
 
 # ----------------------------------------------------------------------------- shared by the targets below
@@ -487,8 +481,7 @@ def memory_cap(extra: int = 2 << 30):
 
 # Bugs these targets found, reported and not fixed yet: (exception type, "module.function" on its traceback, text
 # in its message). An example ending in one is set aside (hypothesis.reject), so that a campaign goes on past it to
-# other bugs; KNOWN_BUG_CORPUS below pins each with a strict xfail, which fails once the bug is fixed: then move its
-# input to FOUND_CORPUS and delete both entries.
+# other bugs; once it is fixed, its input goes to FOUND_CORPUS and its entry here is deleted.
 KNOWN_BUGS: list[tuple[type, str, str]] = []  # none open
 
 
@@ -688,16 +681,7 @@ def test_glb_rig_seed_is_valid(tmp_path):
 
 
 def test_mutated_glb_rig_loads_or_raises_input_error(tmp_path):
-    seed = _glb_seed()
-
-    @FUZZ
-    @given(data=mutated_glb(seed))
-    def run(data):
-        path = tmp_path / "f.glb"
-        path.write_bytes(data)
-        load_rig_file(path)
-
-    run()
+    fuzz_file(mutated_glb(_glb_seed()), tmp_path / "f.glb", load_rig_file)
 
 
 def _tiny_rig():
@@ -761,16 +745,7 @@ def test_rig_npz_seed_is_valid(tmp_path):
 
 
 def test_mutated_rig_npz_loads_or_raises_input_error(tmp_path):
-    seed = _rig_npz_seed()
-
-    @FUZZ
-    @given(data=mutated_npz(seed))
-    def run(data):
-        path = tmp_path / "f.npz"
-        path.write_bytes(data)
-        load_rig_file(path)
-
-    run()
+    fuzz_file(mutated_npz(_rig_npz_seed()), tmp_path / "f.npz", load_rig_file)
 
 
 NPZ_DTYPES = [np.float32, np.float16, np.int8, np.uint8, np.int32, np.uint64, np.int64, np.bool_, np.complex128,
@@ -1096,14 +1071,7 @@ def test_mutated_text_targets_read_or_raise_input_error(tmp_path, kind):
     name, seed, check = TEXT_TARGETS[kind]
     pool = {kind: seed(), **SEEDS}
 
-    @FUZZ
-    @given(data=mutated(kind, pool))
-    def run(data):
-        path = tmp_path / name
-        path.write_bytes(data)
-        check(path)
-
-    run()
+    fuzz_file(mutated(kind, pool), tmp_path / name, check)
 
 
 # ----------------------------------------------------------------------------- bugs found, reported, not fixed yet
@@ -1192,21 +1160,10 @@ FOUND_CORPUS = [  # (id, file name, check, bytes): what the targets above found,
         _npz_rig_with(), "names", b"'<U1', 'fortran_order': False, 'shape': (1,)",  # 1e12: hours, memory
         b"'<U0', 'fortran_order': False, 'shape': (10000000,)")),
 ]
-KNOWN_BUG_CORPUS: list = []  # (id, file name, check, bytes) of each open bug in KNOWN_BUGS
 
 
 @pytest.mark.parametrize("name,check,build", [pytest.param(*case[1:], id=case[0]) for case in FOUND_CORPUS])
 def test_found_corpus(tmp_path, name, check, build):
-    path = tmp_path / name
-    path.write_bytes(build())
-    check(path, set_aside=False)
-
-
-@pytest.mark.parametrize("name,check,build", [
-    pytest.param(*case[1:], id=case[0], marks=pytest.mark.xfail(
-        strict=True, reason="reported, not fixed yet", raises=(OverflowError, AssertionError)))
-    for case in KNOWN_BUG_CORPUS])
-def test_known_bug_corpus(tmp_path, name, check, build):
     path = tmp_path / name
     path.write_bytes(build())
     check(path, set_aside=False)
