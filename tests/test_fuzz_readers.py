@@ -1129,7 +1129,18 @@ def check_marker_message(path, set_aside: bool = True) -> None:
 
 
 IM_HEAD = b"old_id,new_id,status,step\n"
+def _zip_needing_version(version: int) -> bytes:
+    """A valid rig npz whose central directory says reading it needs zip ``version`` (e.g. 109: "10.9")."""
+    data = bytearray(_npz_rig_with())
+    at = data.find(b"PK\x01\x02")
+    while at >= 0:
+        data[at + 6:at + 8] = struct.pack("<H", version)  # version needed to extract
+        at = data.find(b"PK\x01\x02", at + 4)
+    return bytes(data)
+
+
 FOUND_CORPUS = [  # (id, file name, check, bytes): what the targets above found, each fixed since
+    ("npz-zip-version-10.9", "rig.npz", load_rig_file, lambda: _zip_needing_version(109)),  # NotImplementedError
     ("npz-triangles-str", "rig.npz", load_rig_file, lambda: _npz_rig_with(triangles=np.array([["0", "1", "2"]]))),
     ("npz-landmarks-bytes", "rig.npz", load_rig_file, lambda: _npz_rig_with(landmark_ids=np.array([b"0"]))),
     ("npz-neutral-void", "rig.npz", load_rig_file, lambda: _npz_rig_with(neutral=np.zeros((3, 3), "V4"))),

@@ -98,6 +98,8 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
                                      f"(half of its memory)", path)
     except zipfile.BadZipFile:
         raise InputError("cannot read as npz (not a zip archive)", path) from None
+    except NotImplementedError as exc:  # a zip version or compression method Python's zipfile does not read
+        raise InputError(f"cannot read as npz ({exc})", path) from None
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
     return total
