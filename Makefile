@@ -9,7 +9,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.facegeom-installed
 DOCS_STAMP = $(VENV)/.facegeom-docs-installed
 
-.PHONY: demo test face-data install images docs clean
+.PHONY: demo test fuzz face-data install images docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,18 @@ demo: face-data
 # with single-threaded BLAS so the processes do not oversubscribe the cores
 test: face-data
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
+
+# long fuzz campaigns of every file reader, not part of `make test`: FUZZ_MINUTES (default 10) of CPU time per
+# reader, split evenly over its seeds, one campaign per core; a table of examples, CPU and wall minutes at the end
+# (from the log FUZZ_LOG). A failing example is printed as hypothesis found it, and the make exits non-zero.
+FUZZ_MINUTES ?= 10
+FUZZ_LOG ?= fuzz-campaign.jsonl
+fuzz: $(STAMP)
+	rm -f $(FUZZ_LOG)
+	FACEGEOM_FUZZ_MINUTES=$(FUZZ_MINUTES) FACEGEOM_FUZZ_LOG=$(abspath $(FUZZ_LOG)) OPENBLAS_NUM_THREADS=1 \
+	OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal \
+	  tests/test_fuzz_readers.py tests/test_fuzz_gltf_rig.py -k "mutated or fuzzed or changed"; \
+	status=$$?; $(BIN)/python -m tests.fuzzing $(FUZZ_LOG); exit $$status
 
 # the viewer's README images (renders of the ICT face data: generated here, never committed)
 images: $(STAMP)

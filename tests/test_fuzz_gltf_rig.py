@@ -12,25 +12,21 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import struct
 import tracemalloc
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 pytest.importorskip("pygltflib")
 
-from facegeom.errors import InputError  # noqa: E402
-from facegeom.io import GltfRig, read_gltf_rig  # noqa: E402
-from facegeom.io.gltf import write_rig_glb  # noqa: E402
-from tests.test_gltf_rig import BYTE, QUAD, QUAD_F, SHORT, TRI, Doc, quat_y  # noqa: E402
+from facegeom.errors import InputError
+from facegeom.io import GltfRig, read_gltf_rig
+from facegeom.io.gltf import write_rig_glb
+from tests.fuzzing import campaign
+from tests.test_gltf_rig import BYTE, QUAD, QUAD_F, SHORT, TRI, Doc, quat_y
 
-EXAMPLES = int(os.environ.get("FACEGEOM_FUZZ_EXAMPLES", "100"))
-FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize="FACEGEOM_FUZZ_EXAMPLES" not in os.environ,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow], database=None)
 REPLACEMENTS = [0, -1, 1, 3, 255, 65535, 2 ** 31, 2 ** 32 - 1, 10 ** 9, 10 ** 20, -(2 ** 31), 0.5, 1e308, "x", "",
                 None, True, [], {}, [0, 0, 0], [1e308, 0, 0, 1], {"POSITION": 0}, "data:,", "../x.bin",
                 "http://example.com/x.bin", 5120, 5121, 5122, 5123, 5125, 5126, "VEC3", "SCALAR", "MAT4"]
@@ -172,11 +168,9 @@ def test_seed_is_valid(tmp_path, seeds, name):
 
 @pytest.mark.parametrize("name", ["own.glb", "rich.glb", "rich.gltf"])
 def test_mutated_rig_reads_or_raises_input_error(tmp_path, seeds, name):
-    @FUZZ
-    @given(data=mutated(seeds[name]))
     def run(data):
         path = tmp_path / name
         path.write_bytes(data)
         check_rig(path)
 
-    run()
+    campaign(run, share=4, data=mutated(seeds[name]))  # the fourth: load_rig on a .glb, in test_fuzz_readers

@@ -25,10 +25,9 @@ import struct
 import tracemalloc
 
 import click
-
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, reject, settings
+from hypothesis import reject, settings
 from hypothesis import strategies as st
 
 from facegeom.errors import InputError
@@ -41,21 +40,17 @@ from facegeom.io import (
     read_polygon_mesh,
     read_pts,
 )
+from tests.fuzzing import EXAMPLES, FUZZ, campaign
 
-EXAMPLES = int(os.environ.get("FACEGEOM_FUZZ_EXAMPLES", "100"))
-FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize="FACEGEOM_FUZZ_EXAMPLES" not in os.environ,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow], database=None)
 
-def fuzz_file(strategy, path, check, fuzz=None) -> None:
-    """Write each example ``strategy`` draws to ``path`` and run ``check(path)`` on it (hypothesis, ``fuzz`` or
-    :data:`FUZZ` settings)."""
-    @(fuzz or FUZZ)
-    @given(data=strategy)
+def fuzz_file(strategy, path, check, fuzz=None, share: int = 1) -> None:
+    """Write each example ``strategy`` draws to ``path`` and run ``check(path)`` on it (a campaign under ``fuzz``
+    or :data:`FUZZ` settings, ``share`` as in :func:`tests.fuzzing.campaign`)."""
     def run(data):
         path.write_bytes(data)
         check(path)
 
-    run()
+    campaign(run, fuzz, share, data=strategy)
 
 
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1]])
@@ -239,12 +234,10 @@ def test_seeds_are_valid(tmp_path, kind):
 
 @pytest.mark.parametrize("kind", sorted(SEEDS))
 def test_mutated_files_read_or_raise_input_error(tmp_path, kind):
-    @FUZZ
-    @given(data=mutated(kind))
     def run(data):
         run_readers(kind, data, tmp_path / f"f{SUFFIX[kind]}")
 
-    run()
+    campaign(run, share=3 if kind.startswith("ply") else 1, data=mutated(kind))
 
 
 # Inputs that crashed, hung or misread (issue 16 and what the fuzzing found), as literal bytes.
@@ -657,13 +650,11 @@ def test_params_seed_is_valid(kind, name):
 def test_fuzzed_params_build_or_raise_input_error():
     methods = _methods()
 
-    @FUZZ
-    @given(data=st.data())
     def run(data):
         kind, name = data.draw(st.sampled_from(methods))
         check_params(kind, name, data.draw(param_items(kind, name)))
 
-    run()
+    campaign(run, data=st.data())
 
 
 # ----------------------------------------------------------------------------- rigs (--rig FILE or FOLDER)
@@ -681,7 +672,7 @@ def test_glb_rig_seed_is_valid(tmp_path):
 
 
 def test_mutated_glb_rig_loads_or_raises_input_error(tmp_path):
-    fuzz_file(mutated_glb(_glb_seed()), tmp_path / "f.glb", load_rig_file)
+    fuzz_file(mutated_glb(_glb_seed()), tmp_path / "f.glb", load_rig_file, share=4)  # + 3 in test_fuzz_gltf_rig
 
 
 def _tiny_rig():
@@ -745,7 +736,7 @@ def test_rig_npz_seed_is_valid(tmp_path):
 
 
 def test_mutated_rig_npz_loads_or_raises_input_error(tmp_path):
-    fuzz_file(mutated_npz(_rig_npz_seed()), tmp_path / "f.npz", load_rig_file)
+    fuzz_file(mutated_npz(_rig_npz_seed()), tmp_path / "f.npz", load_rig_file, share=2)  # + its arrays, below
 
 
 NPZ_DTYPES = [np.float32, np.float16, np.int8, np.uint8, np.int32, np.uint64, np.int64, np.bool_, np.complex128,
@@ -824,8 +815,6 @@ def test_rig_npz_members_seed_is_valid(tmp_path):
 def test_changed_rig_npz_members_load_or_raise_input_error(tmp_path):
     seed = dict(np.load(io.BytesIO(_rig_npz_seed())))
 
-    @FUZZ
-    @given(change=npz_arrays(seed), compressed=st.booleans())
     def run(change, compressed):
         arrays, forged = change
         path = tmp_path / "f.npz"
@@ -836,7 +825,7 @@ def test_changed_rig_npz_members_load_or_raise_input_error(tmp_path):
         assert total is None or total >= 0
         load_rig_file(path)
 
-    run()
+    campaign(run, share=2, change=npz_arrays(seed), compressed=st.booleans())
 
 
 def _obj_folder_seed() -> dict[str, bytes]:
@@ -866,8 +855,6 @@ def test_mutated_obj_folder_rig_loads_or_raises_input_error(tmp_path):
     shapes = sorted(n for n in seed if n != "neutral.obj")
     pool = {**seed, "obj": SEEDS["obj"]}
 
-    @FUZZ
-    @given(data=st.data())
     def run(data):
         name = data.draw(st.sampled_from(shapes))
         folder = tmp_path / "rig"
@@ -877,7 +864,7 @@ def test_mutated_obj_folder_rig_loads_or_raises_input_error(tmp_path):
         (folder / name).write_bytes(data.draw(mutated(name, pool)))
         load_rig_file(folder)
 
-    run()
+    campaign(run, data=st.data())
 
 
 # ----------------------------------------------------------------------------- CSV files and photos
@@ -1071,7 +1058,7 @@ def test_mutated_text_targets_read_or_raise_input_error(tmp_path, kind):
     name, seed, check = TEXT_TARGETS[kind]
     pool = {kind: seed(), **SEEDS}
 
-    fuzz_file(mutated(kind, pool), tmp_path / name, check)
+    fuzz_file(mutated(kind, pool), tmp_path / name, check, share=2 if kind.startswith("photo") else 1)
 
 
 # ----------------------------------------------------------------------------- bugs found, reported, not fixed yet
