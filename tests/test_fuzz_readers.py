@@ -1115,6 +1115,20 @@ def check_marker_message(path, set_aside: bool = True) -> None:
     read_or_input_error(lambda p: read_markers(p, n_vertices=20), path, set_aside=set_aside)
 
 
+def check_sequence_message(path, set_aside: bool = True) -> None:
+    """``read_marker_sequence`` reads the file or refuses it in one line naming it."""
+    read_or_input_error(read_marker_sequence, path, set_aside=set_aside)
+
+
+def _zip_name_not_utf8(npz: bytes) -> bytes:
+    """``npz`` whose first central-directory entry flags its name as UTF-8 (bit 11) and starts with byte 0x9d."""
+    data = bytearray(npz)
+    at = data.find(b"PK\x01\x02")
+    data[at + 9] |= 0x08  # general-purpose flags, high byte: bit 11
+    data[at + 46] = 0x9D  # the name, right after the 46-byte entry
+    return bytes(data)
+
+
 IM_HEAD = b"old_id,new_id,status,step\n"
 def _zip_needing_version(version: int) -> bytes:
     """A valid rig npz whose central directory says reading it needs zip ``version`` (e.g. 109: "10.9")."""
@@ -1128,6 +1142,9 @@ def _zip_needing_version(version: int) -> bytes:
 
 FOUND_CORPUS = [  # (id, file name, check, bytes): what the targets above found, each fixed since
     ("npz-zip-version-10.9", "rig.npz", load_rig_file, lambda: _zip_needing_version(109)),  # NotImplementedError
+    ("npz-name-not-utf8", "capture.npz", check_sequence_message,  # UnicodeDecodeError in zipfile
+     lambda: _zip_name_not_utf8(SEEDS["npz"])),
+    ("rig-npz-name-not-utf8", "rig.npz", load_rig_file, lambda: _zip_name_not_utf8(_npz_rig_with())),
     ("npz-triangles-str", "rig.npz", load_rig_file, lambda: _npz_rig_with(triangles=np.array([["0", "1", "2"]]))),
     ("npz-landmarks-bytes", "rig.npz", load_rig_file, lambda: _npz_rig_with(landmark_ids=np.array([b"0"]))),
     ("npz-neutral-void", "rig.npz", load_rig_file, lambda: _npz_rig_with(neutral=np.zeros((3, 3), "V4"))),

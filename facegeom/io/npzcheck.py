@@ -98,6 +98,8 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
                                      f"(half of its memory)", path)
     except zipfile.BadZipFile:
         raise InputError("cannot read as npz (not a zip archive)", path) from None
+    except UnicodeDecodeError:  # the zip flags a member's name as UTF-8 and it is not (zipfile decodes it on opening)
+        raise InputError("cannot read as npz (a member's name is flagged as UTF-8 text but is not)", path) from None
     except NotImplementedError as exc:  # a zip version or compression method Python's zipfile does not read
         raise InputError(f"cannot read as npz ({exc})", path) from None
     except OSError as exc:
