@@ -633,6 +633,14 @@ def check_params(kind: str, name: str, items: list[str]) -> None:
         use_method(kind, method)
 
 
+@pytest.mark.parametrize("kind,name", [("retargeters", "tangent"), ("deformers", "tangent")])
+@pytest.mark.parametrize("value", ["1e-300", "1e-7", "1e-6"])
+def test_found_tiny_beta(kind, name, value):
+    """``-p beta=1e-300`` (found by the campaign): a singular system and a SolveError blaming the labels before;
+    now refused in one line below 1e-6, and 1e-6 itself solves the tiny problem."""
+    check_params(kind, name, [f"beta={value}"])
+
+
 @pytest.mark.parametrize("kind,name", _methods())
 def test_params_seed_is_valid(kind, name):
     """Every method builds without parameters and with its defaults written back as ``-p`` text."""

@@ -736,7 +736,8 @@ class TangentDeformer(Params):
         if beta is not None and beta != "auto":
             if isinstance(beta, str):
                 raise InputError(f"beta must be 'auto', a positive number or None (hard constraints), got {beta!r}")
-            beta = check_range("beta", beta, 0, 1e12, "beyond it the labels are hard constraints: use None", above=True)
+            beta = check_range("beta", beta, 1e-6, 1e12, "below it the labels no longer hold the solution and the "
+                                   "system is singular; beyond it they are hard constraints: use None")
         if field not in ("displacement", "position"):
             raise InputError(f"field must be 'displacement' or 'position', got {field!r}")
         if align not in ("robust", "rigid", "none"):

@@ -602,7 +602,8 @@ class TangentRetargeter(Params):
         if beta is not None and beta != "auto":
             if isinstance(beta, str):
                 raise InputError(f"beta must be a positive number, 'auto' or None (hard constraints), got {beta!r}")
-            beta = check_range("beta", beta, 0, 1e12, "beyond it the labels are hard constraints: use None", above=True)
+            beta = check_range("beta", beta, 1e-6, 1e12, "below it the labels no longer hold the solution and the "
+                                   "system is singular; beyond it they are hard constraints: use None")
         if field not in ("position", "offset", "affine"):
             raise InputError(f"field must be 'position', 'offset' or 'affine', got {field!r}")
         smoothness = check_range("smoothness", smoothness, 0, 1e6, "a weight relative to the framework's term, "
