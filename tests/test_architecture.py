@@ -4,7 +4,8 @@ Layers (a module imports only from its own layer or below):
 
 1. core: errors, interfaces, registry, constants, native, version
 2. files and numerics: io/, geometry, linalg, metrics
-3. the model: model/ (face, rig, targets, camera, pose, landmarks, layouts, ...)
+3. the model: model/ (face, rig, targets, camera, pose, landmarks, layouts, ...) and vision/ (pixels to face
+   points: the face detector, the face-mesh and iris models and their map onto the face model)
 4. methods: methods/ and ``facegeom.baselines`` (the repository's ``baselines/`` folder)
 5. pipelines that compose methods: pipelines/ (animate, cleanup, batch)
 6. front ends that run methods for people: bench/ (comparison protocols) and
@@ -49,6 +50,7 @@ LAYERS: dict[str, int] = {
     "facegeom.metrics": 2,
     "facegeom.registration": 2,
     "facegeom.model": 3,
+    "facegeom.vision": 3,
     "facegeom.methods": 4,
     "facegeom.baselines": 4,
     "facegeom.pipelines": 5,
