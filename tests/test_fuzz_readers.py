@@ -11,8 +11,9 @@ it for a long, random run). Inputs found to break a reader are kept in
 Further targets below: the ``-p KEY=VALUE`` method parameters (``parse_params`` and
 ``registry.create`` for every registered method, then a fit on a tiny problem); rigs as
 ``load_rig`` reads them (``.glb``, ``.npz`` bytes and arrays, a folder of OBJs); the
-shape-mapping, key-labels, vertex, Live Link take and index-map CSVs; a photo's size. What
-they found is kept, once fixed, in :data:`FOUND_CORPUS`.
+shape-mapping, key-labels, vertex, Live Link take and index-map CSVs; a photo's size; a photo's
+pixels (``read_image``) and a video's frames (``open_video``, every frame decoded). What they found is
+kept, once fixed, in :data:`FOUND_CORPUS`.
 """
 from __future__ import annotations
 
@@ -1069,6 +1070,142 @@ def test_mutated_text_targets_read_or_raise_input_error(tmp_path, kind):
     fuzz_file(mutated(kind, pool), tmp_path / name, check, share=2 if kind.startswith("photo") else 1)
 
 
+# ----------------------------------------------------------------------------- pixels: photos and videos
+# read_image decodes (Pillow, under facegeom's own size limit); open_video + iterating decodes every frame
+# (FFmpeg through PyAV, under the frame-size limit). Either returns valid pixels or raises InputError.
+
+
+def _image_seed(kind: str) -> bytes:
+    """Small photos that take read_image's paths: EXIF turns, transparency, 16 bits, a palette, two frames."""
+    from PIL import Image
+
+    y, x = np.mgrid[0:12, 0:16]
+    rgb = np.stack([x * 16, y * 20, (x + y) * 9], axis=2).astype(np.uint8)
+    buf = io.BytesIO()
+    exif = Image.Exif()
+    if kind == "image_jpeg":
+        exif[0x0112] = 6
+        Image.fromarray(rgb).save(buf, "JPEG", exif=exif, quality=80)
+    elif kind == "image_png":
+        exif[0x0112] = 8
+        rgba = np.dstack([rgb, (x * 16).astype(np.uint8)])
+        Image.fromarray(rgba, "RGBA").save(buf, "PNG", exif=exif)
+    elif kind == "image_png16":
+        Image.fromarray((y * 5000 + x * 100).astype(np.uint16)).save(buf, "PNG")
+    elif kind == "image_gif":
+        first = Image.fromarray(rgb).quantize(8)
+        first.save(buf, "GIF", save_all=True, append_images=[first.rotate(90)], transparency=0)
+    return buf.getvalue()
+
+
+IMAGE_TARGETS = {"image_jpeg": "photo.jpg", "image_png": "photo.png", "image_png16": "gray16.png",
+                 "image_gif": "anim.gif"}
+
+
+def check_image(path, set_aside: bool = True) -> None:
+    """read_image: an (H, W, 3) uint8 RGB array, writable, or one line naming the file."""
+    from facegeom.io.images import read_image
+
+    a = read_or_input_error(read_image, path, set_aside=set_aside)
+    if a is None:
+        return
+    assert isinstance(a, np.ndarray) and a.dtype == np.uint8 and a.ndim == 3 and a.shape[2] == 3
+    assert a.shape[0] >= 1 and a.shape[1] >= 1 and a.flags.writeable and a.flags.c_contiguous
+
+
+def test_image_seeds_are_valid(tmp_path):
+    from facegeom.io.images import read_image
+
+    shapes = {}
+    for kind, name in IMAGE_TARGETS.items():
+        (tmp_path / name).write_bytes(_image_seed(kind))
+        check_image(tmp_path / name, set_aside=False)
+        shapes[kind] = read_image(tmp_path / name).shape
+    assert shapes == {"image_jpeg": (16, 12, 3), "image_png": (16, 12, 3), "image_png16": (12, 16, 3),
+                      "image_gif": (12, 16, 3)}
+
+
+@pytest.mark.parametrize("kind", sorted(IMAGE_TARGETS))
+def test_mutated_images_read_or_raise_input_error(tmp_path, kind):
+    pool = {k: _image_seed(k) for k in IMAGE_TARGETS}
+
+    fuzz_file(mutated(kind, {**pool, **SEEDS}), tmp_path / IMAGE_TARGETS[kind], check_image,
+              share=len(IMAGE_TARGETS))
+
+
+def _video_seed(kind: str) -> bytes:
+    """A 4-frame 32 x 16 video: H.264 in MP4 (index first) and in Matroska, MPEG-4 Part 2 turned a quarter."""
+    av = pytest.importorskip("av")
+    import tempfile
+
+    container, codec, options = {"video_mp4": ("mp4", "libx264", {"movflags": "+faststart"}),
+                                 "video_mkv": ("matroska", "libx264", {}),
+                                 "video_turned": ("mp4", "mpeg4", {})}[kind]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "seed")
+        with av.open(path, "w", format=container, options=options) as c:
+            s = c.add_stream(codec, rate=10, options={"preset": "ultrafast"} if codec == "libx264" else {})
+            s.width, s.height, s.pix_fmt = 32, 16, "yuv420p"
+            if kind == "video_turned":
+                s.set_display_rotation(-90)
+            for i in range(4):
+                a = np.zeros((16, 32, 3), np.uint8)
+                a[4:12, 6 * i:6 * i + 8] = (255, 0, 0)
+                for p in s.encode(av.VideoFrame.from_ndarray(a, format="rgb24")):
+                    c.mux(p)
+            for p in s.encode():
+                c.mux(p)
+        with open(path, "rb") as fh:
+            return fh.read()
+
+
+VIDEO_TARGETS = {"video_mp4": "clip.mp4", "video_mkv": "clip.mkv", "video_turned": "phone.mp4"}
+
+
+def _read_video(path) -> list[tuple[int, float, tuple]]:
+    """Every frame of a video, checked as it comes; ``(index, time_s, shape)`` of each."""
+    import math
+
+    from facegeom.io.video import open_video
+
+    out = []
+    with open_video(path) as r:
+        assert type(r.width) is int and type(r.height) is int and r.width >= 1 and r.height >= 1
+        assert r.rotation in (0, 90, 180, 270) and isinstance(r.variable_rate, bool)
+        assert r.fps is None or (math.isfinite(r.fps) and r.fps > 0)
+        assert r.n_frames is None or r.n_frames >= 1
+        for f in r:
+            a = f.image
+            assert isinstance(a, np.ndarray) and a.dtype == np.uint8 and a.ndim == 3 and a.shape[2] == 3
+            assert a.shape[0] >= 1 and a.shape[1] >= 1 and a.flags.c_contiguous
+            assert math.isfinite(f.time_s) and (not out or f.index > out[-1][0])
+            out.append((f.index, f.time_s, a.shape))
+        assert out
+        assert r.problem is None or (isinstance(r.problem, str) and len(r.problem.splitlines()) == 1)
+    return out
+
+
+def check_video(path, set_aside: bool = True) -> None:
+    """open_video and every frame: valid frames in order, or one line naming the file."""
+    read_or_input_error(_read_video, path, set_aside=set_aside)
+
+
+def test_video_seeds_are_valid(tmp_path):
+    for kind, name in VIDEO_TARGETS.items():
+        (tmp_path / name).write_bytes(_video_seed(kind))
+        frames = _read_video(tmp_path / name)
+        assert [i for i, _, _ in frames] == [0, 1, 2, 3]
+        assert {shape for _, _, shape in frames} == {(32, 16, 3) if kind == "video_turned" else (16, 32, 3)}
+
+
+@pytest.mark.parametrize("kind", sorted(VIDEO_TARGETS))
+def test_mutated_videos_read_or_raise_input_error(tmp_path, kind):
+    pool = {k: _video_seed(k) for k in VIDEO_TARGETS}
+
+    fuzz_file(mutated(kind, {**pool, "image_png": _image_seed("image_png"), **SEEDS}), tmp_path / VIDEO_TARGETS[kind],
+              check_video, share=len(VIDEO_TARGETS))
+
+
 # ----------------------------------------------------------------------------- bugs found, reported, not fixed yet
 
 
@@ -1148,7 +1285,23 @@ def _zip_needing_version(version: int) -> bytes:
     return bytes(data)
 
 
+def _mp4_sample_entry_of_16_mb() -> bytes:
+    """The MP4 video seed whose sample description's first entry says it is 16 MB long (FFmpeg: ENOMEM)."""
+    data = bytearray(_video_seed("video_mp4"))
+    data[data.find(b"stsd") + 12] = 0x01  # the entry's 32-bit size, high byte
+    return bytes(data)
+
+
+def _png_idat_of_2_gb() -> bytes:
+    """The 16-bit PNG seed whose image-data chunk says it is 2.16 GB long (Pillow reads that many bytes at once)."""
+    data = bytearray(_image_seed("image_png16"))
+    data[data.find(b"IDAT") - 4] = 0x81  # the chunk's 32-bit length, high byte
+    return bytes(data)
+
+
 FOUND_CORPUS = [  # (id, file name, check, bytes): what the targets above found, each fixed since
+    ("png-idat-length-2gb", "gray16.png", check_image, _png_idat_of_2_gb),  # MemoryError under the memory cap
+    ("mp4-ffmpeg-enomem", "clip.mp4", check_video, _mp4_sample_entry_of_16_mb),  # av.error.MemoryError
     ("npz-zip-version-10.9", "rig.npz", load_rig_file, lambda: _zip_needing_version(109)),  # NotImplementedError
     ("npz-name-not-utf8", "capture.npz", check_sequence_message,  # UnicodeDecodeError in zipfile
      lambda: _zip_name_not_utf8(SEEDS["npz"])),

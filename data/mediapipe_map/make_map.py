@@ -318,6 +318,48 @@ def mm(x) -> str:
     return f"{10 * float(x):.1f}"
 
 
+def eye_mouth_openings(F: np.ndarray) -> np.ndarray:
+    """The canonical mesh's triangles inside the eye and inner-lip loops -> ``(len(F),)`` bool."""
+    opening = np.zeros(len(F), dtype=bool)
+    for up, lo in OPENINGS:
+        loop = set(CONTOURS[up][0]) | set(CONTOURS[lo][0])
+        opening |= np.array([set(f) <= loop for f in F.tolist()])
+    return opening
+
+
+def reverse_map(X: np.ndarray, F: np.ndarray, L68: np.ndarray):
+    """Step 4: each landmark ``L68 (68, 3)`` on the canonical mesh placed at ``X (468, 3)`` -> ``(rows, beyond)``.
+
+    ``rows``: ``(landmark, triangle's three point ids, barycentric (3,), distance)``; ``beyond``: (68,) bool,
+    the landmark's closest point is on the mesh's outline.
+    """
+    opening = eye_mouth_openings(F)
+    skin = np.flatnonzero(~opening)
+    edge_face = {}
+    for f in skin:  # each skin triangle under its three undirected edges (the first in file order wins)
+        for a, b in ((F[f, 0], F[f, 1]), (F[f, 1], F[f, 2]), (F[f, 2], F[f, 0])):
+            edge_face.setdefault((min(a, b), max(a, b)), f)
+    rows = []
+    d2r, tr, Cr = igl.point_mesh_squared_distance(L68, X, F[skin])
+    for k in range(68):
+        if k in ON_CONTOUR:
+            edges = [(a, b) for name in ON_CONTOUR[k] for a, b in zip(CONTOURS[name][0][:-1], CONTOURS[name][0][1:])]
+            d, e, u = closest_on_segments(L68[k], X, edges)
+            a, b = edges[e]
+            f = edge_face[(min(a, b), max(a, b))]
+            w = {a: 1.0 - u, b: u}
+            bk = np.array([w.get(int(v), 0.0) for v in F[f]])
+        else:
+            f = skin[tr[k]]
+            d = float(np.sqrt(d2r[k]))
+            bk = barycentric(Cr[k:k + 1], *(X[F[f, j]][None] for j in range(3)))[0]
+        rows.append((k, F[f], bk, d))
+    outline = np.asarray(igl.boundary_loop(F))
+    beyond = np.array([closest_on_segments(L68[k], X, list(zip(outline, np.roll(outline, -1))))[0] - r[3] < 1e-7
+                       for k, r in enumerate(rows)])
+    return rows, beyond
+
+
 def main(argv=None) -> int:
     """Build the two map files and print their quality numbers; returns the exit status."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -411,30 +453,7 @@ def main(argv=None) -> int:
           f"max {10 * sym.max():.2f} mm")
 
     # ---- 4. reverse map
-    skin = np.flatnonzero(~opening)
-    edge_face = {}
-    for f in skin:  # each skin triangle under its three undirected edges (the first in file order wins)
-        for a, b in ((F[f, 0], F[f, 1]), (F[f, 1], F[f, 2]), (F[f, 2], F[f, 0])):
-            edge_face.setdefault((min(a, b), max(a, b)), f)
-    rows = []
-    L68 = N[LM]
-    d2r, tr, Cr = igl.point_mesh_squared_distance(L68, X, F[skin])
-    for k in range(68):
-        if k in ON_CONTOUR:
-            edges = [(a, b) for name in ON_CONTOUR[k] for a, b in zip(CONTOURS[name][0][:-1], CONTOURS[name][0][1:])]
-            d, e, u = closest_on_segments(L68[k], X, edges)
-            a, b = edges[e]
-            f = edge_face[(min(a, b), max(a, b))]
-            w = {a: 1.0 - u, b: u}
-            bk = np.array([w.get(int(v), 0.0) for v in F[f]])
-        else:
-            f = skin[tr[k]]
-            d = float(np.sqrt(d2r[k]))
-            bk = barycentric(Cr[k:k + 1], *(X[F[f, j]][None] for j in range(3)))[0]
-        rows.append((k, F[f], bk, d))
-    outline = np.asarray(igl.boundary_loop(F))
-    beyond = np.array([closest_on_segments(L68[k], X, list(zip(outline, np.roll(outline, -1))))[0] - r[3] < 1e-7
-                       for k, r in enumerate(rows)])
+    rows, beyond = reverse_map(X, F, L68 := N[LM])
     # the reverse map on the mapped (snapped) points: what a user gets from the 468 points on the neutral
     P = mapped
     back = np.array([b @ P[f] for _, f, b, _ in rows])

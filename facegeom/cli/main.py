@@ -18,10 +18,12 @@ from facegeom.cli.cleanup import clean_cmd, crop_cmd, decimate_cmd
 from facegeom.cli.context import Context
 from facegeom.cli.data import data
 from facegeom.cli.demo import demo
+from facegeom.cli.detect import detect_cmd
 from facegeom.cli.flags import as_flags
 from facegeom.cli.identity import identity_cmd
 from facegeom.cli.single import animate, drive, fit, retarget
 from facegeom.cli.solve import solve_cmd
+from facegeom.cli.track import track_cmd
 from facegeom.cli.transfer import transfer_cmd
 from facegeom.cli.view import view
 from facegeom.errors import FacegeomError
@@ -130,6 +132,7 @@ def main(argv=None):
 cli.add_command(drive)
 cli.add_command(retarget)
 cli.add_command(fit)
+cli.add_command(detect_cmd)
 cli.add_command(animate)
 cli.add_command(bench)
 cli.add_command(demo)
@@ -142,3 +145,4 @@ cli.add_command(data)
 cli.add_command(identity_cmd)
 cli.add_command(solve_cmd)
 cli.add_command(transfer_cmd)
+cli.add_command(track_cmd)

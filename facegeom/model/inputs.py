@@ -188,8 +188,11 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     if kind not in TARGET_KINDS:
         raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(TARGET_KINDS)}")
     tp = Path(path)
+    from facegeom.io.images import IMAGE_SUFFIXES
+
+    photo = tp.suffix.lower() in IMAGE_SUFFIXES
     if kind == "auto":
-        if tp.suffix.lower() in (".csv", ".pts"):
+        if tp.suffix.lower() in (".csv", ".pts") or photo:
             kind = "landmarks"
         elif tp.suffix.lower() in MESH_FORMATS:
             from facegeom.io.formats import read_mesh_data
@@ -207,14 +210,14 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
             raise InputError("landmark targets need the camera: focal, cx and cy (pixels), or the photo they were "
                              "marked on to take them from", tp)
         outline = None
-        if tp.suffix.lower() == ".pts":
-            uv = read_pts(tp)
+        if photo or tp.suffix.lower() == ".pts":
+            uv = photo_landmarks(tp, notes) if photo else read_pts(tp)
             ids = pts_vertex_ids(rig, uv.shape[0], tp)
             outline = np.isin(ids, np.asarray(rig.landmark_ids)[list(SIDE_CONTOUR)])
             if uv.shape[0] == 68:  # the annotators' jaw contour, moved to the model's (JAW_CONVENTION)
                 uv = to_model_convention(uv)
                 outline = None  # now where the model's contour vertices are: no outline to follow
-                if notes is not None:
+                if notes is not None and not photo:
                     notes.append(f"{tp.name}: jaw contour moved from where annotators mark it to the model's "
                                  f"(up 0.07-0.35 and in 0.1-0.2 inter-ocular distances)")
         else:
@@ -233,6 +236,32 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
         P = read_point_cloud(tp)
         tgt = PointCloudTarget(P * _factor(P, rig, scale, tp, notes))
     return kind, tgt
+
+
+def photo_landmarks(path: str | os.PathLike, notes: list | None = None) -> np.ndarray:
+    """The 68 landmarks ``(68, 2)`` (0-based pixels, the annotators' convention) of the largest face in a photo.
+
+    The photo is read as it is shown (EXIF orientation applied) and its faces found by
+    :class:`facegeom.vision.faces.FaceFinder`; a line for ``notes`` says what was found.
+
+    Raises
+    ------
+    InputError
+        Not an image, or no face in it.
+    """
+    from facegeom.io.images import read_image
+    from facegeom.vision.faces import FaceFinder
+
+    tp = Path(path)
+    faces = FaceFinder(iris=False).find(read_image(tp), all_faces=True)
+    if not faces:
+        raise InputError("no face found in the photo", tp)
+    face = faces[0]
+    if notes is not None:
+        more = f"; {len(faces) - 1} smaller face{'s' if len(faces) > 2 else ''} ignored" if len(faces) > 1 else ""
+        notes.append(f"{tp.name}: 68 landmarks found on a face {face.size:.0f} px between the outer eye corners "
+                     f"(detector score {face.detection.score:.2f}){more}")
+    return face.landmarks
 
 
 #: Landmarks may lie this many photo sizes outside the photo (a face cut by the frame) before they are refused.

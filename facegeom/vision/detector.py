@@ -208,7 +208,7 @@ class FaceDetector:
         boxes = np.concatenate([c - half, c + half], axis=1)
         kps = raw[:, 4:16].reshape(-1, 6, 2) / side + anc[:, None, :]
         faces = []
-        shift = np.array([ox, oy])
+        shift = np.array([ox, oy]) + 0.5  # the input's continuous coordinates -> pixel centres at integers
         for box, kp, s in weighted_nms(boxes, kps, score):
             box = box * span - np.concatenate([shift, shift])
             faces.append(FaceDetection(box=box, keypoints=kp * span - shift, score=s))

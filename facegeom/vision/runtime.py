@@ -90,8 +90,8 @@ class Region:
     Attributes
     ----------
     cx, cy : float
-        The centre, in image pixels (x right, y down; pixel centres at integers + 0.5 are not assumed:
-        coordinates are continuous, pixel ``(i, j)`` covers ``[j, j+1) x [i, i+1)``).
+        The centre, in image pixels: x right, y down, 0-based, the centre of pixel (row i, column j) at
+        ``(j, i)`` (facegeom's convention, as :class:`facegeom.model.camera.PinholeCamera`; a ``.pts`` file adds 1).
     size : float
         The side, in image pixels.
     angle : float
@@ -110,7 +110,11 @@ class Region:
         return np.array([[c, s], [-s, c]])
 
     def to_image(self, uv: np.ndarray, side: int) -> np.ndarray:
-        """Map ``(..., 2)`` coordinates in a ``side`` x ``side`` crop of this region to image pixels."""
+        """Map ``(..., 2)`` coordinates in a ``side`` x ``side`` crop of this region to image pixels.
+
+        Crop coordinates are continuous, crop pixel ``k`` covering ``[k, k + 1)`` (what the models read and
+        return); ``(side / 2, side / 2)`` is the region's centre.
+        """
         uv = np.asarray(uv, dtype=np.float64)
         local = (uv / side - 0.5) * self.size
         return local @ self.axes() + np.array([self.cx, self.cy])
@@ -151,7 +155,8 @@ def crop(image: np.ndarray, region: Region, side: int) -> np.ndarray:
         sub = sub.reduce(factor)
     # output point (u, v) (continuous, pixel u covers [u, u+1)) -> sub-image point, in the sub-image's pixels
     ax = region.axes() * (region.size / side / factor)
-    origin = (np.array([region.cx - x0, region.cy - y0]) / factor) - (side / 2) * (ax[0] + ax[1])
+    # Pillow's coordinates put pixel j on [j, j + 1): ours (pixel j's centre at j) + 0.5
+    origin = (np.array([region.cx + 0.5 - x0, region.cy + 0.5 - y0]) / factor) - (side / 2) * (ax[0] + ax[1])
     coeffs = (ax[0, 0], ax[1, 0], origin[0], ax[0, 1], ax[1, 1], origin[1])
     out = sub.transform((side, side), Image.AFFINE, coeffs, resample=Image.BILINEAR, fillcolor=(0, 0, 0))
     return np.asarray(out, dtype=np.float32) * np.float32(1 / 255)
