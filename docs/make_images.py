@@ -16,6 +16,9 @@ matplotlib (Agg, no display):
                      playing a Live Link take
 ``transfer.png``     ``facegeom transfer``: the ICT rig's expressions carried onto that head
 ``cleanup.png``      ``facegeom decimate``: a scan before and after decimation
+``tracked-clip.png`` ``facegeom track --preview``: frames of the example video with the landmarks found and
+                     the fitted face drawn over them
+``tracked-character.png`` ``facegeom track --character``: the scanned head performing the example video
 ``viewer.png``       ``facegeom view drive --screenshot`` (polyscope, headless); a matplotlib
                      render of the same scene when no GL context can start
 ==================  ==========================================================================
@@ -43,7 +46,8 @@ ROOT = Path(__file__).resolve().parents[1]
 HEADS = ROOT / "tests" / "data" / "heads"
 SCAN = HEADS / "lee_perry_smith.ply"  # "LPS Head", Infinite-Realities, CC BY 3.0 (tests/data/heads/SOURCES.md)
 SCAN_CREDIT = "Head: \"LPS Head\" by Infinite-Realities, CC BY 3.0"
-PICTURES = ("driven-face", "retarget", "fitted-photo", "character", "transfer", "cleanup", "viewer")
+PICTURES = ("driven-face", "retarget", "fitted-photo", "character", "transfer", "cleanup", "viewer", "tracked-clip",
+            "tracked-character")
 STAMP = ".stamp.json"
 DPI = 100
 SKIN = np.array([0.86, 0.74, 0.66])
@@ -302,6 +306,51 @@ def character(ex: Path, out: Path, rig_path: Path) -> None:
     save(fig, out)
 
 
+def tracked_clip(ex: Path, out: Path) -> None:
+    """Four frames of ``track --preview`` on the example video: the 68 landmarks found, the fitted face drawn."""
+    import matplotlib.pyplot as plt
+
+    from facegeom.io.video import open_video
+
+    facegeom("track", "clip.mp4", "-o", "clip.npz", "--preview", "clip_preview.mp4", cwd=ex)
+    W = np.load(ex / "clip.npz", allow_pickle=False)["weights"]
+    frames = sorted(_peaks(W, 4))
+    images = {}
+    with open_video(ex / "clip_preview.mp4") as video:
+        for f in video:
+            if f.index in frames:
+                images[f.index] = f.image
+    fig, axes = plt.subplots(1, len(frames), figsize=(16, 3.3))
+    for ax, t in zip(axes, frames):
+        ax.imshow(images[t])
+        ax.set_title(f"frame {t}")
+        ax.axis("off")
+    fig.tight_layout()
+    save(fig, out)
+
+
+def tracked_character(ex: Path, out: Path, rig_path: Path) -> None:
+    """The scanned head, rigged by ``facegeom transfer``, performing the example video (``track --character``)."""
+    facegeom("track", "clip.mp4", "--character", rig_path, "-o", "head_clip.glb", "-o", "clip_curves.npz", cwd=ex)
+    neutral, deltas, names, F = _rig(rig_path)
+    a = np.load(ex / "clip_curves.npz", allow_pickle=False)
+    W, anim_names = a["weights"], [str(x) for x in a["names"]]
+    index = [names.index(n) if n in names else -1 for n in anim_names]
+    frames = sorted(_peaks(W, 4))
+    R = rotation(-20, 5)
+    fig, axes = figure(len(frames), width=16, height=4.6)
+    for ax, t in zip(axes[0], frames):
+        V = neutral.copy()
+        for k, j in enumerate(index):
+            if j >= 0:
+                V = V + W[t, k] * deltas[j]
+        P = draw_mesh(ax, V, F, R, color=SKIN_B)
+        frame_axes(ax, P, title=f"video frame {t}", keep=head_only(neutral))
+    credit(fig, SCAN_CREDIT)
+    fig.tight_layout(rect=(0, 0.03, 1, 0.95))
+    save(fig, out)
+
+
 TRANSFER_SHAPES = (("neutral", ()), ("jaw open", ("jawOpen",)), ("smile", ("mouthSmile_L", "mouthSmile_R")),
                    ("brows up", ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R")),
                    ("pucker", ("mouthPucker",)), ("blink", ("eyeBlink_L", "eyeBlink_R")))
@@ -441,7 +490,7 @@ def main(argv=None) -> int:
         facegeom("data", "examples", ex, cwd=Path(tmp))
         rig = ex / "head_rig.npz"
         transferring = None
-        if {"character", "transfer"} & set(todo):  # the slowest step, in the background meanwhile
+        if {"character", "transfer", "tracked-character"} & set(todo):  # the slowest step, in the background
             transferring = start_facegeom("transfer", SCAN, "-o", rig, cwd=ex)
         steps = {
             "driven-face": lambda p: driven_face(ex, p),
@@ -451,10 +500,12 @@ def main(argv=None) -> int:
             "viewer": lambda p: viewer(ex, p, model),
             "transfer": lambda p: transfer(p, model, rig),
             "character": lambda p: character(ex, p, rig),
+            "tracked-clip": lambda p: tracked_clip(ex, p),
+            "tracked-character": lambda p: tracked_character(ex, p, rig),
         }
         try:
             for name in sorted(todo, key=list(steps).index):
-                if name in ("transfer", "character") and transferring is not None:
+                if name in ("transfer", "character", "tracked-character") and transferring is not None:
                     print("  waiting for `facegeom transfer` of the scanned head ...", flush=True)
                     wait(transferring, f"`facegeom transfer {SCAN.name}`")
                     transferring = None

@@ -330,13 +330,13 @@ def _run(argv, capsys):
 
 def test_cli_offline_and_mismatch_are_one_line(mirror, monkeypatch, capsys):
     monkeypatch.setenv(dl.URL_ENV_VAR, _closed_port_url())
-    code, _, err = _run(["data", "fetch", "--identities", "1", "--no-progress"], capsys)
+    code, _, err = _run(["data", "fetch", "--identities", "1", "--no-progress", "--no-models"], capsys)
     assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
     assert err.startswith("facegeom: error: cannot download the face data from 127.0.0.1:") and "data build" in err
     # the shipped registry against a mirror that serves a different vertex_indices.json
     monkeypatch.setenv(dl.URL_ENV_VAR, mirror.url)
     mirror.corrupt.add(f"{dl.MODEL_FOLDER}/vertex_indices.json")
-    code, _out, err = _run(["data", "fetch", "--no-progress"], capsys)
+    code, _out, err = _run(["data", "fetch", "--no-progress", "--no-models"], capsys)
     assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
     assert err.startswith(f"facegeom: error: {dl.MODEL_FOLDER}/vertex_indices.json: SHA-256 mismatch")
 
@@ -374,7 +374,7 @@ def test_cli_info_and_if_missing(mirror, registry, tmp_path, monkeypatch, capsys
     assert code == 0
     assert f"user cache           {out_path.parent}: {fd.BUNDLE_NAME}" in out and "<- in use" in out
     assert "3 expressions, 2 identities, 9409 vertices" in out and registry.commit in out
-    code, out, _ = _run(["data", "fetch", "--if-missing", "--no-take"], capsys)
+    code, out, _ = _run(["data", "fetch", "--if-missing", "--no-take", "--no-models"], capsys)
     assert code == 0 and out.strip() == f"face data: {out_path} (found; nothing to fetch)"
     code, out, _err = _run(["--data", str(tmp_path / "wrong"), "data", "info"], capsys)
     assert code == 0 and "--data               " in out and "in use: none" in out
@@ -450,11 +450,11 @@ def test_cli_fetch_if_missing_fetches_only_the_take(take_mirror, tmp_path, monke
     monkeypatch.setenv(fd.ENV_VAR, face_model.path)  # the face data of this machine (the cache is a new one here)
     monkeypatch.setattr(dl, "read_registry", lambda path=None, shipped=dl.REGISTRY_FILE, _r=dl.read_registry:
                         take_mirror.registry if shipped == dl.TAKES_REGISTRY_FILE else _r(path, shipped))
-    code, out, err = _run(["data", "fetch", "--if-missing", "--no-progress"], capsys)
+    code, out, err = _run(["data", "fetch", "--if-missing", "--no-progress", "--no-models"], capsys)
     assert code == 0, err
     assert "(found; nothing to fetch)" in out.splitlines()[0]  # the face data of this machine
     assert f"real take: {fd.takes_cache_folder()}" in out
-    code, out, _ = _run(["data", "fetch", "--if-missing"], capsys)
+    code, out, _ = _run(["data", "fetch", "--if-missing", "--no-models"], capsys)
     assert code == 0 and out.splitlines()[-1] == f"takes: {fd.takes_cache_folder()} (found; nothing to fetch)"
     code, out, _ = _run(["data", "info"], capsys)
     assert code == 0 and f"user cache           {fd.takes_cache_folder()}: take_a.csv   <- in use" in out

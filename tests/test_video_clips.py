@@ -1,4 +1,4 @@
-"""Synthetic face videos with known truth (facegeom.bench.video_clips): specs, props, a rendered clip and its truth.
+"""Synthetic face videos with known truth (facegeom.pipelines.video_clips): specs, props, a rendered clip and its truth.
 
 Rendering needs polyscope's off-screen (EGL) renderer and PyAV; without them those tests skip, saying why.
 Everything is rendered at 320 x 240 with one renderer (polyscope has one window per process).
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from facegeom.bench import video_clips as vc
+from facegeom.pipelines import video_clips as vc
 from facegeom.errors import InputError
 
 SIZE = (320, 240)
@@ -28,7 +28,7 @@ def one_take(real_takes):
 def renderer(headless):
     """The face renderer; polyscope is started as the viewer tests start it (the ``headless`` fixture skips where
     EGL cannot start), so that a viewer test run after these in the same process finds it set up as it expects."""
-    from facegeom.bench.render import FaceRenderer
+    from facegeom.pipelines.render import FaceRenderer
 
     try:
         return FaceRenderer(*SIZE)
@@ -143,7 +143,7 @@ def peak_yaw(spec) -> float:
 
 
 def test_families_differ_by_construction(face_model, real_takes):
-    from facegeom.bench.render import SKIN_TONES
+    from facegeom.pipelines.render import SKIN_TONES
     from facegeom.io.takes import read_take
 
     kw = {"frames": 60, "size": (640, 480), "takes": real_takes, "model": face_model}

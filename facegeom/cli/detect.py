@@ -69,7 +69,7 @@ def detect_cmd(source, output, mesh_points, all_faces, detector):
         images = [src]
     finder = FaceFinder(detector=detector)
     found = missed = 0
-    bar = tqdm(images, unit="photo", desc="detect", disable=len(images) < 2, leave=False)
+    bar = tqdm(images, unit="photo", desc="detect", disable=True if len(images) < 2 else None, leave=False)
     for path in bar:
         rgb = read_image(path)
         faces = finder.find(rgb, all_faces=all_faces)

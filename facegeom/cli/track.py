@@ -28,8 +28,8 @@ OUTPUTS = (".csv", ".npz", ".glb")
 @click.option("--focal", type=float, default=None,
               help="The camera's focal length in pixels (default: estimated from the video).")
 @click.option("--smooth", default="auto", show_default=True,
-              help="Temporal smoothing of the curves and the head pose: auto (a Whittaker smoother per curve, its "
-                   "strength chosen by cross-validation), off, or a strength.")
+              help="Temporal smoothing of the curves, the head pose and the gaze: auto (a zero-phase Whittaker "
+                   "smoother halving motion at 4 Hz), off, or a Whittaker strength.")
 @click.option("--calibrate/--no-calibrate", "calibration", default=True, show_default=True,
               help="Neutral calibration: a shape that never relaxes in the video is the actor's rest and is taken "
                    "off.")
@@ -85,7 +85,7 @@ def track_cmd(obj, video, outputs, character_path, character_map, rig_path, rig_
     from facegeom.pipelines.track import track_video, write_track_npz
     from facegeom.pipelines.solve import write_curves
 
-    bar = tqdm(total=None, unit="frame", desc="track", leave=False, dynamic_ncols=True)
+    bar = tqdm(total=None, unit="frame", desc="track", leave=False, dynamic_ncols=True, disable=None)  # a terminal only
 
     def progress(done, total):
         if total and bar.total != total:
@@ -119,7 +119,10 @@ def track_cmd(obj, video, outputs, character_path, character_map, rig_path, rig_
 
         write_preview(video, result, preview)
     cpu = time.process_time() - t0
-    for line in solved.notes + (played.notes[len(solved.notes):] if played is not solved else []):
+    lines = solved.notes + (played.notes[len(solved.notes):] if played is not solved else [])
+    for line in dict.fromkeys(lines):  # each once; the writers name the temporary files they wrote into
+        for o, tmp in zip(outs, tmps):
+            line = line.replace(Path(tmp).name, o.name)
         click.echo(as_flags(line))
     T = result.n_frames
     s = result.seconds

@@ -10,6 +10,9 @@ most of them:
 - ``landmarks.csv`` / ``photo.pts`` (+ a blank ``photo.png`` of the photo's
   size) / ``neutral_front.csv`` / ``neutral_side.csv``: the person seen by
   cameras (``fit``, ``identity``);
+- ``face.jpg``: a rendered photograph of the person smiling; ``clip.mp4``: a
+  rendered video of the person performing ``take.csv`` (``fit``, ``detect``,
+  ``track``; drawn off-screen by polyscope);
 - ``scan.ply``: a partial, noisy point cloud of the smile in millimetres,
   turned and moved as a scanner would leave it (``fit``, ``identity``);
 - ``scan_mesh.obj``: the neutral face with defects (split vertices, a
@@ -69,6 +72,8 @@ TAKE_FPS = 60.0
 """Frame rate of ``take.csv`` and ``capture.c3d``."""
 
 TAKE_FRAMES = 120
+CLIP_SIZE = (480, 360)
+"""Width and height of ``clip.mp4``."""
 ACTOR_FRAMES = 60
 LABEL_FRAMES = (0, 12, 24, 35, 47, 59)
 JOB_FITS = 8
@@ -118,6 +123,12 @@ FILES: tuple[ExampleFile, ...] = (
     ExampleFile("photo.png", "a blank 640 x 480 image: the size of the photo of photo.pts (--image takes the "
                 "camera from it: focal 640 px, centre (319.5, 239.5))", "pixels",
                 "facegeom fit photo.pts --image photo.png --identity -o photo.json"),
+    ExampleFile("face.jpg", "a photograph of the person smiling, head turned 15 degrees (a render of the face "
+                "model with painted brows and lips, eyeballs and a mouth; 640 x 480): its landmarks are found in it",
+                "pixels", "facegeom fit face.jpg -o face_fit.json"),
+    ExampleFile("clip.mp4", f"a video of the person performing take.csv ({TAKE_FRAMES} frames at {TAKE_FPS:g} fps, "
+                f"{CLIP_SIZE[0]} x {CLIP_SIZE[1]}, H.264) with head motion and eye movements", "pixels",
+                "facegeom track clip.mp4 -o clip.csv"),
     ExampleFile("neutral_front.csv", "68 landmarks of the person's neutral face from the front (camera as "
                 "landmarks.csv)", "pixels",
                 "facegeom identity neutral_front.csv neutral_side.csv --focal 1000 --cx 320 --cy 240 -o person.npz"),
@@ -194,6 +205,9 @@ class Examples:
         The rig's shape names (for the truth files).
     nose_tip : int
         The vertex of the nose tip (landmark 30), for ``crop``.
+    scene : dict
+        What ``face.jpg`` and ``clip.mp4`` are rendered from when written: the model, the person's identity, the
+        take's ICT weights, the head's motion and the gaze.
     """
 
     meshes: dict = field(default_factory=dict)
@@ -207,6 +221,7 @@ class Examples:
     truths: dict = field(default_factory=dict)
     names: tuple = ()
     nose_tip: int = 0
+    scene: dict = field(default_factory=dict)
 
 
 def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -346,6 +361,12 @@ def make_examples(model, seed: int = SEED) -> Examples:
     X[rng.random(X.shape[:2]) < 0.01] = np.nan
     ex.capture = (X, tuple(f"v{i}" for i in ids))
 
+    # the photograph and the video, rendered when written: the take's expressions, the capture's head motion
+    t_s = np.arange(TAKE_FRAMES) / TAKE_FPS
+    gaze = np.stack([0.25 * np.sin(2 * np.pi * 0.4 * t_s), 0.12 * np.sin(2 * np.pi * 0.3 * t_s + 1.0)], axis=1)
+    ex.scene = {"model": model, "person": person, "weights": W, "rotations": R, "translations": t,
+                "gaze": np.repeat(gaze[:, None], 2, axis=1), "smile": named_expression("happiness", 0.9)}
+
     Wa = _performance(model, ACTOR_FRAMES, ACTOR_EXPRESSIONS)
     seq = make_sequence(model, Wa, ids, actor_seed=int(seed), character=make_character(model, int(seed)))
     names = tuple(f"v{i}" for i in ids)
@@ -436,6 +457,65 @@ def _write_blank_png(path: Path, width: int, height: int) -> None:
            metadata={"Software": None})
 
 
+def _scene_renderer(scene: dict, width: int, height: int):
+    """The renderer, the person's painted skin and eyes for the example pictures (one renderer per size)."""
+    from facegeom.pipelines.render import HAIR_TONES, SKIN_TONES, FaceRenderer, face_colours
+    from facegeom.pipelines.video_clips import FaceProps
+
+    model = scene["model"]
+    key = ("renderer", width, height)
+    if key not in scene:
+        neutral = model.identity_neutral(scene["person"])
+        scene[key] = (FaceRenderer(width, height), face_colours(model, neutral, SKIN_TONES[1], HAIR_TONES[1]),
+                      FaceProps(model, scene["person"]))
+    return scene[key]
+
+
+def _place(model, V, width: int, height: int, fov: float = 50.0, fraction: float = 0.42):
+    """A camera (vertical field of view ``fov`` degrees) at the distance where the face is ``fraction`` of the frame
+    wide, looking at the face's landmarks' centre."""
+    import math
+
+    f = height / 2.0 / math.tan(math.radians(fov) / 2.0)
+    L = V[np.asarray(model.landmarks)]
+    width_cm = float(np.ptp(L[:, 0]))
+    return f, L.mean(axis=0), f * width_cm / (fraction * width)
+
+
+def _write_photo(path: Path, scene: dict) -> None:
+    from PIL import Image
+
+    model = scene["model"]
+    w, h = PHOTO_SIZE
+    renderer, colours, props = _scene_renderer(scene, w, h)
+    V = model.face(identity=scene["person"], expression=scene["smile"])
+    f, c, d = _place(model, V, w, h)
+    R = _rotation(15.0, -4.0, 2.0)
+    cam = renderer.camera_for(f).with_pose(R, -R @ c + np.array([0.0, 0.0, -d]))
+    img = renderer.render(V, model.triangles, cam, color=colours, background=(0.42, 0.47, 0.52),
+                          extra=props.meshes(V, np.array([[0.1, 0.05], [0.1, 0.05]])))
+    Image.fromarray(img).save(path, format="JPEG", quality=92)
+
+
+def _write_clip(path: Path, scene: dict) -> None:
+    from facegeom.io.video import VideoWriter
+
+    model = scene["model"]
+    w, h = CLIP_SIZE
+    renderer, colours, props = _scene_renderer(scene, w, h)
+    neutral = model.identity_neutral(scene["person"])
+    deltas = np.asarray(model.expression_deltas, dtype=np.float64)
+    f, c, d = _place(model, neutral, w, h)
+    camera = renderer.camera_for(f)
+    with VideoWriter(path, TAKE_FPS, w, h) as out:
+        for k, W in enumerate(scene["weights"]):
+            V = neutral + np.tensordot(W, deltas, axes=1)
+            R, t = scene["rotations"][k], scene["translations"][k]
+            pose = camera.with_pose(R, -R @ c + t + np.array([0.0, 0.0, -d]))
+            out.write(renderer.render(V, model.triangles, pose, color=colours, background=(0.42, 0.47, 0.52),
+                                      extra=props.meshes(V, scene["gaze"][k])))
+
+
 def _writers(ex: Examples) -> dict:
     """File name -> a function writing it to a given path."""
     out = {}
@@ -446,6 +526,8 @@ def _writers(ex: Examples) -> dict:
         out[name] = lambda p, ids=ids, uv=uv: _write_landmark_csv(p, ids, uv)
     out["photo.pts"] = lambda p: _write_pts(p, ex.pts)
     out["photo.png"] = lambda p: _write_blank_png(p, *PHOTO_SIZE)
+    out["face.jpg"] = lambda p: _write_photo(p, ex.scene)
+    out["clip.mp4"] = lambda p: _write_clip(p, ex.scene)
     out["scan.ply"] = lambda p: _write_point_ply(p, ex.scan)
     out["take.csv"] = lambda p: write_livelink_csv(p, ex.take[0], ex.take[1], TAKE_FPS)
     out["capture.c3d"] = lambda p: write_c3d(p, ex.capture[0], ex.capture[1], fps=TAKE_FPS, unit="mm")

@@ -20,12 +20,15 @@ The steps, each its own piece:
    their neighbours (rotations along the shortest arc); they are counted in
    the result.
 5. **Temporal term**: each weight curve and each pose component is smoothed
-   afterwards by a Whittaker smoother whose strength is chosen per curve by
-   generalised cross-validation (:func:`facegeom.methods.marker_solve.smooth_curves`):
-   offline there is no lag to pay, and the cross-validation sets the strength
-   from the curve's own noise rather than from a constant tuned on one kind
-   of clip. (The tangent framework's temporal windows need known frames of
-   the target, which a video of a person does not have.)
+   afterwards by a zero-phase Whittaker smoother
+   (:func:`facegeom.methods.marker_solve.smooth_curves`) whose strength halves
+   motion at :data:`SMOOTH_HZ` (:func:`cutoff_strength`, from the frame rate):
+   offline there is no lag to pay, and the cut-off is a property of faces
+   (real performances keep 98-99.6 % of their power below it), not of a clip.
+   Generalised cross-validation per curve, tried first, left the curves twice
+   as jittery as the truth: the points' errors are correlated from frame to
+   frame, which it takes for signal. (The tangent framework's temporal windows
+   need known frames of the target, which a video of a person does not have.)
 6. **Gaze** (:func:`gaze_angles`): each iris centre is cast back into the
    head's frame and met with the eyeball (a sphere of :data:`EYEBALL_RADIUS`
    behind the lids); the direction from its centre gives the eye's yaw and
@@ -53,12 +56,15 @@ from facegeom.model.camera import PinholeCamera
 from facegeom.model.rig import BlendshapeRig
 from facegeom.pipelines.solve import SolvedCapture
 
-__all__ = ["TrackResult", "VideoPoints", "read_video_points", "solve_points", "track_video", "choose_identity_frames", "gaze_angles", "calibrate", "point_vertices",
+__all__ = ["SMOOTH_HZ", "cutoff_strength", "TrackResult", "VideoPoints", "read_video_points", "solve_points", "track_video", "choose_identity_frames", "gaze_angles", "calibrate", "point_vertices",
            "IDENTITY_FRAMES", "EYEBALL_RADIUS", "write_track_npz"]
 
 IDENTITY_FRAMES = 12  # frames of the identity fit: 12 x ~430 points; more changed the face by < 0.1 mm on tune clips
 EYEBALL_RADIUS = 1.2  # cm: a human eyeball's radius (about 12 mm)
 EYEBALL_DEPTH = 1.0  # cm: the eyeball's centre behind the middle of the lid opening (cornea just behind the lids)
+SMOOTH_HZ = 4.0
+"""The smoothing's cut-off (half gain): real Live Link takes keep 98.4-99.6 % of their weights' power below 4 Hz
+(four recorded takes at 30 fps), while the tracked points' frame-to-frame noise is spread over every frequency."""
 CALIBRATION_PERCENTILE = 5.0  # a shape above this percentile's value all take long is the person's rest
 CALIBRATION_MAX = 0.5  # never take off more than this (a take that smiles throughout keeps half a smile)
 MIN_CALIBRATION_S = 2.0  # takes shorter than this are not calibrated (too little to tell rest from expression)
@@ -114,6 +120,16 @@ def choose_identity_frames(points: np.ndarray, found: np.ndarray, k: int = IDENT
         chosen.append(j)
         dist = np.minimum(dist, np.linalg.norm(feats - feats[j], axis=1))
     return np.sort(idx[pool[chosen]])
+
+
+def cutoff_strength(hz: float, fps: float) -> float:
+    """The Whittaker strength whose filter halves a sinusoid of ``hz`` at ``fps`` frames a second.
+
+    The smoother ``min |z - y|^2 + lam |D2 z|^2`` passes frequency ``f`` with the gain
+    ``1 / (1 + lam (2 - 2 cos(2 pi f / fps))^2)``; the gain is 1/2 at ``f = hz`` for the returned ``lam``.
+    """
+    c = 2.0 - 2.0 * math.cos(2.0 * math.pi * min(hz / fps, 0.5))
+    return 1.0 / (c * c)
 
 
 def _bridge(values: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -414,6 +430,8 @@ def solve_points(vp: VideoPoints, model, rig: BlendshapeRig | None = None, focal
     # smoothing: weights, pose (rotation vectors about the mean turn, translations), gaze
     from scipy.spatial.transform import Rotation
 
+    if smooth == "auto":
+        smooth = cutoff_strength(SMOOTH_HZ, fps)
     if smooth == "off":
         W, lam = Wraw.copy(), np.zeros(B)
         gaze_s = gaze

@@ -6,7 +6,7 @@ around, filmed by a pinhole camera and written as an H.264 video beside a
 ``.truth.npz`` file holding everything that made each frame: the expression
 weights rendered, the head pose, the gaze, the camera.
 
-The face is drawn by :class:`facegeom.bench.render.FaceRenderer` (polyscope,
+The face is drawn by :class:`facegeom.pipelines.render.FaceRenderer` (polyscope,
 off-screen). The ICT mesh has holes where the eyes and the mouth are, so
 simple props are drawn with it (:class:`FaceProps`):
 
@@ -493,7 +493,7 @@ class FamilyRanges:
     fraction : (lo, hi)
         The face's width (landmark 0 to 16) as a fraction of the frame's width, at rest.
     skin : tuple of int
-        Indices into :data:`facegeom.bench.render.SKIN_TONES`.
+        Indices into :data:`facegeom.pipelines.render.SKIN_TONES`.
     background : str
         ``"plain"`` (one colour) or ``"noise"`` (a smooth random texture).
     gaze_yaw, gaze_pitch : float
@@ -1062,7 +1062,7 @@ def make_specs(n: int, seed: int = 0, family: str = "tune", frames: int = 150, s
 
 def _skin(fam: FamilyRanges, rng: np.random.Generator) -> np.ndarray:
     """A skin colour of the family: one of its tones, its brightness varied by up to 6 %."""
-    from facegeom.bench.render import SKIN_TONES
+    from facegeom.pipelines.render import SKIN_TONES
 
     tone = np.asarray(SKIN_TONES[int(rng.choice(fam.skin))], dtype=np.float64)
     return np.round(np.clip(tone * rng.uniform(0.94, 1.06), 0.0, 1.0), 4)
@@ -1104,7 +1104,7 @@ class ClipScene:
     """
 
     def __init__(self, spec: ClipSpec, model=None, renderer=None):
-        from facegeom.bench.render import FaceRenderer
+        from facegeom.pipelines.render import FaceRenderer
 
         if model is None:
             from facegeom.model import load_face_model
@@ -1121,7 +1121,7 @@ class ClipScene:
         self.camera = renderer.camera_for(spec.focal)
         self.background = background_image(spec)
         self._deltas = model.expression_deltas.reshape(len(model.expression_names), -1)
-        from facegeom.bench.render import HAIR_TONES, face_colours
+        from facegeom.pipelines.render import HAIR_TONES, face_colours
 
         # brows and lips painted on the skin (a detector looks for them); the brow colour follows the clip's seed
         self.colours = face_colours(model, self.neutral, spec.skin, HAIR_TONES[int(spec.seed) % len(HAIR_TONES)])
@@ -1234,7 +1234,7 @@ def build_clips(out_dir, n: int, seed: int = 0, family: str = "tune", frames: in
         from facegeom.model import load_face_model
 
         model = load_face_model()
-    from facegeom.bench.render import FaceRenderer
+    from facegeom.pipelines.render import FaceRenderer
 
     specs = make_specs(n, seed, family, frames, size, takes=takes, model=model)
     renderer = FaceRenderer(specs[0].width, specs[0].height)
