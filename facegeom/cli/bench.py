@@ -603,8 +603,8 @@ def bench_detect(photos, detector, out):
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the clips.")
 @click.option("--families", default="tune,holdout", show_default=True,
               help="Comma-separated: tune (the defaults were chosen on these), holdout (built to differ).")
-@click.option("--methods", default=",".join(("track", "per-frame", "l1reg", "l2reg")), show_default=True,
-              help="Comma-separated subset of track, per-frame, l1reg, l2reg.")
+@click.option("--methods", default=",".join(("track", "per-frame", "l1reg", "l2reg", "rest")), show_default=True,
+              help="Comma-separated subset of track, per-frame, l1reg, l2reg, rest (every weight 0: the reference).")
 @click.option("--clip-dir", type=click.Path(file_okay=False), default=None,
               help="Where the rendered clips are kept and reused (default: OUT/clips).")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/track", show_default=True)

@@ -29,6 +29,11 @@ def examples(ctx, folder, force):
     paths = write_examples(model, folder, force=force)
     click.echo(f"wrote {len(paths)} files to {folder} (what each is and the command that uses it: "
                f"{Path(folder) / 'README.txt'}):")
-    names = [n for n in example_paths() if not n.startswith("job/")]
+    written = {p.relative_to(folder).as_posix() for p in map(Path, paths)}
+    names = [n for n in example_paths() if not n.startswith("job/") and n in written]
     click.echo("  " + ", ".join(names) + ", job/ (the batch job's inputs)")
+    skipped = [n for n in example_paths() if n not in written]
+    if skipped:
+        click.echo(f"  not written here: {', '.join(skipped)} (rendering them needs an off-screen renderer, EGL, and "
+                   "PyAV: see README.txt)")
     click.echo(f"try: cd {folder} && facegeom drive face.obj markers.csv -o driven.ply")

@@ -38,7 +38,7 @@ from facegeom.errors import InputError
 __all__ = ["IMAGE_SUFFIXES", "MAX_IMAGE_PIXELS", "read_image", "image_size", "list_images"]
 
 #: The file names :func:`list_images` takes as photos (compared lower-case).
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pbm", ".pnm")
 
 #: Most pixels :func:`read_image` decodes by default (64 Mi pixels; see the module notes for why).
 MAX_IMAGE_PIXELS = 1 << 26

@@ -697,6 +697,7 @@ class VideoWriter:
         try:
             tmp = self._stack.enter_context(atomic_path(self.path))
             options = {"movflags": "+faststart"} if suffix in (".mp4", ".mov") else {}
+            options["fflags"] = "+bitexact"  # no time of writing or library version in the file: same frames, same bytes
             self._container = av.open(_ffmpeg_name(tmp), "w", options=options)
             self._stream = self._add_stream()
         except BaseException as exc:
@@ -712,7 +713,7 @@ class VideoWriter:
         w, h = self._encoded
         if self.codec == "libx264":
             stream = self._container.add_stream(self.codec, rate=self._rate,
-                                                options={"preset": "veryfast", "crf": "20"})
+                                                options={"preset": "veryfast", "crf": "20", "threads": "1"})
         else:
             stream = self._container.add_stream(self.codec, rate=self._rate)
             stream.bit_rate = int(min(50e6, max(400e3, 0.3 * w * h * self.fps)))

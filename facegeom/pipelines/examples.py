@@ -128,7 +128,7 @@ FILES: tuple[ExampleFile, ...] = (
                 "pixels", "facegeom fit face.jpg -o face_fit.json"),
     ExampleFile("clip.mp4", f"a video of the person performing take.csv ({TAKE_FRAMES} frames at {TAKE_FPS:g} fps, "
                 f"{CLIP_SIZE[0]} x {CLIP_SIZE[1]}, H.264) with head motion and eye movements", "pixels",
-                "facegeom track clip.mp4 -o clip.csv"),
+                "facegeom track clip.mp4 -o clip.csv -o clip.npz --preview clip_preview.mp4"),
     ExampleFile("neutral_front.csv", "68 landmarks of the person's neutral face from the front (camera as "
                 "landmarks.csv)", "pixels",
                 "facegeom identity neutral_front.csv neutral_side.csv --focal 1000 --cx 320 --cy 240 -o person.npz"),
@@ -418,6 +418,9 @@ def readme_text(ex: Examples | None = None) -> str:
     for f in FILES:
         units = f"  [{f.units}]" if f.units else ""
         lines += [f"{f.name}{units}", f"    {f.what}", f"    $ {f.command}", ""]
+    if ex is not None and ex.scene.get("skipped"):
+        lines += ["face.jpg and clip.mp4 were not written: rendering them needs an off-screen renderer (EGL:",
+                  "apt install libegl1 libegl-mesa0 libgl1-mesa-dri) and PyAV (pip install 'facegeom[video]').", ""]
     nose = ex.nose_tip if ex is not None else "N"
     lines += ["More commands on these files are in the README's section \"Try it: every task on example inputs\",",
               f"e.g. the face cropped to 4 cm around the nose tip (vertex {nose}) and the capture solved to glTF:",
@@ -542,6 +545,25 @@ def _writers(ex: Examples) -> dict:
     return out
 
 
+PICTURES = ("face.jpg", "clip.mp4")
+"""The example files rendered by polyscope off-screen (skipped where no renderer starts)."""
+
+
+def pictures_possible() -> bool:
+    """Whether the example photograph and video can be rendered here (an off-screen renderer and PyAV)."""
+    import importlib.util
+
+    if importlib.util.find_spec("av") is None:
+        return False
+    from facegeom.pipelines.render import FaceRenderer
+
+    try:
+        FaceRenderer(*CLIP_SIZE)
+    except InputError:
+        return False
+    return True
+
+
 def existing_outputs(folder: str | os.PathLike) -> list[str]:
     """The example files already in ``folder`` (names relative to it), in :func:`example_paths` order."""
     folder = Path(folder)
@@ -608,6 +630,9 @@ def write_examples(model, folder: str | os.PathLike, force: bool = False, seed: 
     names = example_paths()
     ex = make_examples(model, seed)
     writers = _writers(ex)
+    if not pictures_possible():  # no off-screen renderer here: everything else, and a line in README.txt says so
+        names = [n for n in names if n not in PICTURES]
+        ex.scene["skipped"] = True
     missing = sorted(set(names) - set(writers))
     if missing:  # pragma: no cover - FILES and the writers are kept in step
         raise RuntimeError(f"no writer for {missing}")
