@@ -837,6 +837,49 @@ def test_changed_rig_npz_members_load_or_raise_input_error(tmp_path):
     campaign(run, share=2, change=npz_arrays(seed), compressed=st.booleans())
 
 
+def _track_npz_seed() -> dict[str, np.ndarray]:
+    """A small track as ``facegeom track -o OUT.npz`` lays it out: 4 frames, 3 shapes, 2 identity modes."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    T = 4
+    arrays = {"weights": rng.uniform(0, 1, (T, 3)), "raw_weights": rng.uniform(0, 1, (T, 3)),
+            "names": np.array(["a", "b", "c"]), "fps": np.float64(30.0), "times": np.arange(T) / 30.0,
+            "rotations": Rotation.from_rotvec(rng.normal(0, 0.1, (T, 3))).as_matrix(),
+            "camera_translations": np.c_[np.zeros((T, 2)), -np.full(T, 50.0)], "gaze": np.zeros((T, 2, 2)),
+            "points": rng.uniform(0, 300, (T, 468, 2)).astype(np.float32),
+            "landmarks": rng.uniform(0, 300, (T, 68, 2)).astype(np.float32), "found": np.array([1, 1, 0, 1], bool),
+            "residual": np.array([1.0, 1.2, np.nan, 0.9]), "identity": rng.normal(0, 1, 2), "focal": np.float64(400.0),
+            "width": np.int64(320), "height": np.int64(240), "source": np.array("clip.mp4")}
+    return {k: np.asarray(a) for k, a in arrays.items()}
+
+
+def test_track_npz_seed_is_valid(tmp_path):
+    from facegeom.pipelines.track import read_track_npz
+
+    path = tmp_path / "seed.npz"
+    path.write_bytes(_zip({f"{k}.npy": _npy(a) for k, a in _track_npz_seed().items()}))
+    tr = read_track_npz(path)
+    assert tr.n_frames == 4 and tr.names == ("a", "b", "c") and tr.source == "clip.mp4"
+
+
+def test_changed_track_npz_members_read_or_raise_input_error(tmp_path):
+    from facegeom.pipelines.track import read_track_npz
+
+    seed = _track_npz_seed()
+
+    def run(change, compressed):
+        arrays, forged = change
+        path = tmp_path / "f.npz"
+        path.write_bytes(_zip({f"{k}.npy": _npy(a, forged.get(k)) for k, a in arrays.items()}, compressed))
+        tr = read_or_input_error(read_track_npz, path)
+        if tr is not None:
+            assert np.isfinite(tr.weights).all() and np.isfinite(tr.rotations).all()
+            assert tr.weights.shape == (tr.n_frames, len(tr.names)) and tr.points.shape == (tr.n_frames, 468, 2)
+
+    campaign(run, change=npz_arrays(seed), compressed=st.booleans())
+
+
 def _obj_folder_seed() -> dict[str, bytes]:
     """The tiny rig as facegeom writes an OBJ folder: ``neutral.obj`` and one OBJ per shape, by file name."""
     import tempfile

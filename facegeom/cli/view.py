@@ -443,3 +443,61 @@ def _view_character_markers(obj, path, head, start, frames, frame, keys, key_lab
                f"through markers; key frames {', '.join(str(int(f) + start) for f in v.keys)} (take frames); "
                f"'save labels' writes {v.save_path}")
     _run(v, screenshot, size, exit_after, state_path)
+
+
+@view.command("track")
+@click.argument("track_path", metavar="TRACK.npz", type=click.Path(dir_okay=False))
+@click.option("--video", "video_path", type=click.Path(dir_okay=False), default=None,
+              help="The video that was tracked (default: the file the track names, if it is still there).")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="The actor's rig, for a track made with `facegeom track --rig` (it stores no identity).")
+@click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG",
+              help="Also play the curves on this character's rig (an OBJ folder, .glb/.gltf or .npz), its shapes "
+                   "driven by name as `facegeom track --character` drives them.")
+@click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
+              metavar="MAP.csv", help="With --character: a mapping CSV rig_shape,source_shape,gain.")
+@click.option("--frame", default=0, show_default=True, type=click.IntRange(0), help="Frame shown first.")
+@_output_options
+@click.pass_obj
+def view_track(obj, track_path, video_path, rig_path, character_path, character_map, frame, screenshot, size,
+               exit_after, state_path):
+    """Check a track by looking: the video's frame with the fit drawn over it | the fitted face | the character.
+
+    TRACK.npz is what `facegeom track -o OUT.npz` writes. The frame shows the fitted face as a wireframe and the
+    68 landmarks found; beside it the fitted actor plays the curves under the head pose (and your character,
+    with --character). Play/pause, frame slider (scrubbing), speed, the fit residual over time.
+    """
+    from facegeom.errors import InputError
+    from facegeom.viewer.app import check_display
+
+    check_display(screenshot)
+    if character_map is not None and character_path is None:
+        raise InputError("--character-names goes with --character")
+    _check_screenshot(screenshot, track_path, video_path, rig_path, character_path, character_map)
+    _size(size)
+    from facegeom.pipelines.track import read_track_npz
+
+    track = read_track_npz(track_path)
+    if video_path is None:
+        if not track.source or not Path(track.source).is_file():
+            where = f" (it names {track.source}, which is not there)" if track.source else ""
+            raise InputError(f"give the video that was tracked: --video VIDEO{where}", track_path)
+        video_path = track.source
+    elif not Path(video_path).is_file():
+        raise InputError("no such file", video_path)
+    _check_screenshot(screenshot, video_path)
+    model = obj.face_model()
+    rig = load_cli_rig(rig_path, obj.face_model) if rig_path else None
+    character = load_cli_rig(character_path, obj.face_model, names_map=character_map) if character_path else None
+    from facegeom.viewer.track import TrackView
+
+    v = TrackView(model, track, video_path, rig=rig, character=character, frame=frame,
+                  character_name=Path(character_path).name if character_path else None)
+    try:
+        for line in v.notes:
+            click.echo(line)
+        found = int(track.found.sum())
+        click.echo(f"{Path(video_path).name}: {track.n_frames} frames at {track.fps:g} fps, face found in {found}")
+        _run(v, screenshot, size, exit_after, state_path)
+    finally:
+        v.close()

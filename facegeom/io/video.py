@@ -535,6 +535,48 @@ class VideoReader:
         finally:
             decoder.close()  # closes the file
 
+    def decode_from(self, time_s: float) -> Iterator[tuple[float, object]]:
+        """Random access: ``(time_s, frame)`` for the frames from the key frame at or before ``time_s`` on.
+
+        The file is opened anew and sought to ``time_s`` (seconds from the first frame, the times
+        :meth:`frames` gives), so a viewer can jump about a long video without decoding it from the start;
+        convert a frame with :meth:`rgb` (only the one shown, the rest are decoded and passed over). Damaged
+        packets are skipped. Times are the frames' own (a variable frame rate is no problem); a file whose
+        frames carry no times yields them from the start, timed by the average rate.
+        """
+        if self._closed:
+            raise InputError("the video reader is closed", self.path)
+        av = self._av
+        container, stream = self._open()
+        try:
+            tb, origin = self._time_base, self._start
+            if tb and origin is not None and time_s > 0:
+                with contextlib.suppress(av.error.FFmpegError):
+                    container.seek(int(origin + math.floor(float(time_s) / tb)), stream=stream, backward=True,
+                                   any_frame=False)
+            period = 1.0 / self.fps if self.fps else 0.0
+            last = None
+            for packet in container.demux(stream):
+                try:
+                    decoded = stream.decode(packet) if packet.size else stream.decode(None)
+                except av.error.FFmpegError:
+                    continue
+                for frame in decoded:
+                    if frame.pts is not None and tb is not None and origin is not None:
+                        t = float((frame.pts - origin) * tb)
+                    else:
+                        t = last + period if last is not None else 0.0
+                    last = t
+                    yield t, frame
+        except av.error.FFmpegError:
+            return
+        finally:
+            container.close()
+
+    def rgb(self, frame) -> np.ndarray:
+        """A frame from :meth:`decode_from` as ``(H, W, 3)`` uint8 RGB, turned as shown."""
+        return self._rgb(frame)
+
     def close(self) -> None:
         """Close the file (idempotent); the reader cannot be iterated after."""
         self._closed = True

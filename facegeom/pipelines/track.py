@@ -60,7 +60,7 @@ from facegeom.model.rig import BlendshapeRig
 from facegeom.pipelines.solve import SolvedCapture
 
 __all__ = ["SMOOTH_HZ", "cutoff_strength", "TrackResult", "VideoPoints", "read_video_points", "solve_points", "track_video", "choose_identity_frames", "gaze_angles", "calibrate", "point_vertices",
-           "IDENTITY_FRAMES", "EYEBALL_RADIUS", "write_track_npz"]
+           "IDENTITY_FRAMES", "EYEBALL_RADIUS", "write_track_npz", "TrackFile", "read_track_npz"]
 
 IDENTITY_FRAMES = 12  # frames of the identity fit: 12 x ~430 points; more changed the face by < 0.1 mm on tune clips
 EYEBALL_RADIUS = 1.2  # cm: a human eyeball's radius (about 12 mm)
@@ -536,3 +536,120 @@ def write_track_npz(path: str | os.PathLike, result: TrackResult) -> Path:
             calibration=result.calibration, camera_translations=result.camera_t, smoothing=s.smoothing, noise_px=np.float64(result.noise_px),
             units=np.array("cm"), source=np.array(str(s.info.get("video", ""))))
     return Path(path)
+
+
+@dataclass
+class TrackFile:
+    """A track read back from the ``.npz`` :func:`write_track_npz` writes (:func:`read_track_npz`)."""
+
+    path: Path
+    weights: np.ndarray  # (T, B) the delivered curves (smoothed, calibrated)
+    raw_weights: np.ndarray  # (T, B) each frame's own fit
+    names: tuple
+    fps: float
+    times: np.ndarray  # (T,) s
+    rotations: np.ndarray  # (T, 3, 3)
+    camera_t: np.ndarray  # (T, 3) cm, the camera's space
+    gaze: np.ndarray  # (T, 2, 2)
+    points: np.ndarray  # (T, 468, 2) px
+    landmarks: np.ndarray  # (T, 68, 2) px
+    found: np.ndarray  # (T,) bool
+    residual: np.ndarray  # (T,) rms px
+    identity: np.ndarray  # (I,) empty when the track was made with a given rig
+    focal: float
+    width: int
+    height: int
+    source: str
+
+    @property
+    def n_frames(self) -> int:
+        """Frames of the track."""
+        return int(self.found.size)
+
+
+TRACK_ARRAYS = {  # name -> (shape, with T for the frames, B for the shapes, I for the identity; kind)
+    "weights": (("T", "B"), "f"), "raw_weights": (("T", "B"), "f"), "names": (("B",), "U"), "fps": ((), "f"),
+    "times": (("T",), "f"), "rotations": (("T", 3, 3), "f"), "camera_translations": (("T", 3), "f"),
+    "gaze": (("T", 2, 2), "f"), "points": (("T", 468, 2), "f"), "landmarks": (("T", 68, 2), "f"),
+    "found": (("T",), "b"), "residual": (("T",), "f"), "identity": (("I",), "f"), "focal": ((), "f"),
+    "width": ((), "i"), "height": ((), "i"),
+}
+
+
+def read_track_npz(path: str | os.PathLike) -> TrackFile:
+    """Read a track written by ``facegeom track -o OUT.npz`` (every array checked before use).
+
+    Raises
+    ------
+    InputError
+        Not an ``.npz``, an array missing or of the wrong shape or kind, values that are not finite where they
+        must be, a rotation that is not one: one line naming the file and the array.
+    """
+    import zipfile
+
+    from facegeom.io.npzcheck import check_npz, check_text
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path)
+    check_npz(path)
+    arrays = {}
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in TRACK_ARRAYS if k not in z.files]
+            if missing:
+                raise InputError(f"not a track (`facegeom track -o OUT.npz` writes one): no array "
+                                 f"{', '.join(repr(m) for m in missing[:3])}", path)
+            for k in (*TRACK_ARRAYS, "source"):
+                if k in z.files:
+                    arrays[k] = np.asarray(z[k])
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+        raise InputError(f"not a readable .npz: {type(exc).__name__}: {exc}", path) from None
+    sizes: dict[str, int] = {}
+    for k, (shape, kind) in TRACK_ARRAYS.items():
+        a = arrays[k]
+        ok = a.dtype.kind in {"f": "fiu", "i": "iu", "b": "bu", "U": "US"}[kind] and a.ndim == len(shape)
+        if ok:
+            for dim, n in zip(shape, a.shape):
+                if isinstance(dim, str):
+                    ok = ok and sizes.setdefault(dim, n) == n
+                else:
+                    ok = ok and dim == n
+        if not ok:
+            want = "(" + ", ".join(str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
+            raise InputError(f"array {k!r} must have shape {want} ({dict(sizes)}), got {a.shape} of {a.dtype}",
+                             path)
+    T = sizes["T"]
+    if T == 0 or sizes["B"] == 0:
+        raise InputError("the track has no frames or no shapes", path)
+    check_text(arrays["names"], "names", path)
+    if "source" in arrays:
+        check_text(arrays["source"], "source", path)
+    must_be_finite = ("weights", "raw_weights", "times", "rotations", "camera_translations", "gaze", "residual",
+                      "identity", "fps", "focal")
+    for k in must_be_finite:
+        a = arrays[k].astype(np.float64)
+        if k == "residual":
+            a = a[arrays["found"].astype(bool)]
+        if not np.isfinite(a).all():
+            raise InputError(f"array {k!r} holds NaN or inf", path)
+    fps, focal = float(arrays["fps"]), float(arrays["focal"])
+    width, height = int(arrays["width"]), int(arrays["height"])
+    if not (fps > 0 and focal > 0 and 0 < width <= 1 << 16 and 0 < height <= 1 << 16):
+        raise InputError(f"the camera is not one: {width} x {height} px, focal {focal:g} px, {fps:g} fps", path)
+    R = arrays["rotations"].astype(np.float64)
+    if np.abs(np.einsum("tij,tkj->tik", R, R) - np.eye(3)).max() > 1e-3 or (np.linalg.det(R) < 0).any():
+        raise InputError("array 'rotations' holds matrices that are not rotations", path)
+    source = str(arrays["source"]) if "source" in arrays and arrays["source"].dtype.kind in "US" \
+        and arrays["source"].size == 1 else ""
+    return TrackFile(path=path, weights=arrays["weights"].astype(np.float64),
+                     raw_weights=arrays["raw_weights"].astype(np.float64),
+                     names=tuple(str(n) for n in arrays["names"]), fps=fps,
+                     times=arrays["times"].astype(np.float64), rotations=R,
+                     camera_t=arrays["camera_translations"].astype(np.float64),
+                     gaze=arrays["gaze"].astype(np.float64), points=arrays["points"].astype(np.float32),
+                     landmarks=arrays["landmarks"].astype(np.float32), found=arrays["found"].astype(bool),
+                     residual=arrays["residual"].astype(np.float64), identity=arrays["identity"].astype(np.float64),
+                     focal=focal, width=width, height=height, source=source)
