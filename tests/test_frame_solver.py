@@ -85,6 +85,50 @@ def test_weights_stay_in_their_bounds(setup, seed, noise):
     assert np.isfinite(r.R).all() and np.allclose(r.R @ r.R.T, np.eye(3), atol=1e-9)
 
 
+def test_point_weights_are_inverse_variance_and_zero_drops_a_point(setup):
+    """A point with weight 0 pulls nothing, however far off it is; the fixed weights and a frame's own multiply;
+    the residual reported stays plain pixels."""
+    model, _, ids = setup
+    rng = np.random.default_rng(3)
+    cam = PinholeCamera(650.0, 319.5, 239.5)
+    w = np.zeros(model.n_expressions)
+    w[rng.choice(model.n_expressions, 3, replace=False)] = 0.5
+    R, t = _pose(rng)
+    K = ids.size
+    base = FrameSolver(model.neutral, model.expression_deltas, ids, cam, noise_px=0.5)
+    uv = base.project(R, t, w)
+    bad = uv.copy()
+    bad[:20] += 80.0  # twenty points far off
+    pw = np.ones(K)
+    pw[:20] = 0.0
+    fixed = FrameSolver(model.neutral, model.expression_deltas, ids, cam, noise_px=0.5, point_weights=pw)
+    r_fixed = fixed.solve(bad, R, t, w)
+    r_frame = base.solve(bad, R, t, w, point_weights=pw)
+    assert np.degrees(np.linalg.norm(Rotation.from_matrix(r_fixed.R @ R.T).as_rotvec())) < 0.05
+    np.testing.assert_allclose(r_fixed.w, r_frame.w, atol=1e-9)
+    assert r_fixed.rms > 10.0  # plain pixels over every point: the twenty far ones show
+    r_plain = base.solve(bad, R, t, w)
+    assert np.abs(r_plain.w - w).max() > np.abs(r_fixed.w - w).max() + 0.05  # unweighted, they pull
+    with pytest.raises(InputError, match="point_weights"):
+        FrameSolver(model.neutral, model.expression_deltas, ids, cam, point_weights=-pw)
+
+
+def test_the_shipped_point_noise_is_measured_and_sharp_features_are_surest(face_model):
+    from facegeom.pipelines.track import point_vertices, point_weights
+    from facegeom.vision.correspondence import point_noise
+
+    sd = point_noise()
+    assert sd.shape == (468,) and (sd > 0.005).all() and (sd < 0.3).all()
+    # the eye corners and the nose (sharp features) are placed surer than the forehead, the chin and the lower
+    # cheeks along the jaw (smooth skin)
+    sharp = sd[[33, 133, 362, 263, 1, 4]].mean()
+    smooth = sd[[10, 151, 152, 175, 288, 58]].mean()
+    assert sharp < 0.6 * smooth, (sharp, smooth)
+    keep, _, _ = point_vertices(face_model)
+    w = point_weights(keep)
+    assert w.shape == keep.shape and w.mean() == pytest.approx(1.0)
+
+
 def test_frame_solver_refuses_bad_arguments(setup):
     model, _, ids = setup
     cam = PinholeCamera(600.0, 320, 240)

@@ -85,11 +85,15 @@ class FrameSolver:
         Gauss-Newton steps at most per frame.
     bary : (K, 3) float, optional
         Barycentric weights of the points in their triangles (``vertex_ids`` then (K, 3)).
+    point_weights : (K,) float, optional
+        Each point's weight in every frame, ``(sigma / sigma_k)^2`` for a point whose own noise is ``sigma_k``
+        (inverse-variance weighting; the face-mesh model places some points far better than others). A frame's
+        own ``point_weights`` multiply these.
     """
 
     def __init__(self, neutral, deltas, vertex_ids, camera: PinholeCamera, noise_px: float = 2.0,
                  weight_sd: float = EXPRESSION_WEIGHT_SD, temporal_sd: float | None = None,
-                 iterations: int = ITERATIONS, bary=None):
+                 iterations: int = ITERATIONS, bary=None, point_weights=None):
         ids = np.asarray(vertex_ids, dtype=np.int64)
         N = np.asarray(neutral, dtype=np.float64)
         D = np.asarray(deltas, dtype=np.float64)
@@ -121,6 +125,12 @@ class FrameSolver:
         self.weight_sd = float(weight_sd)
         self.temporal_sd = None if temporal_sd is None else float(temporal_sd)
         self.iterations = int(iterations)
+        self.point_weights = None
+        if point_weights is not None:
+            pw = np.asarray(point_weights, dtype=np.float64)
+            if pw.shape != (self.N.shape[0],) or not np.isfinite(pw).all() or (pw < 0).any():
+                raise InputError(f"point_weights must be {self.N.shape[0]} non-negative numbers, one per point")
+            self.point_weights = pw
 
     # ------------------------------------------------------------------ pieces
     def shape(self, w: np.ndarray) -> np.ndarray:
@@ -155,7 +165,8 @@ class FrameSolver:
         if R is None or t is None:
             R, t = self.initial_pose(uv, w)
         R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
-        pw = np.ones(K) if point_weights is None else np.asarray(point_weights, dtype=np.float64)
+        frame_pw = np.ones(K) if point_weights is None else np.asarray(point_weights, dtype=np.float64)
+        pw = frame_pw if self.point_weights is None else frame_pw * self.point_weights
         sw = np.repeat(pw, 2) / self.sigma ** 2  # per residual: confidence / sigma^2
         prior = np.full(self.B, 1.0 / self.weight_sd ** 2)
         target = np.zeros(self.B)
@@ -212,7 +223,7 @@ class FrameSolver:
             if np.abs(step[:3]).max() < 1e-6 and np.abs(step[6:]).max() < 1e-4:  # converged (0.0001 in a weight)
                 break
         res = self.project(R, t, w) - uv
-        rms = float(np.sqrt(np.average((res ** 2).sum(1), weights=pw + 1e-12)))
+        rms = float(np.sqrt(np.average((res ** 2).sum(1), weights=frame_pw + 1e-12)))  # plain pixels
         return FramePose(R, t, w, rms)
 
     def _bounded_step(self, H, g, w) -> np.ndarray:

@@ -18,7 +18,10 @@ The steps, each its own piece:
    of the identity fit's residual on this video and the face-mesh model's
    measured error (:data:`DETECTOR_NOISE`): most of that error moves with
    the face, so a fit absorbs it and its residual understates it (1-1.5 px
-   where the points lie 4-7 px from the truth).
+   where the points lie 4-7 px from the truth). Each point is weighed by its
+   own measured error (:func:`point_weights`): the model places the eye
+   corners and the nose to 2-3 % of the eye-corner distance, the forehead and
+   the jaw's cheeks to 7-10 %.
 4. **Gaps**: frames without a face get weights and pose interpolated from
    their neighbours (rotations along the shortest arc); they are counted in
    the result.
@@ -60,7 +63,7 @@ from facegeom.model.rig import BlendshapeRig
 from facegeom.pipelines.solve import SolvedCapture
 
 __all__ = ["SMOOTH_HZ", "cutoff_strength", "TrackResult", "VideoPoints", "read_video_points", "solve_points", "track_video", "choose_identity_frames", "gaze_angles", "calibrate", "point_vertices",
-           "IDENTITY_FRAMES", "EYEBALL_RADIUS", "write_track_npz", "TrackFile", "read_track_npz"]
+           "IDENTITY_FRAMES", "EYEBALL_RADIUS", "write_track_npz", "TrackFile", "read_track_npz", "point_weights"]
 
 IDENTITY_FRAMES = 12  # frames of the identity fit: 12 x ~430 points; more changed the face by < 0.1 mm on tune clips
 EYEBALL_RADIUS = 1.2  # cm: a human eyeball's radius (about 12 mm)
@@ -95,6 +98,16 @@ def point_vertices(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     mp = mediapipe_map()
     tri = np.asarray(model.triangles)[mp.triangle]
     return keep, tri[keep], np.asarray(mp.bary)[keep]
+
+
+def point_weights(keep) -> np.ndarray:
+    """The points' weights ``(P,)`` for the fits: inverse variance, ``(1 / sd_k)^2`` from the face-mesh model's
+    measured error per point (:func:`facegeom.vision.correspondence.point_noise`), scaled to mean 1 over the
+    points used so that :data:`DETECTOR_NOISE` stays the points' typical noise."""
+    from facegeom.vision.correspondence import point_noise
+
+    w = 1.0 / np.asarray(point_noise())[np.asarray(keep)] ** 2
+    return w / w.mean()
 
 
 def choose_identity_frames(points: np.ndarray, found: np.ndarray, k: int = IDENTITY_FRAMES) -> np.ndarray:
@@ -385,15 +398,16 @@ def solve_points(vp: VideoPoints, model, rig: BlendshapeRig | None = None, focal
         neutral, modes, deltas, names = rig.neutral, None, rig.deltas, tuple(rig.names)
     # the points' noise: what the fit leaves, or the face-mesh model's own error against the true points where
     # that is larger (most of it moves with the face, so the fit absorbs it and its residual understates it)
+    pw = point_weights(keep)
     first = fit_identity_frames(points[chosen][:, keep], ids, W_px, H_px, neutral, deltas, modes, focal=focal,
-                                offset_sd=offset_sd, bary=bary)
+                                offset_sd=offset_sd, bary=bary, point_weights=pw)
     eyes = np.linalg.norm(points[found][:, 263] - points[found][:, 33], axis=1)
     noise = max(first.rms / math.sqrt(2.0), DETECTOR_NOISE * float(np.median(eyes)), 0.25)
     idf = fit_identity_frames(points[chosen][:, keep], ids, W_px, H_px, neutral, deltas, modes, focal=focal,
-                              noise_px=noise, offset_sd=offset_sd, bary=bary)
+                              noise_px=noise, offset_sd=offset_sd, bary=bary, point_weights=pw)
     person = BlendshapeRig.from_face_model(model, idf.identity) if rig is None else rig
     camera = PinholeCamera(idf.focal, (W_px - 1) / 2.0, (H_px - 1) / 2.0)
-    solver = FrameSolver(person.neutral, person.deltas, ids, camera, noise_px=noise, bary=bary)
+    solver = FrameSolver(person.neutral, person.deltas, ids, camera, noise_px=noise, bary=bary, point_weights=pw)
     solver.N = solver.N + idf.offsets  # where the face-mesh model puts the points on this person (see the fit)
     t_identity = time.perf_counter() - t0
     B = len(names)

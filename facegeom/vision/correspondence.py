@@ -58,12 +58,14 @@ __all__ = [
     "landmarks68_from_mesh_points",
     "landmarks68_map",
     "mediapipe_map",
+    "point_noise",
 ]
 
 DATA = Path(__file__).resolve().parent / "data"
 CANONICAL_OBJ = DATA / "canonical_face_model.obj"
 MEDIAPIPE_FILE = DATA / "mediapipe_to_face_model.csv"
 LANDMARKS68_FILE = DATA / "landmarks68_on_mediapipe.csv"
+POINT_NOISE_FILE = DATA / "mediapipe_point_noise.csv"
 N_MESH_POINTS = 468  # the face-mesh model's points (478 with the iris refinement: the first 468 are these)
 N_CANONICAL_TRIANGLES = 898
 MEDIAPIPE_COLUMNS = ("point", "triangle", "b0", "b1", "b2", "distance_cm")
@@ -361,6 +363,22 @@ def landmarks68_map(path=None) -> Landmarks68Map:
         The file is missing, malformed or fails its checks.
     """
     return _shipped("landmarks68") if path is None else _load_landmarks68_map(Path(path))
+
+
+@cache
+def point_noise() -> np.ndarray:
+    """How far the face-mesh model puts each of its 468 points from where :func:`mediapipe_map` puts it,
+    ``(468,)``: the root mean square error per coordinate, as a fraction of the face's outer-eye-corner distance.
+
+    Measured on rendered faces of known geometry by ``data/mediapipe_map/measure_point_noise.py`` (its docstring
+    says how); a point on a sharp feature is placed to 2-3 %, one on the smooth cheek to 7-10 %.
+    """
+    t = _read_table(POINT_NOISE_FILE, ("point", "sd"), N_MESH_POINTS)
+    if not (t[:, 0] == np.arange(N_MESH_POINTS)).all():
+        raise MapFileError(POINT_NOISE_FILE, "column point must list 0 ... 467 in order")
+    if not (t[:, 1] > 0).all():
+        raise MapFileError(POINT_NOISE_FILE, "a point's sd is not positive")
+    return _read_only(t[:, 1].copy())
 
 
 def landmarks68_from_mesh_points(P) -> np.ndarray:
