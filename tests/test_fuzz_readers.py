@@ -1128,6 +1128,7 @@ def _image_seed(kind: str) -> bytes:
     exif = Image.Exif()
     if kind == "image_jpeg":
         exif[0x0112] = 6
+        exif.get_ifd(0x8769)[0xA405] = 26  # the lens, 35 mm equivalent (a phone's)
         Image.fromarray(rgb).save(buf, "JPEG", exif=exif, quality=80)
     elif kind == "image_png":
         exif[0x0112] = 8
@@ -1146,9 +1147,12 @@ IMAGE_TARGETS = {"image_jpeg": "photo.jpg", "image_png": "photo.png", "image_png
 
 
 def check_image(path, set_aside: bool = True) -> None:
-    """read_image: an (H, W, 3) uint8 RGB array, writable, or one line naming the file."""
-    from facegeom.io.images import read_image
+    """read_image: an (H, W, 3) uint8 RGB array, writable, or one line naming the file; the EXIF lens: a
+    plausible focal length or None, never an exception."""
+    from facegeom.io.images import focal_35mm, read_image
 
+    f = focal_35mm(path)
+    assert f is None or 8.0 <= f <= 2000.0
     a = read_or_input_error(read_image, path, set_aside=set_aside)
     if a is None:
         return

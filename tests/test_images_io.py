@@ -224,3 +224,25 @@ def test_image_size_is_the_one_fitfiles_exports():
     from facegeom.io import fitfiles
 
     assert fitfiles.image_size is image_size and "image_size" in fitfiles.__all__
+
+
+def test_the_lens_comes_from_exif_when_the_photo_states_it(tmp_path):
+    from facegeom.io.images import focal_35mm
+    from facegeom.model.inputs import photo_camera
+
+    a = picture(400, 300)
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 26  # a phone's main camera: 26 mm equivalent
+    Image.fromarray(a).save(tmp_path / "phone.jpg", exif=exif, quality=90)
+    Image.fromarray(a).save(tmp_path / "plain.jpg", quality=90)
+    assert focal_35mm(tmp_path / "phone.jpg") == 26.0 and focal_35mm(tmp_path / "plain.jpg") is None
+    f, cx, cy, assumed = photo_camera(None, None, None, tmp_path / "phone.jpg")
+    assert f == pytest.approx(26.0 * 500.0 / 43.27) and (cx, cy) == (199.5, 149.5) and not assumed
+    f, _, _, assumed = photo_camera(None, None, None, tmp_path / "plain.jpg")
+    assert f == 400.0 and assumed
+    assert photo_camera(800.0, None, None, tmp_path / "phone.jpg")[0] == 800.0  # a given focal length is kept
+    bad = Image.Exif()
+    bad.get_ifd(0x8769)[0xA405] = 0  # "unknown" in EXIF
+    Image.fromarray(a).save(tmp_path / "zero.jpg", exif=bad)
+    assert focal_35mm(tmp_path / "zero.jpg") is None
+    assert focal_35mm(tmp_path / "missing.jpg") is None

@@ -55,11 +55,18 @@ def camera_defaults(focal, cx, cy, image):
     from facegeom.io import image_size
     from facegeom.model import photo_camera
 
+    given = focal is not None
     focal, cx, cy, assumed = photo_camera(focal, cx, cy, image)
     if assumed:
         w, h = image_size(image)
         click.echo(f"{Path(image).name}: {w} x {h} px; focal length not given, assumed {focal:g} px (the larger "
                    f"side; give --focal if you know it)")
+    elif not given:
+        from facegeom.io.images import focal_35mm
+
+        w, h = image_size(image)
+        click.echo(f"{Path(image).name}: {w} x {h} px; focal length {focal:.0f} px from the photo's EXIF (a "
+                   f"{focal_35mm(image):g} mm lens, 35 mm equivalent)")
     return focal, cx, cy
 
 

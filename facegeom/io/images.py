@@ -35,7 +35,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 
-__all__ = ["IMAGE_SUFFIXES", "MAX_IMAGE_PIXELS", "read_image", "image_size", "list_images"]
+__all__ = ["IMAGE_SUFFIXES", "MAX_IMAGE_PIXELS", "read_image", "image_size", "list_images", "focal_35mm"]
 
 #: The file names :func:`list_images` takes as photos (compared lower-case).
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pbm", ".pnm")
@@ -142,6 +142,28 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     if not (w > 0 and h > 0):
         raise InputError(f"the image has no pixels ({w} x {h})", path)
     return int(w), int(h)
+
+
+_EXIF_IFD = 0x8769
+_FOCAL_35MM = 0xA405  # FocalLengthIn35mmFilm: the lens as a 35 mm film camera's (phones and most cameras write it)
+
+
+def focal_35mm(path: str | os.PathLike) -> float | None:
+    """The lens's 35 mm-equivalent focal length (mm) the photo's EXIF states, or None (no EXIF, no such tag, a
+    value no lens has). Only the header is read.
+
+    The focal length in pixels follows from the photo's diagonal: a 35 mm frame's diagonal is 43.27 mm, so
+    ``f_px = focal_35mm * hypot(width, height) / 43.27``.
+    """
+    try:
+        from PIL import Image
+
+        with _pillow_guard_off(), Image.open(path) as im:
+            value = Image.Image.getexif(im).get_ifd(_EXIF_IFD).get(_FOCAL_35MM)
+        value = float(value)
+    except Exception:  # noqa: BLE001 - a malformed EXIF block says nothing; the photo itself stays readable
+        return None
+    return value if 8.0 <= value <= 2000.0 else None  # 8 mm: past a fisheye; 2000 mm: past any telephoto
 
 
 def _megapixels(n: int) -> str:

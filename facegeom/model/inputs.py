@@ -295,14 +295,19 @@ def check_photo_landmarks(uv, cx, cy, path=None) -> None:
             raise InputError("the landmarks all lie on one line (or at one point): no face to fit", path)
 
 
+FILM_DIAGONAL_MM = 43.27  # a 35 mm film frame's diagonal (36 x 24 mm)
+
+
 def photo_camera(focal, cx, cy, image) -> tuple[float, float, float, bool]:
     """Intrinsics completed from the photo the landmarks were marked on -> ``(focal, cx, cy, focal_assumed)``.
 
     ``cx, cy`` default to the photo's centre (``(width - 1) / 2``, ``(height - 1) / 2``,
-    0-based pixels) and ``focal`` to its larger side in pixels (a ~53 degree
-    field of view; a focal length off by up to 30 % costs little, the pose
-    takes it up in the face's distance). Given values are kept. ``image=None``
-    returns the values as they are.
+    0-based pixels) and ``focal`` to what the photo's EXIF states (its 35 mm-equivalent
+    focal length, which phones and cameras write: ``f * diagonal / 43.27 mm``), else to
+    its larger side in pixels (a ~53 degree field of view; a focal length off by up to
+    30 % costs little, the pose takes it up in the face's distance); ``focal_assumed``
+    is True only in that last case. Given values are kept. ``image=None`` returns the
+    values as they are.
 
     Raises
     ------
@@ -312,11 +317,17 @@ def photo_camera(focal, cx, cy, image) -> tuple[float, float, float, bool]:
     if image is None:
         return focal, cx, cy, False
     from facegeom.io import image_size
+    from facegeom.io.images import focal_35mm
 
     w, h = image_size(image)
-    assumed = focal is None
-    return (float(max(w, h)) if assumed else focal, (w - 1) / 2.0 if cx is None else cx,
-            (h - 1) / 2.0 if cy is None else cy, assumed)
+    assumed = False
+    if focal is None:
+        f35 = focal_35mm(image)
+        if f35 is not None:
+            focal = f35 * float(np.hypot(w, h)) / FILM_DIAGONAL_MM
+        else:
+            focal, assumed = float(max(w, h)), True
+    return (focal, (w - 1) / 2.0 if cx is None else cx, (h - 1) / 2.0 if cy is None else cy, assumed)
 
 
 def pts_vertex_ids(rig, count: int, path=None) -> np.ndarray:
