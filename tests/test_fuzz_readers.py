@@ -18,6 +18,7 @@ kept, once fixed, in :data:`FOUND_CORPUS`.
 from __future__ import annotations
 
 import contextlib
+import gzip
 import io
 import os
 import re
@@ -1390,3 +1391,56 @@ def test_found_corpus(tmp_path, name, check, build):
     path = tmp_path / name
     path.write_bytes(build())
     check(path, set_aside=False)
+
+
+# ----------------------------------------------------------------------------- Live Link Face packets
+def _livelink_seeds() -> dict[str, bytes]:
+    """Real packets (a performance's first and last, a head-yaw sweep's) and the recordings they come from."""
+    from pathlib import Path
+
+    from facegeom.io.livelink import read_recording
+
+    folder = Path(__file__).parent / "data" / "livelink"
+    dao = read_recording(folder / "dao.gesichter")
+    yaw = read_recording(folder / "debug-headyaw.gesichter")
+    return {"packet": dao[0], "packet_last": dao[-1], "packet_yaw": yaw[len(yaw) // 2],
+            "recording": (folder / "debug-jawleft.gesichter").read_bytes()}
+
+
+def test_mutated_livelink_packets_parse_or_raise_packet_error():
+    """Every datagram: a packet whose values are finite and bounded, or a PacketError of one line."""
+    from facegeom.io.livelink import MAX_VALUE, PACKET_VALUES, PacketError, parse_packet
+
+    seeds = _livelink_seeds()
+    pool = {k: v for k, v in seeds.items() if k.startswith("packet")}
+
+    def run(data):
+        try:
+            with time_limit(5.0):
+                p = parse_packet(data.draw(mutated(data.draw(st.sampled_from(sorted(pool))), pool)))
+        except PacketError as exc:
+            assert len(str(exc).splitlines()) == 1
+            return
+        assert p.values.shape == (PACKET_VALUES,) and np.isfinite(p.values).all()
+        assert np.abs(p.values).max() <= MAX_VALUE
+
+    campaign(run, share=2, data=st.data())
+
+
+def test_mutated_livelink_recordings_read_or_raise_input_error(tmp_path):
+    from facegeom.io.livelink import read_recording
+
+    seeds = _livelink_seeds()
+    inner = {"raw": gzip.decompress(seeds["recording"])}
+
+    def run(data):
+        if data.draw(st.booleans()):  # the gzip stream itself damaged
+            blob = data.draw(mutated("recording", {"recording": seeds["recording"]}))
+        else:  # a well-formed gzip around damaged content
+            blob = gzip.compress(data.draw(mutated("raw", inner)))
+        path = tmp_path / "r.gesichter"
+        path.write_bytes(blob)
+        out = read_or_input_error(read_recording, path)
+        assert out is None or all(isinstance(p, bytes) for p in out)
+
+    campaign(run, share=2, data=st.data())

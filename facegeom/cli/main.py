@@ -21,6 +21,7 @@ from facegeom.cli.demo import demo
 from facegeom.cli.detect import detect_cmd
 from facegeom.cli.flags import as_flags
 from facegeom.cli.identity import identity_cmd
+from facegeom.cli.live import live_cmd
 from facegeom.cli.single import animate, drive, fit, retarget
 from facegeom.cli.solve import solve_cmd
 from facegeom.cli.track import track_cmd
@@ -146,3 +147,4 @@ cli.add_command(identity_cmd)
 cli.add_command(solve_cmd)
 cli.add_command(transfer_cmd)
 cli.add_command(track_cmd)
+cli.add_command(live_cmd)

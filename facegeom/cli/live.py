@@ -1,0 +1,103 @@
+"""``facegeom live``: a Live Link Face stream received, processed and relayed while the actor performs."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("live")
+@click.option("--listen", default=None, metavar="[HOST:]PORT",
+              help="Receive the Live Link Face app's packets here (default 127.0.0.1:11111; another machine's "
+                   "phone needs --listen 0.0.0.0:11111, given explicitly).")
+@click.option("--replay", "replay_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Instead of listening, play a recording (.gesichter) or a Live Link Face take (.csv) at its "
+                   "own rate, as a phone would stream it.")
+@click.option("--loop", is_flag=True, help="With --replay: start over at the end.")
+@click.option("--subject", default=None,
+              help="Take only this subject's frames (default: the first subject heard; others are dropped).")
+@click.option("--send", "sends", multiple=True, metavar="HOST:PORT",
+              help="Relay the frames as Live Link Face packets (Unreal's Live Link sees a phone); repeatable.")
+@click.option("--record", "record_path", type=click.Path(dir_okay=False), default=None, metavar="OUT",
+              help="Write what was passed on when the session ends (Ctrl-C included): OUT.csv a Live Link Face "
+                   "take, OUT.gesichter the packets, OUT.npz the values and arrival times.")
+@click.option("--calibrate", type=float, default=None, metavar="SECONDS",
+              help="The first SECONDS are the actor's rest (hold a neutral face): it becomes zero.")
+@click.option("--smooth", type=click.Choice(["off", "one-euro"]), default="off", show_default=True,
+              help="Smoothing: off, or the One-Euro filter (adaptive: strong on a still face, little lag in "
+                   "motion; its lag is reported).")
+@click.option("--frames", type=click.IntRange(1), default=None, help="Stop after N frames passed on.")
+@click.option("--seconds", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after S seconds.")
+@click.option("--quiet", is_flag=True, help="No status line while running.")
+@click.pass_obj
+def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, calibrate, smooth, frames, seconds,
+             quiet):
+    """Receive a Live Link Face stream (or replay one) and pass it on live.
+
+    Every datagram is checked before use; malformed ones, other subjects and frames superseded by newer ones
+    are counted and dropped, never forwarded. Ctrl-C ends the session cleanly (the recording is written).
+    """
+    import sys
+
+    from facegeom.errors import InputError
+    from facegeom.io import check_outputs, check_writable_folder
+    from facegeom.pipelines import live
+
+    if listen is not None and replay_path is not None:
+        raise InputError("--listen and --replay are two sources: give one")
+    if calibrate is not None and not (calibrate > 0 and calibrate < 1e6):
+        raise InputError(f"--calibrate must be a positive number of seconds, got {calibrate}")
+    if loop and replay_path is None:
+        raise InputError("--loop goes with --replay")
+    if record_path is not None:
+        if Path(record_path).suffix.lower() not in live.RECORD_SUFFIXES:
+            raise InputError(f"--record must be one of {', '.join(live.RECORD_SUFFIXES)}", record_path)
+        check_outputs([replay_path], [record_path])
+        check_writable_folder(record_path)
+    if loop and record_path is not None and frames is None and seconds is None:
+        raise InputError("--loop with --record never ends on its own: add --frames or --seconds (or stop it with "
+                         "Ctrl-C)")
+    targets = [live.parse_address(s, what="--send") for s in sends]
+    stats = live.LiveStats()
+    if replay_path is not None:
+        source = live.ReplaySource(replay_path, loop=loop, stats=stats, subject=subject)
+        what = f"replaying {Path(replay_path).name} at {source.fps:g} fps"
+    else:
+        host, port = live.parse_address(listen or str(live.DEFAULT_PORT))
+        source = live.UDPSource(host, port, subject=subject, stats=stats)
+        what = f"listening on {source.host}:{source.port} (UDP)"
+    steps = []
+    if calibrate is not None:
+        steps.append(live.Calibration(calibrate))
+    if smooth == "one-euro":
+        steps.append(live.OneEuro())
+    sinks = [live.UDPSink(h, p, stats) for h, p in targets]
+    recorder = live.Recorder(record_path) if record_path is not None else None
+    if recorder is not None:
+        sinks.append(recorder)
+    session = live.LiveSession(source, steps, sinks, stats)
+    out = ", ".join([f"sending to {h}:{p}" for h, p in targets] + ([f"recording to {record_path}"] if recorder
+                                                                    else []))
+    click.echo(f"{what}; {out or 'passing nothing on (add --send or --record)'}; Ctrl-C to stop")
+    tty = sys.stderr.isatty()
+
+    def status(line):
+        if quiet:
+            return
+        if tty:
+            click.echo("\r" + line, nl=False, err=True)
+
+    try:
+        session.run(frames=frames, seconds=seconds, status=status)
+    finally:
+        session.close()
+        if tty and not quiet:
+            click.echo("", err=True)
+        written = recorder.write() if recorder is not None else None
+    click.echo(stats.line())
+    if stats.first_error:
+        click.echo(f"first malformed datagram: {stats.first_error}")
+    if written is not None:
+        click.echo(f"wrote {written} ({len(recorder.values)} frames)")
+    elif recorder is not None:
+        click.echo(f"nothing received: {record_path} not written")
