@@ -232,3 +232,17 @@ def test_cli_mistakes_are_one_line(tmp_path, capsys):
     ):
         err = cli_error(capsys, ["live", *args])
         assert words in err, err
+
+
+def test_bench_live_measures_every_configuration(tmp_path):
+    r = run("bench", "live", "--frames", "30", "--burst", "300", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    import csv
+
+    rows = list(csv.DictReader(open(tmp_path / "live.csv")))
+    assert [row["config"] for row in rows] == ["relay", "calibrate", "one-euro", "calibrate + one-euro + record"]
+    for row in rows:
+        assert int(row["frames_out"]) + int(row["superseded"]) + int(row["lost"]) >= 30
+        assert 0 < float(row["p50_ms"]) < 50 and float(row["cpu_us_per_frame"]) > 0
+    summary = (tmp_path / "live-summary.md").read_text()
+    assert "Burst: 300 packets" in summary and "superseded" in summary

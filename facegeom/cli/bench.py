@@ -623,3 +623,25 @@ def bench_track(obj: Context, clips, frames, seed, families, methods, clip_dir, 
     if badm or not ms:
         raise InputError(f"--methods: unknown {badm[0] if badm else 'empty'!r}; choose from {', '.join(bt.METHODS)}")
     bt.run(obj.face_model(), Path(out), clips, frames, seed, fams, ms, echo=click.echo, clip_dir=clip_dir)
+
+
+@bench.command("live")
+@click.option("--recording", type=click.Path(dir_okay=False), default=None,
+              help="A .gesichter recording of Live Link Face packets to stream (default: the real performance "
+                   "shipped with the tests, tests/data/livelink/dao.gesichter).")
+@click.option("--frames", default=600, show_default=True, type=click.IntRange(10, 1_000_000),
+              help="Frames streamed per configuration, at 60 fps.")
+@click.option("--burst", "burst_size", default=3000, show_default=True, type=click.IntRange(1, 1_000_000),
+              help="Packets of the back-to-back burst.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/live", show_default=True)
+def bench_live(recording, frames, burst_size, out):
+    """Latency and drops of `facegeom live` on loopback: relay only and with each processing step, then a burst."""
+    from facegeom.bench import live as bl
+    from facegeom.errors import InputError
+
+    if recording is None:
+        recording = Path(__file__).resolve().parents[2] / "tests" / "data" / "livelink" / "dao.gesichter"
+        if not recording.is_file():
+            raise InputError("no recording given and the source checkout's is not here: give --recording FILE "
+                             "(a .gesichter of Live Link Face packets)")
+    bl.run(Path(recording), Path(out), frames, burst_size, echo=click.echo)

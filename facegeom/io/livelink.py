@@ -64,7 +64,7 @@ MAX_PACKET = 1 + 4 + MAX_NAME + 4 + MAX_NAME + 16 + 1 + 4 * PACKET_VALUES  # 790
 #: No weight or rotation (radians) of a face reaches this; a larger value is a damaged or forged packet.
 MAX_VALUE = 100.0
 _HEAD = struct.Struct(">ifii")  # frame number, sub-frame, rate numerator, rate denominator
-_VALUES = struct.Struct(f">{PACKET_VALUES}f")
+_VALUES_BYTES = 4 * PACKET_VALUES
 _RECORDING_VERSION = PACKET_VERSION  # the tape carries the packets' version
 MAX_RECORDING_BYTES = 256 << 20  # a recording's packets, decompressed (an hour at 60 fps is ~80 MB)
 
@@ -148,9 +148,9 @@ def parse_packet(data: bytes) -> LiveLinkPacket:
     at += 1
     if count != PACKET_VALUES:
         raise PacketError(f"{count} values, not {PACKET_VALUES}")
-    if at + _VALUES.size != len(data):
-        raise PacketError(f"{len(data) - at} bytes of values, not {_VALUES.size}")
-    values = np.array(_VALUES.unpack_from(data, at), dtype=np.float64)
+    if at + _VALUES_BYTES != len(data):
+        raise PacketError(f"{len(data) - at} bytes of values, not {_VALUES_BYTES}")
+    values = np.frombuffer(data, dtype=">f4", count=PACKET_VALUES, offset=at).astype(np.float64)
     if not np.isfinite(values).all():
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise PacketError(f"{PACKET_NAMES[bad]} is not a number ({values[bad]})")
@@ -180,7 +180,7 @@ def encode_packet(values, device_id: str = "facegeom", subject: str = "facegeom"
     return b"".join([
         bytes([PACKET_VERSION]), struct.pack(">i", len(dev)), dev, struct.pack(">i", len(sub)), sub,
         _HEAD.pack(int(frame), float(sub_frame), int(rate[0]), int(rate[1])), bytes([PACKET_VALUES]),
-        _VALUES.pack(*v.astype(np.float32)),
+        v.astype(">f4").tobytes(),
     ])
 
 
