@@ -246,3 +246,69 @@ def test_bench_live_measures_every_configuration(tmp_path):
         assert 0 < float(row["p50_ms"]) < 50 and float(row["cpu_us_per_frame"]) > 0
     summary = (tmp_path / "live-summary.md").read_text()
     assert "Burst: 300 packets" in summary and "superseded" in summary
+
+
+HEAD = Path(__file__).parent / "data" / "heads" / "makehuman_arkit.npz"
+
+
+def test_the_character_follows_the_stream_and_records_a_glb(tmp_path):
+    from facegeom.io.gltf import read_glb_animation
+    from facegeom.model import BlendshapeRig
+
+    rig = BlendshapeRig.from_npz(HEAD)
+    sink = live.CharacterSink(rig, keep=True)
+    src = live.ReplaySource(DATA / "debug-headyaw.gesichter")
+    session = live.LiveSession(src, [], [sink])
+    session.run()
+    assert sink.frames == 66 and len(sink.kept_weights) == 66
+    # the head's yaw turns the character about the vertical
+    from scipy.spatial.transform import Rotation
+
+    assert np.degrees(abs(Rotation.from_matrix(sink.rotation).as_euler("YXZ")[0])) > 10
+    c = rig.neutral.mean(axis=0)
+    np.testing.assert_allclose(sink.face(), c + (rig.neutral - c) @ sink.rotation.T, atol=1e-9)  # no expression
+    out = sink.write_glb(tmp_path / "c.glb", 60.0)
+    g = read_glb_animation(out)
+    assert g.weights.shape == (66, rig.n_shapes) and len(g.names) == rig.n_shapes
+    # a blink drives the character's blink by name
+    sink2 = live.CharacterSink(rig)
+    v = np.zeros(61)
+    v[PACKET_NAMES.index("EyeBlinkLeft")] = 0.8
+    sink2(live.LiveFrame(v, "d", "s", 0, 0.0, (60, 1), 0))
+    k = [n.lower() for n in rig.names].index("eyeblinkleft")
+    assert sink2.weights[k] == pytest.approx(0.8) and np.abs(np.delete(sink2.weights, k)).max() == 0.0
+
+
+def test_cli_views_the_character_headless(tmp_path):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([sys.executable, "-m", "facegeom", "live", "--replay", str(DATA / "dao.gesichter"),
+                        "--character", str(HEAD), "--view", "--screenshot", str(tmp_path / "live.png"), "--frames",
+                        "90", "--size", "800x500", "--record", str(tmp_path / "c.glb")], capture_output=True,
+                       text=True, env=env, timeout=120)
+    if r.returncode != 0 and ("could not start a renderer" in r.stderr or "EGL" in r.stderr):
+        pytest.skip(f"headless rendering unavailable: {r.stderr.strip()}")
+    assert r.returncode == 0, r.stderr
+    assert "90 out" in r.stdout and "wrote" in r.stdout
+    from tests.conftest import assert_not_blank, read_png
+
+    img = read_png(tmp_path / "live.png")
+    assert img.shape == (500, 800, 3)
+    assert_not_blank(img)
+    assert (tmp_path / "c.glb").stat().st_size > 10_000
+
+
+def test_cli_character_mistakes_are_one_line(tmp_path, capsys):
+    from tests.conftest import cli_error
+
+    rec = str(DATA / "dao.gesichter")
+    for args, words in (
+        (["--replay", rec, "--view"], "--view shows your character"),
+        (["--replay", rec, "--record", str(tmp_path / "x.glb")], "--record OUT.glb records your character"),
+        (["--replay", rec, "--character-names", rec], "--character-names goes with --character"),
+        (["--replay", rec, "--screenshot", str(tmp_path / "a.png")], "--screenshot goes with --view"),
+        (["--replay", rec, "--character", str(tmp_path / "none.npz")], "none.npz"),
+    ):
+        err = cli_error(capsys, ["live", *args])
+        assert words in err, err

@@ -20,7 +20,18 @@ import click
               help="Relay the frames as Live Link Face packets (Unreal's Live Link sees a phone); repeatable.")
 @click.option("--record", "record_path", type=click.Path(dir_okay=False), default=None, metavar="OUT",
               help="Write what was passed on when the session ends (Ctrl-C included): OUT.csv a Live Link Face "
-                   "take, OUT.gesichter the packets, OUT.npz the values and arrival times.")
+                   "take, OUT.gesichter the packets, OUT.npz the values and arrival times, OUT.glb (with "
+                   "--character) the character performing it.")
+@click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG",
+              help="Your character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from `facegeom transfer`): its "
+                   "shapes follow the stream by name, its head turns with the actor's.")
+@click.option("--character-names", "character_map", type=click.Path(dir_okay=False), default=None,
+              metavar="MAP.csv", help="With --character: a mapping CSV rig_shape,source_shape,gain.")
+@click.option("--view", is_flag=True, help="Show the character following the stream in a window (needs "
+                                           "--character).")
+@click.option("--screenshot", type=click.Path(dir_okay=False), default=None,
+              help="With --view: run the session to its end headless and render the last frame to this PNG.")
+@click.option("--size", default="1280x800", show_default=True, metavar="WxH", help="With --view: window size.")
 @click.option("--calibrate", type=float, default=None, metavar="SECONDS",
               help="The first SECONDS are the actor's rest (hold a neutral face): it becomes zero.")
 @click.option("--smooth", type=click.Choice(["off", "one-euro"]), default="off", show_default=True,
@@ -30,8 +41,8 @@ import click
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after S seconds.")
 @click.option("--quiet", is_flag=True, help="No status line while running.")
 @click.pass_obj
-def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, calibrate, smooth, frames, seconds,
-             quiet):
+def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, character_path, character_map, view,
+             screenshot, size, calibrate, smooth, frames, seconds, quiet):
     """Receive a Live Link Face stream (or replay one) and pass it on live.
 
     Every datagram is checked before use; malformed ones, other subjects and frames superseded by newer ones
@@ -49,11 +60,27 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, calibr
         raise InputError(f"--calibrate must be a positive number of seconds, got {calibrate}")
     if loop and replay_path is None:
         raise InputError("--loop goes with --replay")
+    if character_map is not None and character_path is None:
+        raise InputError("--character-names goes with --character")
+    if view and character_path is None:
+        raise InputError("--view shows your character: give --character RIG")
+    if screenshot is not None and not view:
+        raise InputError("--screenshot goes with --view")
+    glb = record_path is not None and Path(record_path).suffix.lower() == ".glb"
+    if glb and character_path is None:
+        raise InputError("--record OUT.glb records your character: give --character RIG", record_path)
     if record_path is not None:
         if Path(record_path).suffix.lower() not in live.RECORD_SUFFIXES:
             raise InputError(f"--record must be one of {', '.join(live.RECORD_SUFFIXES)}", record_path)
-        check_outputs([replay_path], [record_path])
-        check_writable_folder(record_path)
+    check_outputs([replay_path, character_path, character_map], [record_path, screenshot])
+    for out_path in (record_path, screenshot):
+        if out_path is not None:
+            check_writable_folder(out_path)
+    if view:
+        from facegeom.viewer.app import check_display, parse_size
+
+        check_display(screenshot)
+        width, height = parse_size(size)
     if loop and record_path is not None and frames is None and seconds is None:
         raise InputError("--loop with --record never ends on its own: add --frames or --seconds (or stop it with "
                          "Ctrl-C)")
@@ -72,9 +99,16 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, calibr
     if smooth == "one-euro":
         steps.append(live.OneEuro())
     sinks = [live.UDPSink(h, p, stats) for h, p in targets]
-    recorder = live.Recorder(record_path) if record_path is not None else None
+    recorder = live.Recorder(record_path) if record_path is not None and not glb else None
     if recorder is not None:
         sinks.append(recorder)
+    character = None
+    if character_path is not None:
+        from facegeom.cli.rigopts import load_cli_rig
+
+        character = live.CharacterSink(load_cli_rig(character_path, obj.face_model, names_map=character_map),
+                                       keep=glb)
+        sinks.append(character)
     session = live.LiveSession(source, steps, sinks, stats)
     out = ", ".join([f"sending to {h}:{p}" for h, p in targets] + ([f"recording to {record_path}"] if recorder
                                                                     else []))
@@ -88,16 +122,29 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, calibr
             click.echo("\r" + line, nl=False, err=True)
 
     try:
-        session.run(frames=frames, seconds=seconds, status=status)
+        if view:
+            from facegeom.viewer.live import LiveView
+
+            v = LiveView(session, character, frames=frames, seconds=seconds,
+                         name=Path(character_path).name)
+            v.run(screenshot=screenshot, width=width, height=height, echo=click.echo)
+        else:
+            session.run(frames=frames, seconds=seconds, status=status)
     finally:
         session.close()
-        if tty and not quiet:
+        if tty and not quiet and not view:
             click.echo("", err=True)
-        written = recorder.write() if recorder is not None else None
+        if glb:
+            fps = source.fps if replay_path is not None else 60.0
+            written = character.write_glb(record_path, fps)
+            count = len(character.kept_weights)
+        else:
+            written = recorder.write() if recorder is not None else None
+            count = len(recorder.values) if recorder is not None else 0
     click.echo(stats.line())
     if stats.first_error:
         click.echo(f"first malformed datagram: {stats.first_error}")
     if written is not None:
-        click.echo(f"wrote {written} ({len(recorder.values)} frames)")
-    elif recorder is not None:
+        click.echo(f"wrote {written} ({count} frames)")
+    elif record_path is not None:
         click.echo(f"nothing received: {record_path} not written")

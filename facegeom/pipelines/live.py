@@ -44,11 +44,11 @@ from facegeom.io.livelink import (
 )
 
 __all__ = ["LiveFrame", "LiveStats", "UDPSource", "ReplaySource", "Calibration", "OneEuro", "UDPSink", "Recorder",
-           "LiveSession", "parse_address", "DEFAULT_PORT", "RECORD_SUFFIXES"]
+           "CharacterSink", "LiveSession", "parse_address", "DEFAULT_PORT", "RECORD_SUFFIXES"]
 
 DEFAULT_PORT = 11111  # the Live Link Face app's default target port
 N_WEIGHTS = 52
-RECORD_SUFFIXES = (".csv", ".gesichter", ".npz")
+RECORD_SUFFIXES = (".csv", ".gesichter", ".npz", ".glb")
 LATENCY_SAMPLES = 100_000  # latencies kept for the percentiles (the last ~28 minutes at 60 fps)
 
 
@@ -353,12 +353,12 @@ class UDPSink:
 class Recorder:
     """Everything passed on, kept in memory (61 values a frame: ~30 KB a second at 60 fps) and written to
     ``path`` when the session ends: ``.csv`` a Live Link Face take, ``.gesichter`` the packets, ``.npz`` the
-    values with their names and arrival times."""
+    values with their names and arrival times. (A ``.glb`` is the character's: :meth:`CharacterSink.write_glb`.)"""
 
     def __init__(self, path):
         self.path = Path(path)
-        if self.path.suffix.lower() not in RECORD_SUFFIXES:
-            raise InputError(f"a recording must be one of {', '.join(RECORD_SUFFIXES)}", self.path)
+        if self.path.suffix.lower() not in RECORD_SUFFIXES[:3]:
+            raise InputError(f"a recording must be one of {', '.join(RECORD_SUFFIXES[:3])}", self.path)
         self.values: list[np.ndarray] = []
         self.times: list[int] = []
         self.meta: tuple | None = None
@@ -393,6 +393,59 @@ class Recorder:
             np.savez_compressed(fh, values=V, names=np.array(PACKET_NAMES), times=t, fps=np.float64(fps),
                                 subject=np.array(subject), device=np.array(device))
         return self.path
+
+
+class CharacterSink:
+    """The user's character following the stream: the ARKit weights through its name map (the mapping CSV's
+    gains included), and the head's rotation. Only the weights are computed per frame (a small matrix
+    product); the mesh is posed when something asks for it (:meth:`face`), so a session without a viewer pays
+    nothing for it. With ``keep`` every frame's weights and rotation are kept for a ``.glb`` at the end."""
+
+    def __init__(self, rig, keep: bool = False):
+        self.rig = rig
+        self.map = rig.map_from(PACKET_NAMES[:N_WEIGHTS])
+        if self.map.is_empty:
+            raise InputError("none of the character's shapes is an ARKit or ICT expression; give a mapping file "
+                             "of its shape names")
+        self.weights = np.zeros(len(rig.names))
+        self.rotation = np.eye(3)
+        self.frames = 0
+        self.keep = bool(keep)
+        self.kept_weights: list[np.ndarray] = []
+        self.kept_rotations: list[np.ndarray] = []
+
+    def __call__(self, frame: LiveFrame) -> None:
+        from scipy.spatial.transform import Rotation
+
+        self.weights = self.map.apply(frame.values[:N_WEIGHTS])
+        yaw, pitch, roll = frame.values[N_WEIGHTS:N_WEIGHTS + 3]
+        self.rotation = Rotation.from_euler("YXZ", [yaw, pitch, roll]).as_matrix()
+        self.frames += 1
+        if self.keep:
+            self.kept_weights.append(self.weights.copy())
+            self.kept_rotations.append(self.rotation.copy())
+
+    def write_glb(self, path, fps: float) -> Path | None:
+        """The kept frames as a ``.glb``: the character with its shapes as morph targets, the weights and the
+        head's rotation as an animation at ``fps`` (atomically). None when nothing was kept."""
+        from facegeom.io.gltf import write_rig_glb
+        from facegeom.pipelines.solve import GLB_SCALE
+
+        if not self.kept_weights:
+            return None
+        rig = self.rig
+        W = np.array(self.kept_weights)
+        R = np.array(self.kept_rotations)
+        return write_rig_glb(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE, rig.names, W,
+                             fps, rotations=R, translations=np.zeros((W.shape[0], 3)))
+
+    def face(self) -> np.ndarray:
+        """The character now: its expression, turned by the head about its neutral's centroid, ``(n, 3)``."""
+        rig = self.rig
+        on = np.flatnonzero(self.weights)
+        P = rig.neutral + np.tensordot(self.weights[on], rig.deltas[on], axes=1) if on.size else np.array(rig.neutral)
+        c = np.asarray(rig.neutral).mean(axis=0)
+        return c + (P - c) @ self.rotation.T
 
 
 class LiveSession:
