@@ -312,3 +312,30 @@ def test_cli_character_mistakes_are_one_line(tmp_path, capsys):
     ):
         err = cli_error(capsys, ["live", *args])
         assert words in err, err
+
+
+def test_osc_bundles_are_what_an_independent_osc_library_reads(dao):
+    """The VMC blendshape bundle, decoded by python-osc (the reference Python OSC implementation)."""
+    pytest.importorskip("pythonosc")
+    from pythonosc.osc_bundle import OscBundle
+
+    from facegeom.io.osc import VMCBlendEncoder, osc_message
+    from pythonosc.osc_message import OscMessage
+
+    assert OscMessage(osc_message("/a/b", "x", 1.5)).params == ["x", 1.5]
+    values = parse_packet(dao[90]).weights
+    data = VMCBlendEncoder(PACKET_NAMES[:52]).encode(values)
+    assert OscBundle.dgram_is_bundle(data)
+    msgs = list(OscBundle(data))
+    assert [m.address for m in msgs] == ["/VMC/Ext/Blend/Val"] * 52 + ["/VMC/Ext/Blend/Apply"]
+    assert [m.params[0] for m in msgs[:52]] == list(PACKET_NAMES[:52])
+    np.testing.assert_allclose([m.params[1] for m in msgs[:52]], values, atol=1e-7)
+    # and through the command line, on loopback
+    rx = receiver()
+    r = run("live", "--replay", str(DATA / "debug-jawleft.gesichter"), "--osc", f"127.0.0.1:{rx.getsockname()[1]}")
+    assert r.returncode == 0, r.stderr
+    got = drain(rx)
+    rx.close()
+    assert len(got) == 66
+    jaw = [dict(m.params for m in OscBundle(g) if m.params)["JawLeft"] for g in got]
+    assert max(jaw) == pytest.approx(1.0) and min(jaw) == 0.0

@@ -18,6 +18,9 @@ import click
               help="Take only this subject's frames (default: the first subject heard; others are dropped).")
 @click.option("--send", "sends", multiple=True, metavar="HOST:PORT",
               help="Relay the frames as Live Link Face packets (Unreal's Live Link sees a phone); repeatable.")
+@click.option("--osc", "oscs", multiple=True, metavar="HOST:PORT",
+              help="Send the weights as VMC-protocol OSC blendshapes (VTuber apps; VSeeFace listens on 39539); "
+                   "repeatable.")
 @click.option("--record", "record_path", type=click.Path(dir_okay=False), default=None, metavar="OUT",
               help="Write what was passed on when the session ends (Ctrl-C included): OUT.csv a Live Link Face "
                    "take, OUT.gesichter the packets, OUT.npz the values and arrival times, OUT.glb (with "
@@ -41,7 +44,7 @@ import click
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after S seconds.")
 @click.option("--quiet", is_flag=True, help="No status line while running.")
 @click.pass_obj
-def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, character_path, character_map, view,
+def live_cmd(obj, listen, replay_path, loop, subject, sends, oscs, record_path, character_path, character_map, view,
              screenshot, size, calibrate, smooth, frames, seconds, quiet):
     """Receive a Live Link Face stream (or replay one) and pass it on live.
 
@@ -85,6 +88,7 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, charac
         raise InputError("--loop with --record never ends on its own: add --frames or --seconds (or stop it with "
                          "Ctrl-C)")
     targets = [live.parse_address(s, what="--send") for s in sends]
+    osc_targets = [live.parse_address(s, what="--osc") for s in oscs]
     stats = live.LiveStats()
     if replay_path is not None:
         source = live.ReplaySource(replay_path, loop=loop, stats=stats, subject=subject)
@@ -98,7 +102,7 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, charac
         steps.append(live.Calibration(calibrate))
     if smooth == "one-euro":
         steps.append(live.OneEuro())
-    sinks = [live.UDPSink(h, p, stats) for h, p in targets]
+    sinks = [live.UDPSink(h, p, stats) for h, p in targets] + [live.OSCSink(h, p, stats) for h, p in osc_targets]
     recorder = live.Recorder(record_path) if record_path is not None and not glb else None
     if recorder is not None:
         sinks.append(recorder)
@@ -110,8 +114,8 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, record_path, charac
                                        keep=glb)
         sinks.append(character)
     session = live.LiveSession(source, steps, sinks, stats)
-    out = ", ".join([f"sending to {h}:{p}" for h, p in targets] + ([f"recording to {record_path}"] if recorder
-                                                                    else []))
+    out = ", ".join([f"sending to {h}:{p}" for h, p in targets] + [f"OSC (VMC) to {h}:{p}" for h, p in osc_targets]
+                    + ([f"recording to {record_path}"] if record_path else []))
     click.echo(f"{what}; {out or 'passing nothing on (add --send or --record)'}; Ctrl-C to stop")
     tty = sys.stderr.isatty()
 

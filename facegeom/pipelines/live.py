@@ -44,7 +44,7 @@ from facegeom.io.livelink import (
 )
 
 __all__ = ["LiveFrame", "LiveStats", "UDPSource", "ReplaySource", "Calibration", "OneEuro", "UDPSink", "Recorder",
-           "CharacterSink", "LiveSession", "parse_address", "DEFAULT_PORT", "RECORD_SUFFIXES"]
+           "CharacterSink", "OSCSink", "LiveSession", "parse_address", "DEFAULT_PORT", "RECORD_SUFFIXES"]
 
 DEFAULT_PORT = 11111  # the Live Link Face app's default target port
 N_WEIGHTS = 52
@@ -343,6 +343,31 @@ class UDPSink:
         try:
             self.sock.sendto(data, self.address)
         except OSError:  # no one listening (ICMP refused), a full buffer: live, the next frame will do
+            self.stats.send_errors += 1
+
+    def close(self) -> None:
+        """Close the socket."""
+        self.sock.close()
+
+
+class OSCSink:
+    """The weights as VMC-protocol OSC (VTuber apps: VSeeFace, VNyan, Warudo...): every frame one bundle of
+    ``/VMC/Ext/Blend/Val`` messages, one per ARKit shape by its name (``EyeBlinkLeft`` ... : the "perfect
+    sync" names), then ``/VMC/Ext/Blend/Apply``."""
+
+    def __init__(self, host: str, port: int, stats: LiveStats | None = None):
+        from facegeom.io.osc import VMCBlendEncoder
+
+        self.stats = stats if stats is not None else LiveStats()
+        self.address = (host, int(port))
+        self.encoder = VMCBlendEncoder(PACKET_NAMES[:N_WEIGHTS])
+        self.sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+
+    def __call__(self, frame: LiveFrame) -> None:
+        try:
+            self.sock.sendto(self.encoder.encode(frame.values[:N_WEIGHTS]), self.address)
+        except OSError:
             self.stats.send_errors += 1
 
     def close(self) -> None:
