@@ -339,3 +339,36 @@ def test_osc_bundles_are_what_an_independent_osc_library_reads(dao):
     assert len(got) == 66
     jaw = [dict(m.params for m in OscBundle(g) if m.params)["JawLeft"] for g in got]
     assert max(jaw) == pytest.approx(1.0) and min(jaw) == 0.0
+
+
+def test_a_video_is_tracked_live_at_its_rate(face_model, tmp_path):
+    """A rendered clip of known head motion, tracked frame by frame as it plays: every frame is passed on or
+    counted (superseded when tracking fell behind, lost without a face), and the head's yaw follows the truth."""
+    pytest.importorskip("av", reason="reading video needs PyAV: pip install 'facegeom[video]'")
+    pytest.importorskip("ai_edge_litert", reason="the face models need LiteRT: pip install 'facegeom[video]'")
+    from facegeom.errors import InputError
+    from facegeom.pipelines.live_video import VideoSource
+    from facegeom.pipelines.video_clips import build_clips, load_truth
+
+    try:
+        (video,) = build_clips(tmp_path, 1, seed=11, family="tune", frames=60, size=(320, 240), progress=False,
+                               model=face_model)
+    except InputError as exc:
+        pytest.skip(f"no off-screen renderer here: {exc}")
+    stats = live.LiveStats()
+    src = VideoSource(video, face_model, stats=stats)
+    rec = []
+    session = live.LiveSession(src, [], [lambda f: rec.append((f.frame, f.values.copy()))], stats)
+    session.run()
+    session.close()
+    assert stats.frames_out + stats.superseded + src.lost == 60
+    assert stats.frames_out >= 30
+    V = np.array([v for _, v in rec])
+    assert np.isfinite(V).all() and (V[:, :52] >= 0).all() and (V[:, :52] <= 1).all()
+    from scipy.spatial.transform import Rotation
+
+    truth = load_truth(video.parent / (video.stem + ".truth.npz"))
+    yaw_true = Rotation.from_matrix(truth["rotations"]).as_euler("YXZ")[:, 0]
+    order = [i for i, _ in rec]
+    assert np.ptp(yaw_true) > np.radians(5)
+    assert np.corrcoef(V[:, 52], yaw_true[order])[0, 1] > 0.8

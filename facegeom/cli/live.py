@@ -13,7 +13,13 @@ import click
 @click.option("--replay", "replay_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Instead of listening, play a recording (.gesichter) or a Live Link Face take (.csv) at its "
                    "own rate, as a phone would stream it.")
-@click.option("--loop", is_flag=True, help="With --replay: start over at the end.")
+@click.option("--video", "video_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Instead of listening, track a video of a face as it plays (at its own rate; no phone, no "
+                   "markers): the weights, head and eye rotations as the phone sends them (facegeom[video]).")
+@click.option("--rig", "rig_path", type=click.Path(), default=None,
+              help="With --video: the actor's own rig (from `facegeom track --rig-out` or `facegeom identity`); "
+                   "default the generic face.")
+@click.option("--loop", is_flag=True, help="With --replay or --video: start over at the end.")
 @click.option("--subject", default=None,
               help="Take only this subject's frames (default: the first subject heard; others are dropped).")
 @click.option("--send", "sends", multiple=True, metavar="HOST:PORT",
@@ -44,7 +50,7 @@ import click
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after S seconds.")
 @click.option("--quiet", is_flag=True, help="No status line while running.")
 @click.pass_obj
-def live_cmd(obj, listen, replay_path, loop, subject, sends, oscs, record_path, character_path, character_map, view,
+def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, sends, oscs, record_path, character_path, character_map, view,
              screenshot, size, calibrate, smooth, frames, seconds, quiet):
     """Receive a Live Link Face stream (or replay one) and pass it on live.
 
@@ -75,7 +81,7 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, oscs, record_path, 
     if record_path is not None:
         if Path(record_path).suffix.lower() not in live.RECORD_SUFFIXES:
             raise InputError(f"--record must be one of {', '.join(live.RECORD_SUFFIXES)}", record_path)
-    check_outputs([replay_path, character_path, character_map], [record_path, screenshot])
+    check_outputs([replay_path, video_path, rig_path, character_path, character_map], [record_path, screenshot])
     for out_path in (record_path, screenshot):
         if out_path is not None:
             check_writable_folder(out_path)
@@ -93,6 +99,18 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, oscs, record_path, 
     if replay_path is not None:
         source = live.ReplaySource(replay_path, loop=loop, stats=stats, subject=subject)
         what = f"replaying {Path(replay_path).name} at {source.fps:g} fps"
+    elif video_path is not None:
+        from facegeom.pipelines.live_video import VideoSource
+
+        if not Path(video_path).exists():
+            raise InputError("no such file", video_path)
+        actor = None
+        if rig_path is not None:
+            from facegeom.model import load_rig
+
+            actor = load_rig(rig_path, obj.face_model)
+        source = VideoSource(video_path, obj.face_model(), rig=actor, stats=stats, loop=loop, subject=subject)
+        what = f"tracking {Path(video_path).name} live at {source.fps:g} fps"
     else:
         host, port = live.parse_address(listen or str(live.DEFAULT_PORT))
         source = live.UDPSource(host, port, subject=subject, stats=stats)
@@ -139,7 +157,7 @@ def live_cmd(obj, listen, replay_path, loop, subject, sends, oscs, record_path, 
         if tty and not quiet and not view:
             click.echo("", err=True)
         if glb:
-            fps = source.fps if replay_path is not None else 60.0
+            fps = source.fps if replay_path is not None or video_path is not None else 60.0
             written = character.write_glb(record_path, fps)
             count = len(character.kept_weights)
         else:

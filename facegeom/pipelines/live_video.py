@@ -1,0 +1,159 @@
+"""A video as a live source: each frame tracked as it comes, at the video's own rate, no markers, no phone.
+
+:class:`VideoSource` is a source of :mod:`facegeom.pipelines.live` (a ``poll`` returning the newest
+:class:`~facegeom.pipelines.live.LiveFrame`). Per frame, what ``facegeom track`` does offline, but causal:
+the face's 468 points (:class:`facegeom.vision.tracking.FaceTracker`), the head pose and the expression
+weights from the previous frame's answer (:class:`facegeom.methods.frame_solver.FrameSolver`, each point
+weighed by its measured noise), the gaze from the irises; the ICT weights go out as the 52 ARKit ones with
+the head's and the eyes' rotations, as the phone sends them. There is no look-ahead: no smoothing here (add
+``--smooth one-euro``), no calibration (``--calibrate``), and the actor's identity is the one given (``rig``,
+e.g. a previous ``facegeom track --rig-out``) or the generic face. The frames are played at their own times;
+when tracking falls behind, frames whose time has passed are skipped (counted as superseded), so the output
+stays live.
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from facegeom.errors import InputError
+from facegeom.pipelines.live import N_WEIGHTS, LiveFrame, LiveStats
+from facegeom.pipelines.track import DETECTOR_NOISE
+
+__all__ = ["VideoSource"]
+
+
+class VideoSource:
+    """Frames of ``path`` tracked one by one and given out at the video's rate (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Any video the tracker reads (``facegeom[video]``).
+    model : FaceModel
+        The face model (its generic face when no ``rig``).
+    rig : BlendshapeRig, optional
+        The actor's own rig with the face model's vertices and shapes.
+    stats : LiveStats, optional
+    loop : bool
+        Start over at the end.
+    """
+
+    def __init__(self, path, model, rig=None, stats: LiveStats | None = None, loop: bool = False,
+                 subject: str | None = None):
+        from facegeom.io.video import open_video
+        from facegeom.methods.frame_solver import FrameSolver
+        from facegeom.methods.video_identity import FOCAL_PRIOR
+        from facegeom.model.camera import PinholeCamera
+        from facegeom.model.rig import BlendshapeRig
+        from facegeom.pipelines.track import eyeball_centres, point_vertices, point_weights
+        from facegeom.vision.tracking import FaceTracker
+
+        self.stats = stats if stats is not None else LiveStats()
+        self.path = Path(path)
+        self.reader = open_video(self.path)
+        self.fps = float(self.reader.fps or 30.0)
+        self.person = rig if rig is not None else BlendshapeRig.from_face_model(model)
+        if self.person.n_vertices != model.n_vertices:
+            self.reader.close()
+            raise InputError(f"the actor's rig has {self.person.n_vertices} vertices, the face model "
+                             f"{model.n_vertices}: give a rig of the face model (an actor's rig fitted by facegeom)")
+        self.names = tuple(self.person.names)
+        self.keep, ids, bary = point_vertices(model)
+        w, h = self.reader.width, self.reader.height
+        self.camera = PinholeCamera(FOCAL_PRIOR * max(w, h), (w - 1) / 2.0, (h - 1) / 2.0)
+        self.solver = FrameSolver(self.person.neutral, self.person.deltas, ids, self.camera, noise_px=1.0, bary=bary,
+                                  point_weights=point_weights(self.keep))
+        lm = self.person.landmark_ids if self.person.landmark_ids is not None else model.landmarks
+        self.centres = eyeball_centres(self.person.neutral, lm)
+        self.tracker = FaceTracker()
+        self.loop = bool(loop)
+        self.subject = subject or self.path.stem
+        self.done = False
+        self.lost = 0
+        self._frames = self.reader.frames()
+        self._t0: float | None = None
+        self._prev = None
+        self._due = 0.0
+
+    def _next(self):
+        frame = next(self._frames, None)
+        if frame is None and self.loop:
+            self._frames = self.reader.frames()
+            self._t0 = None
+            frame = next(self._frames, None)
+        return frame
+
+    def _values(self, image) -> np.ndarray | None:
+        """One frame tracked -> the 61 packet values, or None without a face."""
+        from facegeom.io.livelink import PACKET_NAMES
+        from facegeom.io.takes import head_angles, ict_to_arkit
+        from facegeom.pipelines.track import _eye_rotations, gaze_angles
+
+        r = self.tracker.step(image)
+        if r.points is None:
+            self._prev = None
+            return None
+        uv = r.points[self.keep, :2].astype(np.float64)
+        eyes = float(np.linalg.norm(r.points[263, :2] - r.points[33, :2]))
+        self.solver.sigma = max(DETECTOR_NOISE * eyes, 0.25)  # the points' noise at this face's size (as track)
+        p = self._prev
+        pose = self.solver.solve(uv) if p is None else self.solver.solve(uv, p.R, p.t, p.w)
+        self._prev = pose
+        arkit, names = ict_to_arkit(pose.w[None], self.names)
+        arkit = arkit[0]
+        index = {n.lower(): k for k, n in enumerate(names)}
+        values = np.zeros(len(PACKET_NAMES))
+        for k, n in enumerate(PACKET_NAMES[:N_WEIGHTS]):
+            values[k] = arkit[index[n.lower()]]
+        values[N_WEIGHTS:N_WEIGHTS + 3] = head_angles(pose.R[None])[0]
+        if r.iris is not None:
+            gaze = gaze_angles(r.iris[:, 0, :2].astype(np.float64), pose.R, pose.t, self.centres, self.camera)
+            values[N_WEIGHTS + 3:] = _eye_rotations(gaze[None])[0]
+        return values
+
+    def poll(self, timeout: float = 0.05) -> LiveFrame | None:
+        """The next frame once it is due (tracked), skipping frames whose time has already passed."""
+        if self.done:
+            time.sleep(min(timeout, 0.01))
+            return None
+        now = time.perf_counter()
+        if self._t0 is None:
+            self._t0 = now
+        if self._t0 + self._due - now > timeout:
+            time.sleep(max(0.0, timeout))
+            return None
+        frame = self._next()
+        while frame is not None:
+            due = self._t0 + frame.time_s
+            nxt_due = due + 1.0 / self.fps
+            if time.perf_counter() < nxt_due:  # this one is still current: track it
+                break
+            self.stats.superseded += 1  # tracking fell behind: this frame's time has passed
+            frame = self._next()
+        if frame is None:
+            self.done = True
+            return None
+        wait = self._t0 + frame.time_s - time.perf_counter()
+        if wait > 0:
+            time.sleep(wait)
+        self._due = frame.time_s + 1.0 / self.fps
+        arrived = time.perf_counter_ns()
+        self.stats.datagrams += 1
+        values = self._values(frame.image)
+        if values is None or not np.isfinite(values).all():
+            self.lost += 1
+            return None
+        self.stats.frames_in += 1
+        i = frame.index  # the video's own frame number: the stream's frame numbers skip what was skipped
+        rate = (int(round(self.fps)), 1) if math.isclose(self.fps, round(self.fps), rel_tol=1e-3) else (
+            int(round(self.fps * 1000)), 1000)
+        return LiveFrame(values, "facegeom-video", self.subject, i, 0.0, rate, arrived)
+
+    def close(self) -> None:
+        """Close the video."""
+        self._frames.close()
+        self.reader.close()
