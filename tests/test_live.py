@@ -290,7 +290,13 @@ def test_cli_views_the_character_headless(tmp_path):
     if r.returncode != 0 and ("could not start a renderer" in r.stderr or "EGL" in r.stderr):
         pytest.skip(f"headless rendering unavailable: {r.stderr.strip()}")
     assert r.returncode == 0, r.stderr
-    assert "90 out" in r.stdout and "wrote" in r.stdout
+    import re
+
+    m = re.search(r"(\d+) frames in, (\d+) out; dropped: 0 malformed, (\d+) superseded", r.stdout)
+    assert m, r.stdout
+    n_in, n_out, sup = (int(x) for x in m.groups())
+    # a slow (software-rendered) window passes on the newest frame it can, the others are counted
+    assert n_out + sup == n_in and 0 < n_out <= 90 and "frames per second while receiving" in r.stdout
     from tests.conftest import assert_not_blank, read_png
 
     img = read_png(tmp_path / "live.png")

@@ -100,9 +100,15 @@ class LiveView(BaseView):
             self._show()
 
     def wait(self, timeout: float | None = None) -> None:
-        """Before a screenshot: run the session to its end (frames, seconds, or the replay's last frame)."""
+        """Before a screenshot: run the session to its end (frames, seconds, or the replay's last frame), drawing
+        every frame as the window would (so :meth:`viewer_fps` is the frame rate while receiving)."""
+        import polyscope as ps
+
         while not self.ended:
-            self.pump(0.05)
+            ps.frame_tick()  # the callback polls the stream once, as in the window
+            if self.ended:
+                break
+            self.pump(0.002)  # at most 2 ms more waiting: the renderer, not the wait, sets the pace
 
     def callback(self) -> None:
         """The panel, then one poll of the stream; the window closes when the session has ended."""
@@ -134,12 +140,12 @@ class LiveView(BaseView):
             psim.SameLine()
             psim.TextUnformatted(self.character.rig.names[k])
 
-    def viewer_fps(self) -> float | None:
-        """The window's frame rate over its last second, or None before it has one."""
+    def viewer_fps(self, window: float = 1.0) -> float | None:
+        """The window's frame rate over its last ``window`` seconds, or None before it has one."""
         t = list(self.frame_times)
         if len(t) < 3:
             return None
-        recent = [x for x in t if x >= t[-1] - 1.0]
+        recent = [x for x in t if x >= t[-1] - window]
         span = recent[-1] - recent[0]
         return (len(recent) - 1) / span if span > 0 else None
 

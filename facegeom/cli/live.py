@@ -150,6 +150,9 @@ def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, send
             v = LiveView(session, character, frames=frames, seconds=seconds,
                          name=Path(character_path).name)
             v.run(screenshot=screenshot, width=width, height=height, echo=click.echo)
+            fps = v.viewer_fps(window=1e9)
+            if fps is not None:
+                click.echo(f"viewer: {fps:.0f} frames per second while receiving")
         else:
             session.run(frames=frames, seconds=seconds, status=status)
     finally:

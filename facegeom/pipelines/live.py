@@ -237,6 +237,14 @@ class ReplaySource:
             return None
         if due > now:
             time.sleep(due - now)
+        else:  # behind (a slow consumer): the newest frame already due wins, as from a phone
+            newest = int((now - self._t0) * self.fps)
+            last = len(self.packets) - 1 if not self.loop else newest
+            skip = max(0, min(newest, last) - self.index)
+            self.stats.superseded += skip
+            self.stats.frames_in += skip
+            self.stats.datagrams += skip
+            self.index += skip
         raw = self.packets[self.index % len(self.packets)]
         p = parse_packet(raw)
         self.index += 1
