@@ -378,3 +378,32 @@ def test_a_video_is_tracked_live_at_its_rate(face_model, tmp_path):
     order = [i for i, _ in rec]
     assert np.ptp(yaw_true) > np.radians(5)
     assert np.corrcoef(V[:, 52], yaw_true[order])[0, 1] > 0.8
+
+
+def test_two_senders_and_a_restart(dao):
+    """A second phone (another subject) is counted and dropped; a sender that stops and restarts (its frame
+    numbers from 0 again) goes on through the smoothing without a jump back in time or a NaN."""
+    stats = live.LiveStats()
+    source = live.UDPSource("127.0.0.1", 0, stats=stats)
+    euro = live.OneEuro()
+    seen = []
+    session = live.LiveSession(source, [euro], [lambda f: seen.append(f.values.copy())], stats)
+    a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    p0 = parse_packet(dao[0])
+    for k in range(20):
+        a.sendto(dao[k], ("127.0.0.1", source.port))
+        b.sendto(encode_packet(p0.values, "phone-2", "Second actor", k, 0.0, (60, 1)), ("127.0.0.1", source.port))
+        session.step(0.2)
+    for k in range(20):  # the first phone restarts: frame numbers from 0 again
+        p = parse_packet(dao[40 + k])
+        a.sendto(encode_packet(p.values, p.device_id, p.subject, k, 0.0, p.rate), ("127.0.0.1", source.port))
+        session.step(0.2)
+    while session.step(0.1) is not None:
+        pass
+    a.close()
+    b.close()
+    source.close()
+    assert stats.other_subject == 20 and stats.frames_in == 40 and len(stats.senders) == 2
+    assert stats.frames_out + stats.superseded == 40 and np.isfinite(np.array(seen)).all()
+    assert source.subject == p0.subject
