@@ -6,7 +6,7 @@ processing step, then all of them):
 
 - the session's latency: from a datagram's arrival to the moment the relay has sent it (p50 / p95 / p99);
 - the end-to-end latency: from the sender's ``sendto`` to the receiver's ``recv`` (through the kernel twice);
-- the session's CPU time per frame (its own thread).
+- the session's CPU time per frame (it runs in its own process; the idle waits between frames included).
 
 Then a burst: 3,000 packets sent back to back, counted on arrival (the kernel's socket buffer drops what does
 not fit), superseded (all but the newest), and the time until the next fresh packet comes out.
@@ -55,24 +55,38 @@ def _packets(recording: Path, n: int) -> list[bytes]:
     return out
 
 
-def run_config(name: str, recording: Path, frames: int = 600, fps: float = 60.0) -> dict:
-    """One configuration streamed at ``fps`` for ``frames`` frames -> its row."""
+def _serve(name: str, frames: int, seconds: float, reply_to: int, conn) -> None:
+    """The session, in its own process (so its CPU time is its own): tells the parent its port, relays to
+    ``reply_to`` until ``frames`` frames went out or ``seconds`` passed, then sends back its numbers."""
     stats = live.LiveStats()
     source = live.UDPSource("127.0.0.1", 0, stats=stats)
+    steps, sinks = _steps(CONFIGS[name])
+    sinks.insert(0, live.UDPSink("127.0.0.1", reply_to, stats))
+    session = live.LiveSession(source, steps, sinks, stats)
+    conn.send(source.port)
+    conn.recv()  # the parent is ready to send
+    c0 = time.process_time()
+    session.run(frames=frames, seconds=seconds)
+    cpu = time.process_time() - c0
+    session.close()
+    conn.send({"p": stats.percentiles(), "out": stats.frames_out, "superseded": stats.superseded, "cpu": cpu})
+    conn.close()
+
+
+def run_config(name: str, recording: Path, frames: int = 600, fps: float = 60.0) -> dict:
+    """One configuration streamed at ``fps`` for ``frames`` frames -> its row. The session runs in a child
+    process; the sender and the receiver (for the end-to-end latency) in this one."""
+    import multiprocessing as mp
+
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(0.5)
-    steps, sinks = _steps(CONFIGS[name])
-    sinks.insert(0, live.UDPSink("127.0.0.1", rx.getsockname()[1], stats))
-    session = live.LiveSession(source, steps, sinks, stats)
-    cpu = {}
-
-    def serve():
-        t0 = time.thread_time()
-        session.run(seconds=frames / fps + 5.0)
-        cpu["s"] = time.thread_time() - t0
-
+    parent, child = mp.get_context("fork").Pipe()
+    proc = mp.get_context("fork").Process(target=_serve, args=(name, frames, frames / fps + 5.0,
+                                                               rx.getsockname()[1], child), daemon=True)
+    proc.start()
+    port = parent.recv()
     packets = _packets(recording, frames)
     sent_at = np.zeros(frames, dtype=np.int64)
     got_at = np.full(frames, -1, dtype=np.int64)
@@ -88,34 +102,32 @@ def run_config(name: str, recording: Path, frames: int = 600, fps: float = 60.0)
             if 0 <= k < frames:
                 got_at[k] = now
 
-    server = threading.Thread(target=serve)
-    server.start()
     reader = threading.Thread(target=receive)
     reader.start()
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    parent.send("go")
     t0 = time.perf_counter()
     for i, p in enumerate(packets):
         due = t0 + i / fps
         while time.perf_counter() < due:
             time.sleep(min(0.002, max(0.0, due - time.perf_counter())))
         sent_at[i] = time.perf_counter_ns()
-        tx.sendto(p, ("127.0.0.1", source.port))
-    time.sleep(0.3)
-    session.stop()
-    server.join()
+        tx.sendto(p, ("127.0.0.1", port))
+    result = parent.recv() if parent.poll(frames / fps + 10.0) else {"p": {}, "out": 0, "superseded": 0,
+                                                                      "cpu": float("nan")}
+    proc.join(5.0)
     reader.join()
-    session.close()
     tx.close()
     rx.close()
     ok = got_at >= 0
     e2e = (got_at[ok] - sent_at[ok]) / 1e6
-    p = stats.percentiles()
-    return {"config": name, "frames_sent": frames, "frames_out": stats.frames_out, "superseded": stats.superseded,
+    p = result["p"]
+    return {"config": name, "frames_sent": frames, "frames_out": result["out"], "superseded": result["superseded"],
             "lost": int(frames - ok.sum()), "p50_ms": p.get("p50", float("nan")), "p95_ms": p.get("p95", float("nan")),
             "p99_ms": p.get("p99", float("nan")),
             "e2e_p50_ms": float(np.percentile(e2e, 50)) if e2e.size else float("nan"),
             "e2e_p99_ms": float(np.percentile(e2e, 99)) if e2e.size else float("nan"),
-            "cpu_us_per_frame": cpu.get("s", float("nan")) / max(stats.frames_out, 1) * 1e6}
+            "cpu_us_per_frame": result["cpu"] / max(result["out"], 1) * 1e6}
 
 
 def burst(recording: Path, n: int = 3000) -> dict:
