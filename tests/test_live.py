@@ -315,6 +315,11 @@ def test_cli_character_mistakes_are_one_line(tmp_path, capsys):
         (["--replay", rec, "--character-names", rec], "--character-names goes with --character"),
         (["--replay", rec, "--screenshot", str(tmp_path / "a.png")], "--screenshot goes with --view"),
         (["--replay", rec, "--character", str(tmp_path / "none.npz")], "none.npz"),
+        (["--replay", rec, "--camera", "0"], "--replay and --camera are 2 sources"),
+        (["--listen", "11111", "--rig", rec], "--rig is the actor's rig for --video, --camera"),
+        (["--replay", rec, "--rig", rec], "--rig goes with --video or a --replay of a .c3d"),
+        (["--camera", "/dev/video97"], "no such camera"),
+        (["--listen", "11111", "--loop"], "--loop goes with --replay or --video"),
     ):
         err = cli_error(capsys, ["live", *args])
         assert words in err, err
@@ -347,20 +352,33 @@ def test_osc_bundles_are_what_an_independent_osc_library_reads(dao):
     assert max(jaw) == pytest.approx(1.0) and min(jaw) == 0.0
 
 
-def test_a_video_is_tracked_live_at_its_rate(face_model, tmp_path):
-    """A rendered clip of known head motion, tracked frame by frame as it plays: every frame is passed on or
-    counted (superseded when tracking fell behind, lost without a face), and the head's yaw follows the truth."""
+@pytest.fixture(scope="module")
+def face_clip(face_model, tmp_path_factory):
+    """A rendered clip of known head motion (60 frames, 320 x 240) and its truth."""
     pytest.importorskip("av", reason="reading video needs PyAV: pip install 'facegeom[video]'")
     pytest.importorskip("ai_edge_litert", reason="the face models need LiteRT: pip install 'facegeom[video]'")
     from facegeom.errors import InputError
-    from facegeom.pipelines.live_video import VideoSource
     from facegeom.pipelines.video_clips import build_clips, load_truth
 
     try:
-        (video,) = build_clips(tmp_path, 1, seed=11, family="tune", frames=60, size=(320, 240), progress=False,
-                               model=face_model)
+        (video,) = build_clips(tmp_path_factory.mktemp("clip"), 1, seed=11, family="tune", frames=60,
+                               size=(320, 240), progress=False, model=face_model)
     except InputError as exc:
         pytest.skip(f"no off-screen renderer here: {exc}")
+    from scipy.spatial.transform import Rotation
+
+    truth = load_truth(video.parent / (video.stem + ".truth.npz"))
+    yaw = Rotation.from_matrix(truth["rotations"]).as_euler("YXZ")[:, 0]
+    assert np.ptp(yaw) > np.radians(5)
+    return video, yaw
+
+
+def test_a_video_is_tracked_live_at_its_rate(face_model, face_clip):
+    """The clip tracked frame by frame as it plays: every frame is passed on or counted (superseded when tracking
+    fell behind, lost without a face), and the head's yaw follows the truth."""
+    from facegeom.pipelines.live_video import VideoSource
+
+    video, yaw_true = face_clip
     stats = live.LiveStats()
     src = VideoSource(video, face_model, stats=stats)
     rec = []
@@ -371,13 +389,90 @@ def test_a_video_is_tracked_live_at_its_rate(face_model, tmp_path):
     assert stats.frames_out >= 30
     V = np.array([v for _, v in rec])
     assert np.isfinite(V).all() and (V[:, :52] >= 0).all() and (V[:, :52] <= 1).all()
-    from scipy.spatial.transform import Rotation
-
-    truth = load_truth(video.parent / (video.stem + ".truth.npz"))
-    yaw_true = Rotation.from_matrix(truth["rotations"]).as_euler("YXZ")[:, 0]
     order = [i for i, _ in rec]
-    assert np.ptp(yaw_true) > np.radians(5)
     assert np.corrcoef(V[:, 52], yaw_true[order])[0, 1] > 0.8
+
+
+def stream_into(target: str, video: Path, fps: float, ready: threading.Event | None = None) -> threading.Thread:
+    """A thread that streams ``video``'s frames into ``target`` (a named pipe) as a live camera would: encoded one
+    by one (MJPEG in NUT), each at its time."""
+    import av
+
+    frames = [f.to_ndarray(format="rgb24") for f in av.open(str(video)).decode(video=0)]
+
+    def write():
+        out = av.open(target, "w", format="nut")
+        st = out.add_stream("mjpeg", rate=int(fps))
+        st.height, st.width = frames[0].shape[:2]
+        st.pix_fmt = "yuvj420p"
+        t0 = time.perf_counter()
+        for i, a in enumerate(frames):
+            wait = t0 + i / fps - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            for packet in st.encode(av.VideoFrame.from_ndarray(a, format="rgb24")):
+                out.mux(packet)
+        for packet in st.encode(None):
+            out.mux(packet)
+        out.close()
+
+    t = threading.Thread(target=write, daemon=True)
+    t.start()
+    return t
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="named pipes are POSIX")
+def test_a_live_camera_stream_is_tracked_newest_frame_first(face_model, face_clip, tmp_path):
+    """A camera as FFmpeg sees one: frames arriving in real time through a pipe, no length, no seeking. Every
+    frame the camera gives is tracked or counted as superseded (never queued), the session ends when the stream
+    does, and the head's yaw follows the truth."""
+    import os
+
+    from facegeom.pipelines.live_video import CameraSource
+
+    video, yaw_true = face_clip
+    fifo = tmp_path / "camera"
+    os.mkfifo(fifo)
+    writer = stream_into(str(fifo), video, 30.0)
+    stats = live.LiveStats()
+    src = CameraSource(str(fifo), face_model, stats=stats)
+    assert (src.camera.width, src.camera.height) == (320, 240) and src.face is not None
+    rec = []
+    session = live.LiveSession(src, [], [lambda f: rec.append((f.frame, f.values.copy(), f.arrived_ns))], stats)
+    session.run(seconds=30.0)
+    session.close()
+    writer.join(5.0)
+    assert src.done and src.error is None
+    frames = [i for i, _, _ in rec]
+    assert frames == sorted(set(frames)) and frames[-1] == 59  # in order, none twice, up to the last one filmed
+    first = frames[0]  # frames filmed while the tracker loaded are before the session, not drops
+    assert stats.frames_out + stats.superseded + src.lost == 60 - first
+    assert stats.frames_out >= (60 - first) // 2
+    V = np.array([v for _, v, _ in rec])
+    assert np.isfinite(V).all() and (V[:, :52] >= 0).all() and (V[:, :52] <= 1).all()
+    assert np.corrcoef(V[:, 52], yaw_true[frames])[0, 1] > 0.8
+    assert stats.percentiles()["p50"] < 200  # from the frame's decoding to its output: one tracking
+
+
+def test_camera_names_and_one_line_errors(monkeypatch):
+    from facegeom.errors import InputError
+    from facegeom.io.camera import camera_source, open_camera
+
+    assert camera_source("0", "linux") == ("/dev/video0", "v4l2")
+    assert camera_source("2", "darwin") == ("2:none", "avfoundation")
+    assert camera_source("video=Integrated Camera", "win32") == ("video=Integrated Camera", "dshow")
+    assert camera_source("rtsp://10.0.0.5/live", "linux") == ("rtsp://10.0.0.5/live", None)
+    assert camera_source("/dev/video3", "linux") == ("/dev/video3", "v4l2")
+    with pytest.raises(InputError, match="go by name"):
+        camera_source("0", "win32")
+    with pytest.raises(InputError, match="no camera named"):
+        camera_source("  ")
+    pytest.importorskip("av", reason="cameras need PyAV: pip install 'facegeom[video]'")
+    with pytest.raises(InputError, match="no such camera") as e:
+        open_camera("/dev/video97", platform="linux")
+    assert "/dev/video97" in str(e.value)
+    with pytest.raises(InputError, match="no such camera"):
+        open_camera("/nonexistent/camera")
 
 
 def test_two_senders_and_a_restart(dao):
@@ -407,3 +502,32 @@ def test_two_senders_and_a_restart(dao):
     assert stats.other_subject == 20 and stats.frames_in == 40 and len(stats.senders) == 2
     assert stats.frames_out + stats.superseded == 40 and np.isfinite(np.array(seen)).all()
     assert source.subject == p0.subject
+
+
+def test_a_marker_capture_replays_as_the_phone_would_stream_it(face_model, tmp_path):
+    """``--replay capture.c3d``: the capture solved on the rig first, then streamed at its rate; the recorded take
+    holds the performance's ARKit weights (by name: ICT jawOpen is ARKit JawOpen) and a still head."""
+    from facegeom.io.c3d import write_c3d
+    from facegeom.io.takes import read_take
+    from facegeom.model import BlendshapeRig
+    from facegeom.model.layouts import ict80
+
+    rig = BlendshapeRig.from_face_model(face_model)
+    ids = ict80(face_model)
+    T = 45
+    W = np.zeros((T, rig.n_shapes))
+    jaw, smile = rig.names.index("jawOpen"), rig.names.index("mouthSmile_L")
+    W[:, jaw] = 0.5 - 0.5 * np.cos(np.linspace(0, 2 * np.pi, T))
+    W[:, smile] = np.linspace(0, 0.8, T)
+    X = rig.neutral[ids][None] + np.einsum("tk,kpd->tpd", W, rig.deltas[:, ids])
+    cap = write_c3d(tmp_path / "cap.c3d", X * 10.0, [f"v{i}" for i in ids], fps=60.0, unit="mm")
+    out = tmp_path / "back.csv"
+    r = run("live", "--replay", str(cap), "--record", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "replaying cap.c3d at 60 fps" in r.stdout and f"wrote {out} ({T} frames)" in r.stdout
+    take = read_take(out)
+    col = {n: k for k, n in enumerate(take.names)}
+    assert np.abs(take.weights[:, col["JawOpen"]] - W[:, jaw]).max() < 0.05
+    assert np.abs(take.weights[:, col["MouthSmileLeft"]] - W[:, smile]).max() < 0.05
+    assert np.abs(take.weights[:, col["MouthSmileRight"]]).max() < 0.05
+    assert np.abs(take.rotations[:, :3]).max() < np.radians(1.0)

@@ -11,14 +11,18 @@ import click
               help="Receive the Live Link Face app's packets here (default 127.0.0.1:11111; another machine's "
                    "phone needs --listen 0.0.0.0:11111, given explicitly).")
 @click.option("--replay", "replay_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="Instead of listening, play a recording (.gesichter) or a Live Link Face take (.csv) at its "
-                   "own rate, as a phone would stream it.")
+              help="Instead of listening, play a recording (.gesichter), a Live Link Face take (.csv) or a marker "
+                   "capture (.c3d, solved on --rig first) at its own rate, as a phone would stream it.")
 @click.option("--video", "video_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Instead of listening, track a video of a face as it plays (at its own rate; no phone, no "
                    "markers): the weights, head and eye rotations as the phone sends them (facegeom[video]).")
+@click.option("--camera", default=None, metavar="N|DEVICE|URL",
+              help="Instead of listening, track a camera as it films: its number (0 the first), a device "
+                   "(/dev/video2, on Windows video=NAME) or a live stream's URL (rtsp://, udp://, srt://: an IP "
+                   "camera, OBS). The newest frame is always the one tracked (facegeom[video]).")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
-              help="With --video: the actor's own rig (from `facegeom track --rig-out` or `facegeom identity`); "
-                   "default the generic face.")
+              help="With --video, --camera or a --replay of a .c3d capture: the actor's own rig (from `facegeom track "
+                   "--rig-out`, `facegeom identity` or any rig the capture's markers name); default the generic face.")
 @click.option("--loop", is_flag=True, help="With --replay or --video: start over at the end.")
 @click.option("--subject", default=None,
               help="Take only this subject's frames (default: the first subject heard; others are dropped).")
@@ -50,7 +54,7 @@ import click
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after S seconds.")
 @click.option("--quiet", is_flag=True, help="No status line while running.")
 @click.pass_obj
-def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, sends, oscs, record_path, character_path, character_map, view,
+def live_cmd(obj, listen, replay_path, video_path, camera, rig_path, loop, subject, sends, oscs, record_path, character_path, character_map, view,
              screenshot, size, calibrate, smooth, frames, seconds, quiet):
     """Receive a Live Link Face stream (or replay one) and pass it on live.
 
@@ -63,12 +67,17 @@ def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, send
     from facegeom.io import check_outputs, check_writable_folder
     from facegeom.pipelines import live
 
-    if listen is not None and replay_path is not None:
-        raise InputError("--listen and --replay are two sources: give one")
+    given = [flag for flag, v in (("--listen", listen), ("--replay", replay_path), ("--video", video_path),
+                                  ("--camera", camera)) if v is not None]
+    if len(given) > 1:
+        raise InputError(f"{' and '.join(given)} are {len(given)} sources: give one")
+    if rig_path is not None and replay_path is None and video_path is None and camera is None:
+        raise InputError("--rig is the actor's rig for --video, --camera or a --replay of a .c3d capture (a phone "
+                         "sends its weights already solved)", rig_path)
     if calibrate is not None and not (calibrate > 0 and calibrate < 1e6):
         raise InputError(f"--calibrate must be a positive number of seconds, got {calibrate}")
-    if loop and replay_path is None:
-        raise InputError("--loop goes with --replay")
+    if loop and replay_path is None and video_path is None:
+        raise InputError("--loop goes with --replay or --video")
     if character_map is not None and character_path is None:
         raise InputError("--character-names goes with --character")
     if view and character_path is None:
@@ -97,7 +106,17 @@ def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, send
     osc_targets = [live.parse_address(s, what="--osc") for s in oscs]
     stats = live.LiveStats()
     if replay_path is not None:
-        source = live.ReplaySource(replay_path, loop=loop, stats=stats, subject=subject)
+        rig = None
+        if Path(replay_path).suffix.lower() == ".c3d":
+            from facegeom.cli.rigopts import load_cli_rig
+
+            rig = load_cli_rig(rig_path, obj.face_model)
+        elif rig_path is not None:
+            raise InputError("--rig goes with --video or a --replay of a .c3d capture (a take or recording already "
+                             "holds the weights)", rig_path)
+        source = live.ReplaySource(replay_path, loop=loop, stats=stats, subject=subject, rig=rig)
+        for line in source.notes:
+            click.echo(line)
         what = f"replaying {Path(replay_path).name} at {source.fps:g} fps"
     elif video_path is not None:
         from facegeom.pipelines.live_video import VideoSource
@@ -111,6 +130,16 @@ def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, send
             actor = load_rig(rig_path, obj.face_model)
         source = VideoSource(video_path, obj.face_model(), rig=actor, stats=stats, loop=loop, subject=subject)
         what = f"tracking {Path(video_path).name} live at {source.fps:g} fps"
+    elif camera is not None:
+        from facegeom.pipelines.live_video import CameraSource
+
+        actor = None
+        if rig_path is not None:
+            from facegeom.model import load_rig
+
+            actor = load_rig(rig_path, obj.face_model)
+        source = CameraSource(camera, obj.face_model(), rig=actor, stats=stats, subject=subject)
+        what = f"tracking the camera {source.camera.name} live ({source.fps:g} fps stated)"
     else:
         host, port = live.parse_address(listen or str(live.DEFAULT_PORT))
         source = live.UDPSource(host, port, subject=subject, stats=stats)
@@ -160,13 +189,15 @@ def live_cmd(obj, listen, replay_path, video_path, rig_path, loop, subject, send
         if tty and not quiet and not view:
             click.echo("", err=True)
         if glb:
-            fps = source.fps if replay_path is not None or video_path is not None else 60.0
+            fps = source.fps if replay_path is not None or video_path is not None or camera is not None else 60.0
             written = character.write_glb(record_path, fps)
             count = len(character.kept_weights)
         else:
             written = recorder.write() if recorder is not None else None
             count = len(recorder.values) if recorder is not None else 0
     click.echo(stats.line())
+    if getattr(source, "error", None):
+        click.echo(f"the stream ended: {source.error}")
     if stats.first_error:
         click.echo(f"first malformed datagram: {stats.first_error}")
     if written is not None:

@@ -44,7 +44,8 @@ from facegeom.io.livelink import (
 )
 
 __all__ = ["LiveFrame", "LiveStats", "UDPSource", "ReplaySource", "Calibration", "OneEuro", "UDPSink", "Recorder",
-           "CharacterSink", "OSCSink", "LiveSession", "parse_address", "DEFAULT_PORT", "RECORD_SUFFIXES"]
+           "CharacterSink", "OSCSink", "LiveSession", "parse_address", "solved_values", "DEFAULT_PORT",
+           "RECORD_SUFFIXES"]
 
 DEFAULT_PORT = 11111  # the Live Link Face app's default target port
 N_WEIGHTS = 52
@@ -178,14 +179,50 @@ class UDPSource:
         self.sock.close()
 
 
-class ReplaySource:
-    """A recording (``.gesichter``: the packets as the phone sent them) or a Live Link Face take (``.csv``)
-    played at its own rate, as if a phone were streaming it (for demos and tests). ``loop`` starts over at the
-    end; without it :meth:`poll` returns None for good after the last frame (:attr:`done`)."""
+def _packets(values: np.ndarray, fps: float, subject: str) -> list[bytes]:
+    """Rows of the 61 packet values -> Live Link Face packets at ``fps`` (non-finite values sent as 0)."""
+    rate = (int(round(fps)), 1) if abs(fps - round(fps)) < 1e-3 * fps else (int(round(fps * 1000)), 1000)
+    values = np.nan_to_num(np.asarray(values, dtype=np.float64))
+    return [encode_packet(w, "facegeom-replay", subject, i, 0.0, rate) for i, w in enumerate(values)]
 
-    def __init__(self, path, loop: bool = False, stats: LiveStats | None = None, subject: str | None = None):
+
+def _default_fitter():
+    from facegeom import registry
+
+    return registry.create("fitters", "sem-ls")
+
+
+def solved_values(solved) -> np.ndarray:
+    """A solved marker capture (:class:`facegeom.pipelines.solve.SolvedCapture`) -> ``(T, 61)`` packet values:
+    the rig's shapes mapped to the 52 ARKit weights by name, the head's rotation from the solve and the eyes'
+    from the eye-look weights, as a Live Link take carries them (the same as ``facegeom solve ... take.csv``)."""
+    from facegeom.io.takes import ARKIT_NAMES
+    from facegeom.pipelines.solve import arkit_map, livelink_rotations
+
+    m = arkit_map(solved)
+    if m.is_empty:
+        raise InputError("none of the rig's shape names is an ICT or ARKit expression: its weights cannot be "
+                         "streamed as ARKit weights")
+    W = m.apply(solved.solve.weights)
+    index = {n.lower(): k for k, n in enumerate(ARKIT_NAMES)}
+    out = np.zeros((W.shape[0], PACKET_VALUES))
+    for k, name in enumerate(PACKET_NAMES[:N_WEIGHTS]):
+        out[:, k] = W[:, index[name.lower()]]
+    out[:, N_WEIGHTS:] = livelink_rotations(solved, W)
+    return out
+
+
+class ReplaySource:
+    """A recording (``.gesichter``: the packets as the phone sent them), a Live Link Face take (``.csv``) or a
+    marker capture (``.c3d``, solved on ``rig`` first, as ``facegeom solve`` does) played at its own rate, as if
+    a phone were streaming it (for demos and tests). ``loop`` starts over at the end; without it :meth:`poll`
+    returns None for good after the last frame (:attr:`done`)."""
+
+    def __init__(self, path, loop: bool = False, stats: LiveStats | None = None, subject: str | None = None,
+                 rig=None, fitter=None, markers=None):
         self.stats = stats if stats is not None else LiveStats()
         self.path = Path(path)
+        self.notes: list[str] = []
         suffix = self.path.suffix.lower()
         if suffix == ".gesichter":
             self.packets, bad = [], 0
@@ -211,13 +248,21 @@ class ReplaySource:
                 W[:, k] = take.weights[:, index[name.lower()]]
             if take.rotations is not None:
                 W[:, N_WEIGHTS:] = take.rotations[:, :len(ROTATION_NAMES)]
-            W = np.nan_to_num(W)
-            rate = (int(round(self.fps)), 1)
-            name = subject or self.path.stem
-            self.packets = [encode_packet(w, "facegeom-replay", name, i, 0.0, rate) for i, w in enumerate(W)]
+            self.packets = _packets(W, self.fps, subject or self.path.stem)
+        elif suffix == ".c3d":
+            from facegeom.pipelines.solve import solve_file
+
+            if rig is None:
+                raise InputError("replaying a marker capture solves it on a rig: give the rig (the face model's "
+                                 "generic face by default)", self.path)
+            solved = solve_file(self.path, rig, fitter if fitter is not None else _default_fitter(), "sem-ls",
+                                markers)
+            self.fps = float(solved.fps)
+            self.notes = list(solved.notes)
+            self.packets = _packets(solved_values(solved), self.fps, subject or self.path.stem)
         else:
-            raise InputError(f"cannot replay {suffix or 'a file without suffix'!r}: give a .gesichter recording or "
-                             "a Live Link Face .csv take", self.path)
+            raise InputError(f"cannot replay {suffix or 'a file without suffix'!r}: give a .gesichter recording, "
+                             "a Live Link Face .csv take or a .c3d marker capture", self.path)
         self.loop = bool(loop)
         self.index = 0
         self.done = False

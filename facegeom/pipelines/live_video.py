@@ -23,7 +23,81 @@ from facegeom.errors import InputError
 from facegeom.pipelines.live import N_WEIGHTS, LiveFrame, LiveStats
 from facegeom.pipelines.track import DETECTOR_NOISE
 
-__all__ = ["VideoSource"]
+__all__ = ["CameraSource", "FaceValues", "VideoSource"]
+
+
+def _rate(fps: float) -> tuple[int, int]:
+    """A frame rate as the packet's numerator and denominator."""
+    if math.isclose(fps, round(fps), rel_tol=1e-3):
+        return int(round(fps)), 1
+    return int(round(fps * 1000)), 1000
+
+
+class FaceValues:
+    """One image of a face -> the 61 Live Link values (the 52 ARKit weights, the head's and eyes' rotations).
+
+    The face's 468 points, the head pose and the expression weights solved from the previous frame's answer
+    (causal, each point weighed by its measured noise), the gaze from the irises. ``width``, ``height``: the
+    images' size (the camera: :data:`facegeom.methods.video_identity.FOCAL_PRIOR` times the larger side).
+    :attr:`lost` counts images without a face."""
+
+    def __init__(self, model, rig, width: int, height: int):
+        from facegeom.methods.frame_solver import FrameSolver
+        from facegeom.methods.video_identity import FOCAL_PRIOR
+        from facegeom.model.camera import PinholeCamera
+        from facegeom.model.rig import BlendshapeRig
+        from facegeom.pipelines.track import eyeball_centres, point_vertices, point_weights
+        from facegeom.vision.tracking import FaceTracker
+
+        self.person = rig if rig is not None else BlendshapeRig.from_face_model(model)
+        if self.person.n_vertices != model.n_vertices:
+            raise InputError(f"the actor's rig has {self.person.n_vertices} vertices, the face model "
+                             f"{model.n_vertices}: give a rig of the face model (an actor's rig fitted by facegeom)")
+        self.names = tuple(self.person.names)
+        self.keep, ids, bary = point_vertices(model)
+        w, h = int(width), int(height)
+        self.size = (w, h)
+        self.camera = PinholeCamera(FOCAL_PRIOR * max(w, h), (w - 1) / 2.0, (h - 1) / 2.0)
+        self.solver = FrameSolver(self.person.neutral, self.person.deltas, ids, self.camera, noise_px=1.0, bary=bary,
+                                  point_weights=point_weights(self.keep))
+        lm = self.person.landmark_ids if self.person.landmark_ids is not None else model.landmarks
+        self.centres = eyeball_centres(self.person.neutral, lm)
+        self.tracker = FaceTracker()
+        self.lost = 0
+        self._prev = None
+
+    def values(self, image) -> np.ndarray | None:
+        """One image tracked -> the 61 packet values, or None without a face (counted in :attr:`lost`)."""
+        from facegeom.io.livelink import PACKET_NAMES
+        from facegeom.io.takes import head_angles, ict_to_arkit
+        from facegeom.pipelines.track import _eye_rotations, gaze_angles
+
+        r = self.tracker.step(image)
+        if r.points is None:
+            self._prev = None
+            self.lost += 1
+            return None
+        uv = r.points[self.keep, :2].astype(np.float64)
+        eyes = float(np.linalg.norm(r.points[263, :2] - r.points[33, :2]))
+        self.solver.sigma = max(DETECTOR_NOISE * eyes, 0.25)  # the points' noise at this face's size (as track)
+        p = self._prev
+        pose = self.solver.solve(uv) if p is None else self.solver.solve(uv, p.R, p.t, p.w)
+        self._prev = pose
+        arkit, names = ict_to_arkit(pose.w[None], self.names)
+        arkit = arkit[0]
+        index = {n.lower(): k for k, n in enumerate(names)}
+        values = np.zeros(len(PACKET_NAMES))
+        for k, n in enumerate(PACKET_NAMES[:N_WEIGHTS]):
+            values[k] = arkit[index[n.lower()]]
+        values[N_WEIGHTS:N_WEIGHTS + 3] = head_angles(pose.R[None])[0]
+        if r.iris is not None:
+            gaze = gaze_angles(r.iris[:, 0, :2].astype(np.float64), pose.R, pose.t, self.centres, self.camera)
+            values[N_WEIGHTS + 3:] = _eye_rotations(gaze[None])[0]
+        if not np.isfinite(values).all():
+            self._prev = None
+            self.lost += 1
+            return None
+        return values
 
 
 class VideoSource:
@@ -45,39 +119,27 @@ class VideoSource:
     def __init__(self, path, model, rig=None, stats: LiveStats | None = None, loop: bool = False,
                  subject: str | None = None):
         from facegeom.io.video import open_video
-        from facegeom.methods.frame_solver import FrameSolver
-        from facegeom.methods.video_identity import FOCAL_PRIOR
-        from facegeom.model.camera import PinholeCamera
-        from facegeom.model.rig import BlendshapeRig
-        from facegeom.pipelines.track import eyeball_centres, point_vertices, point_weights
-        from facegeom.vision.tracking import FaceTracker
 
         self.stats = stats if stats is not None else LiveStats()
         self.path = Path(path)
         self.reader = open_video(self.path)
         self.fps = float(self.reader.fps or 30.0)
-        self.person = rig if rig is not None else BlendshapeRig.from_face_model(model)
-        if self.person.n_vertices != model.n_vertices:
+        try:
+            self.face = FaceValues(model, rig, self.reader.width, self.reader.height)
+        except BaseException:
             self.reader.close()
-            raise InputError(f"the actor's rig has {self.person.n_vertices} vertices, the face model "
-                             f"{model.n_vertices}: give a rig of the face model (an actor's rig fitted by facegeom)")
-        self.names = tuple(self.person.names)
-        self.keep, ids, bary = point_vertices(model)
-        w, h = self.reader.width, self.reader.height
-        self.camera = PinholeCamera(FOCAL_PRIOR * max(w, h), (w - 1) / 2.0, (h - 1) / 2.0)
-        self.solver = FrameSolver(self.person.neutral, self.person.deltas, ids, self.camera, noise_px=1.0, bary=bary,
-                                  point_weights=point_weights(self.keep))
-        lm = self.person.landmark_ids if self.person.landmark_ids is not None else model.landmarks
-        self.centres = eyeball_centres(self.person.neutral, lm)
-        self.tracker = FaceTracker()
+            raise
         self.loop = bool(loop)
         self.subject = subject or self.path.stem
         self.done = False
-        self.lost = 0
         self._frames = self.reader.frames()
         self._t0: float | None = None
-        self._prev = None
         self._due = 0.0
+
+    @property
+    def lost(self) -> int:
+        """Frames tracked where no face was found."""
+        return self.face.lost
 
     def _next(self):
         frame = next(self._frames, None)
@@ -86,34 +148,6 @@ class VideoSource:
             self._t0 = None
             frame = next(self._frames, None)
         return frame
-
-    def _values(self, image) -> np.ndarray | None:
-        """One frame tracked -> the 61 packet values, or None without a face."""
-        from facegeom.io.livelink import PACKET_NAMES
-        from facegeom.io.takes import head_angles, ict_to_arkit
-        from facegeom.pipelines.track import _eye_rotations, gaze_angles
-
-        r = self.tracker.step(image)
-        if r.points is None:
-            self._prev = None
-            return None
-        uv = r.points[self.keep, :2].astype(np.float64)
-        eyes = float(np.linalg.norm(r.points[263, :2] - r.points[33, :2]))
-        self.solver.sigma = max(DETECTOR_NOISE * eyes, 0.25)  # the points' noise at this face's size (as track)
-        p = self._prev
-        pose = self.solver.solve(uv) if p is None else self.solver.solve(uv, p.R, p.t, p.w)
-        self._prev = pose
-        arkit, names = ict_to_arkit(pose.w[None], self.names)
-        arkit = arkit[0]
-        index = {n.lower(): k for k, n in enumerate(names)}
-        values = np.zeros(len(PACKET_NAMES))
-        for k, n in enumerate(PACKET_NAMES[:N_WEIGHTS]):
-            values[k] = arkit[index[n.lower()]]
-        values[N_WEIGHTS:N_WEIGHTS + 3] = head_angles(pose.R[None])[0]
-        if r.iris is not None:
-            gaze = gaze_angles(r.iris[:, 0, :2].astype(np.float64), pose.R, pose.t, self.centres, self.camera)
-            values[N_WEIGHTS + 3:] = _eye_rotations(gaze[None])[0]
-        return values
 
     def poll(self, timeout: float = 0.05) -> LiveFrame | None:
         """The next frame once it is due (tracked), skipping frames whose time has already passed."""
@@ -143,17 +177,84 @@ class VideoSource:
         self._due = frame.time_s + 1.0 / self.fps
         arrived = time.perf_counter_ns()
         self.stats.datagrams += 1
-        values = self._values(frame.image)
-        if values is None or not np.isfinite(values).all():
-            self.lost += 1
+        values = self.face.values(frame.image)
+        if values is None:
             return None
         self.stats.frames_in += 1
-        i = frame.index  # the video's own frame number: the stream's frame numbers skip what was skipped
-        rate = (int(round(self.fps)), 1) if math.isclose(self.fps, round(self.fps), rel_tol=1e-3) else (
-            int(round(self.fps * 1000)), 1000)
-        return LiveFrame(values, "facegeom-video", self.subject, i, 0.0, rate, arrived)
+        # the video's own frame number: the stream's frame numbers skip what was skipped
+        return LiveFrame(values, "facegeom-video", self.subject, frame.index, 0.0, _rate(self.fps), arrived)
 
     def close(self) -> None:
         """Close the video."""
         self._frames.close()
         self.reader.close()
+
+
+class CameraSource:
+    """A camera (or a live stream: :func:`facegeom.io.camera.open_camera`) tracked as it films.
+
+    Each :meth:`poll` takes the newest frame the camera gave (the ones it gave while the previous frame was
+    being tracked are counted as superseded, never queued), tracks it (:class:`FaceValues`) and gives out its
+    61 values; the frame number counts the camera's frames since the start. The stream's end (a network
+    stream closed, a camera unplugged) ends the session; :attr:`error` says why.
+    """
+
+    def __init__(self, spec, model, rig=None, stats: LiveStats | None = None, subject: str | None = None,
+                 platform: str | None = None):
+        from facegeom.io.camera import open_camera
+
+        self.stats = stats if stats is not None else LiveStats()
+        self.camera = open_camera(str(spec), platform=platform)
+        self.fps = self.camera.fps
+        self.subject = subject or "camera"
+        self.done = False
+        self._model, self._rig = model, rig
+        self.face: FaceValues | None = None
+        self._taken = 0
+        try:
+            if self.camera.width and self.camera.height:  # set up before the first frame when the stream says
+                self.face = FaceValues(model, rig, self.camera.width, self.camera.height)
+            elif rig is not None and rig.n_vertices != model.n_vertices:
+                raise InputError(f"the actor's rig has {rig.n_vertices} vertices, the face model "
+                                 f"{model.n_vertices}: give a rig of the face model (an actor's rig fitted by "
+                                 "facegeom)")
+        except BaseException:
+            self.camera.close()
+            raise
+        self._taken = self.camera.skip_backlog()  # frames filmed while the models loaded are past, not dropped
+
+    @property
+    def lost(self) -> int:
+        """Frames tracked where no face was found."""
+        return self.face.lost if self.face is not None else 0
+
+    @property
+    def error(self) -> str | None:
+        """Why the stream ended early, if it broke."""
+        return self.camera.error
+
+    def poll(self, timeout: float = 0.05) -> LiveFrame | None:
+        """The newest camera frame, tracked; None when none came within ``timeout`` or it shows no face."""
+        if self.done:
+            time.sleep(min(timeout, 0.01))
+            return None
+        got = self.camera.latest(timeout)
+        if got is None:
+            if self.camera.ended:
+                self.done = True
+            return None
+        h, w = got.image.shape[:2]
+        if self.face is None or self.face.size != (w, h):  # the first frame (or the stream changed size)
+            self.face = FaceValues(self._model, self._rig, w, h)
+        self.stats.superseded += max(0, got.index - self._taken)
+        self.stats.datagrams += max(0, got.index - self._taken) + 1
+        self._taken = got.index + 1
+        values = self.face.values(got.image)
+        if values is None:
+            return None
+        self.stats.frames_in += 1
+        return LiveFrame(values, "facegeom-camera", self.subject, got.index, 0.0, _rate(self.fps), got.arrived_ns)
+
+    def close(self) -> None:
+        """Stop the camera."""
+        self.camera.close()
