@@ -323,6 +323,8 @@ def test_cli_character_mistakes_are_one_line(tmp_path, capsys):
     ):
         err = cli_error(capsys, ["live", *args])
         assert words in err, err
+    err = cli_error(capsys, ["bench", "live", "--camera-clip", str(tmp_path / "none.mp4")])
+    assert "none.mp4" in err, err
 
 
 def test_osc_bundles_are_what_an_independent_osc_library_reads(dao):
@@ -393,34 +395,6 @@ def test_a_video_is_tracked_live_at_its_rate(face_model, face_clip):
     assert np.corrcoef(V[:, 52], yaw_true[order])[0, 1] > 0.8
 
 
-def stream_into(target: str, video: Path, fps: float, ready: threading.Event | None = None) -> threading.Thread:
-    """A thread that streams ``video``'s frames into ``target`` (a named pipe) as a live camera would: encoded one
-    by one (MJPEG in NUT), each at its time."""
-    import av
-
-    frames = [f.to_ndarray(format="rgb24") for f in av.open(str(video)).decode(video=0)]
-
-    def write():
-        out = av.open(target, "w", format="nut")
-        st = out.add_stream("mjpeg", rate=int(fps))
-        st.height, st.width = frames[0].shape[:2]
-        st.pix_fmt = "yuvj420p"
-        t0 = time.perf_counter()
-        for i, a in enumerate(frames):
-            wait = t0 + i / fps - time.perf_counter()
-            if wait > 0:
-                time.sleep(wait)
-            for packet in st.encode(av.VideoFrame.from_ndarray(a, format="rgb24")):
-                out.mux(packet)
-        for packet in st.encode(None):
-            out.mux(packet)
-        out.close()
-
-    t = threading.Thread(target=write, daemon=True)
-    t.start()
-    return t
-
-
 @pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="named pipes are POSIX")
 def test_a_live_camera_stream_is_tracked_newest_frame_first(face_model, face_clip, tmp_path):
     """A camera as FFmpeg sees one: frames arriving in real time through a pipe, no length, no seeking. Every
@@ -433,7 +407,14 @@ def test_a_live_camera_stream_is_tracked_newest_frame_first(face_model, face_cli
     video, yaw_true = face_clip
     fifo = tmp_path / "camera"
     os.mkfifo(fifo)
-    writer = stream_into(str(fifo), video, 30.0)
+    from facegeom.bench.live import stream_into_pipe
+
+    import multiprocessing
+
+    # another process, as a camera is: opening the pipe to read waits for the writer (holding the GIL)
+    writer = multiprocessing.get_context("fork").Process(target=stream_into_pipe, args=(str(fifo), video, 30.0),
+                                                        daemon=True)
+    writer.start()
     stats = live.LiveStats()
     src = CameraSource(str(fifo), face_model, stats=stats)
     assert (src.camera.width, src.camera.height) == (320, 240) and src.face is not None

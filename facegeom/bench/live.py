@@ -10,6 +10,10 @@ processing step, then all of them):
 
 Then a burst: 3,000 packets sent back to back, counted on arrival (the kernel's socket buffer drops what does
 not fit), superseded (all but the newest), and the time until the next fresh packet comes out.
+
+With a clip (:func:`camera`), a camera as the source: another process streams the clip's frames into a named
+pipe in real time, encoded one by one as a webcam's MJPEG, and ``facegeom live --camera PIPE`` tracks them:
+the frames tracked per second, the ones superseded, the latency from a frame's decoding to its output.
 """
 from __future__ import annotations
 
@@ -24,7 +28,7 @@ import numpy as np
 from facegeom.io.livelink import encode_packet, parse_packet, read_recording
 from facegeom.pipelines import live
 
-__all__ = ["CONFIGS", "run_config", "burst", "run"]
+__all__ = ["CONFIGS", "run_config", "burst", "run", "camera", "stream_into_pipe"]
 
 CONFIGS = {
     "relay": (),
@@ -180,3 +184,62 @@ def run(recording: Path, out: Path, frames: int = 600, burst_size: int = 3000, e
     (out / "live-summary.md").write_text("\n".join(lines) + "\n")
     echo("\n".join(lines))
     return rows + [b]
+
+
+def stream_into_pipe(target: str, clip: Path, fps: float) -> None:
+    """Stream ``clip``'s frames into the named pipe ``target`` as a live camera would: each encoded alone (MJPEG
+    in NUT) and written at its time, ``fps`` a second. Returns when the last frame is written."""
+    import os
+
+    import av
+
+    with av.open(str(clip)) as v:
+        frames = [f.to_ndarray(format="rgb24") for f in v.decode(video=0)]
+    # read-write: the open does not wait for a reader (FFmpeg would wait holding the interpreter's lock)
+    with os.fdopen(os.open(target, os.O_RDWR), "wb", buffering=0) as pipe:
+        out = av.open(pipe, "w", format="nut")
+        st = out.add_stream("mjpeg", rate=int(round(fps)))
+        st.height, st.width = frames[0].shape[:2]
+        st.pix_fmt = "yuvj420p"
+        t0 = time.perf_counter()
+        for i, a in enumerate(frames):
+            wait = t0 + i / fps - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            for packet in st.encode(av.VideoFrame.from_ndarray(a, format="rgb24")):
+                out.mux(packet)
+        for packet in st.encode(None):
+            out.mux(packet)
+        out.close()
+
+
+def camera(model, clip: Path, fps: float = 30.0) -> dict:
+    """A camera as the source (see the module docstring): the clip streamed by another process into a named
+    pipe at ``fps``, tracked by :class:`facegeom.pipelines.live_video.CameraSource` -> its numbers."""
+    import multiprocessing
+    import os
+    import tempfile
+
+    from facegeom.pipelines.live_video import CameraSource
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fifo = os.path.join(tmp, "camera")
+        os.mkfifo(fifo)
+        ctx = multiprocessing.get_context("fork")
+        writer = ctx.Process(target=stream_into_pipe, args=(fifo, Path(clip), fps), daemon=True)
+        writer.start()
+        stats = live.LiveStats()
+        source = CameraSource(fifo, model, stats=stats)
+        first = source._taken
+        session = live.LiveSession(source, [], [], stats)
+        t0 = time.perf_counter()
+        session.run()
+        elapsed = time.perf_counter() - t0
+        session.close()
+        writer.join(10.0)
+    p = stats.percentiles()
+    return {"size": f"{source.camera.width}x{source.camera.height}", "fps": fps,
+            "frames_filmed": first + stats.frames_out + stats.superseded + source.lost, "before_start": first,
+            "tracked": stats.frames_out, "superseded": stats.superseded, "lost": source.lost,
+            "tracked_per_s": stats.frames_out / elapsed, "p50_ms": p.get("p50", float("nan")),
+            "p99_ms": p.get("p99", float("nan"))}

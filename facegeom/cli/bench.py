@@ -633,11 +633,31 @@ def bench_track(obj: Context, clips, frames, seed, families, methods, clip_dir, 
               help="Frames streamed per configuration, at 60 fps.")
 @click.option("--burst", "burst_size", default=3000, show_default=True, type=click.IntRange(1, 1_000_000),
               help="Packets of the back-to-back burst.")
+@click.option("--camera-clip", type=click.Path(dir_okay=False), default=None, metavar="VIDEO",
+              help="Instead: a camera as the source, played by another process from this video into a named pipe "
+                   "in real time; the frames tracked a second and the latency (POSIX, facegeom[video]).")
+@click.option("--camera-fps", default=30.0, show_default=True, type=click.FloatRange(1, 240),
+              help="With --camera-clip: the camera's frame rate.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/live", show_default=True)
-def bench_live(recording, frames, burst_size, out):
+@click.pass_obj
+def bench_live(obj, recording, frames, burst_size, camera_clip, camera_fps, out):
     """Latency and drops of `facegeom live` on loopback: relay only and with each processing step, then a burst."""
     from facegeom.bench import live as bl
     from facegeom.errors import InputError
+
+    if camera_clip is not None:
+        import os
+
+        if not hasattr(os, "mkfifo"):
+            raise InputError("--camera-clip streams through a named pipe, which this system does not have")
+        if not Path(camera_clip).is_file():
+            raise InputError("no such file", camera_clip)
+        r = bl.camera(obj.face_model(), Path(camera_clip), camera_fps)
+        click.echo(f"camera {r['size']} at {r['fps']:g} fps: {r['tracked']} frames tracked "
+                   f"({r['tracked_per_s']:.1f} a second), {r['superseded']} superseded, {r['lost']} without a face, "
+                   f"{r['before_start']} filmed before the tracker was ready; latency from decoding to output p50 "
+                   f"{r['p50_ms']:.1f} ms, p99 {r['p99_ms']:.1f} ms")
+        return
 
     if recording is None:
         recording = Path(__file__).resolve().parents[2] / "tests" / "data" / "livelink" / "dao.gesichter"
