@@ -452,7 +452,8 @@ def _animate_markers(obj: Context, take_path, takes_path, start, frames, output,
             click.echo(f"  {line} ({now - t0:.0f} s)")
 
     _, info = write_sequence_glb(output, mr.source(metres), F, take_fps(take), tolerance=GLB_TOLERANCE_M,
-                                 hold_bytes=0, progress=progress)  # driving again is cheaper than keeping
+                                 hold_bytes=0, progress=progress,  # driving again is cheaper than keeping
+                                 rest=V * metres)  # every weight at 0: the character's own neutral
     click.echo(f"wrote {output} ({info['frames']} frames driven and stored as {info['targets']} morph targets in "
                f"{time.perf_counter() - t0:.2f} s, every vertex within {info['max_error'] * 1000:.3f} mm)")
     if save_labels:

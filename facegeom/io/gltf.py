@@ -183,11 +183,65 @@ class _Blob:
         return b"".join(self.parts)
 
 
+def _many_vertex_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """:func:`_vertex_normals` of many poses ``X (m, n, 3)`` of one mesh at once -> ``(m, n, 3)`` float32: each
+    vertex's triangles' normals weighted by their areas (as libigl's area weighting), summed by one sparse
+    product; +z where that sum vanishes."""
+    from scipy.sparse import csr_matrix
+
+    m, n = X.shape[:2]
+    F = np.asarray(F, dtype=np.int64)
+    A = csr_matrix((np.ones(F.size), (F.reshape(-1), np.repeat(np.arange(F.shape[0]), 3))), shape=(n, F.shape[0]))
+    out = np.empty((m, n, 3), dtype=np.float32)
+    for a in range(0, m, 16):  # 16 poses at a time: memory stays a few arrays of (16, triangles, 3)
+        P = X[a:a + 16]
+        c = np.cross(P[:, F[:, 1]] - P[:, F[:, 0]], P[:, F[:, 2]] - P[:, F[:, 0]])  # twice the area, as normal
+        N = (A @ c.transpose(1, 0, 2).reshape(F.shape[0], -1)).reshape(n, -1, 3).transpose(1, 0, 2)
+        length = np.linalg.norm(N, axis=2, keepdims=True)
+        ok = length[..., 0] > 1e-300
+        N = np.where(ok[..., None], N / np.where(length > 0, length, 1.0), (0.0, 0.0, 1.0))
+        out[a:a + 16] = N
+    return out
+
+
+def shape_normal_deltas(V: np.ndarray, F: np.ndarray, deltas: np.ndarray) -> np.ndarray:
+    """Each shape's normal offsets: ``normals(V + deltas[k]) - normals(V)``, ``(K, n, 3)`` float32 (a morph
+    target's ``NORMAL``: at weight 1 alone the client shades the shape with its own normals)."""
+    N0 = _many_vertex_normals(V[None], F)[0]
+    return _many_vertex_normals(V[None] + deltas, F) - N0
+
+
+def fitted_normal_deltas(rest: np.ndarray, F: np.ndarray, frames, weights: np.ndarray) -> np.ndarray:
+    """Normal offsets of targets that are not shapes of their own (a sequence's principal axes): the
+    least-squares ``dN`` with ``normals(frame_t) - normals(rest) ~ weights[t] @ dN`` over sample frames.
+
+    ``frames(a, b)`` gives the sample frames ``a..b-1`` as ``(b - a, n, 3)``, ``weights (m, K)`` their weights;
+    taken 16 at a time, so memory is a few ``(K, 3n)`` arrays -> ``(K, n, 3)`` float32."""
+    A = np.asarray(weights, dtype=np.float64)
+    m, K = A.shape
+    N0 = None
+    AtY = None
+    for a in range(0, m, 16):
+        X = np.asarray(frames(a, min(m, a + 16)), dtype=np.float64)
+        if N0 is None:
+            N0 = _many_vertex_normals(np.asarray(rest, dtype=np.float64)[None], F)[0].astype(np.float64)
+            AtY = np.zeros((K, N0.size))
+        Y = (_many_vertex_normals(X, F) - N0).reshape(X.shape[0], -1)
+        AtY += A[a:a + X.shape[0]].T @ Y
+        del X, Y
+    # a little ridge: targets the frames barely use get no wild normals (1e-6 of the weights' energy)
+    lam = 1e-6 * max(float((A * A).sum()) / max(K, 1), 1e-12)
+    dN = np.linalg.solve(A.T @ A + lam * np.eye(K), AtY)
+    return dN.reshape(K, -1, 3).astype(np.float32)
+
+
 def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, names, weights: np.ndarray,
-               fps: float, generator: str, motion=None, normals_of=None, rest_weights=None) -> Path:
+               fps: float, generator: str, motion=None, normals_of=None, rest_weights=None,
+               normal_deltas=None) -> Path:
     """Build and write the document (arrays already checked); ``motion``: ``(quaternions (T, 4) xyzw,
     translations (T, 3))`` animating the node, or None; ``normals_of``: the vertices whose normals are
-    stored (default ``V``); ``rest_weights``: the mesh's weights when nothing plays (default zeros)."""
+    stored (default ``V``); ``rest_weights``: the mesh's weights when nothing plays (default zeros);
+    ``normal_deltas``: ``(K, n, 3)`` the targets' ``NORMAL`` offsets (default: none stored)."""
     try:
         import pygltflib as g
     except ImportError:  # pragma: no cover - a declared dependency
@@ -201,8 +255,12 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
     i_nrm = blob.add(_vertex_normals(V if normals_of is None else np.asarray(normals_of, dtype=np.float64),
                                      F.astype(np.int64)), "VEC3", _FLOAT, _ARRAY_BUFFER)
     D32 = deltas.astype(np.float32)
-    targets = [g.Attributes(POSITION=blob.add(D32[k], "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True))
-               for k in range(K)]
+    targets = []
+    for k in range(K):
+        a = g.Attributes(POSITION=blob.add(D32[k], "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True))
+        if normal_deltas is not None:
+            a.NORMAL = blob.add(np.asarray(normal_deltas[k], dtype=np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER)
+        targets.append(a)
     times = (np.arange(T, dtype=np.float64) / fps).astype(np.float32)
     if T > 1 and not (np.diff(times) > 0).all():
         raise InputError(f"{T} frames at {fps} fps give keyframe times that float32 cannot keep apart", path)
@@ -316,12 +374,23 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
         q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
         flip = np.r_[1.0, np.sign(np.cumprod(np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]) + 1e-300)))]
         motion = (q * flip[:, None], t)  # consecutive quaternions on the same side: slerp takes the short way
-    return _write_glb(path, V, F, D, names, W, _check_fps(path, fps), "facegeom write_rig_glb", motion)
+    return _write_glb(path, V, F, D, names, W, _check_fps(path, fps), "facegeom write_rig_glb", motion,
+                      normal_deltas=shape_normal_deltas(V, F.astype(np.int64), D))
+
+
+def _check_rest(path: Path, rest, n: int):
+    """``rest`` as ``(n, 3)`` finite float64, or None."""
+    if rest is None:
+        return None
+    R = np.asarray(rest, dtype=np.float64)
+    if R.shape != (n, 3) or not np.isfinite(R).all():
+        raise InputError(f"the rest pose must be {n} finite points (n, 3), got {R.shape}", path)
+    return R
 
 
 def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
                        tolerance: float = DEFAULT_TOLERANCE, *, hold_bytes: int = HOLD_BYTES,
-                       progress=None) -> tuple[Path, dict]:
+                       progress=None, rest=None) -> tuple[Path, dict]:
     """Write a driven vertex sequence as a ``.glb``: mean mesh + K SVD morph targets + their weight curves.
 
     Parameters
@@ -348,12 +417,18 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     progress : callable, optional
         Frame source only: called with a one-line string as the passes go
         (``"glb: pass 2 (project), 40,000/100,000 frames"``).
+    rest : array_like, optional
+        ``(n, 3)`` the mesh at rest (a character's neutral): stored as the
+        mesh, what a client shows with every weight at 0, with a first target
+        ``base`` (weight 1 in every frame) carrying it to the encoding's base.
+        Without it the stored mesh is the encoding's base and the mesh's
+        weights when nothing plays are the first frame's.
 
     Returns
     -------
     (Path, dict)
         ``path`` and ``{"targets": K, "max_error": e, "tolerance": tolerance,
-        "frames": T}`` with ``K`` the smallest number of targets meeting the
+        "frames": T, "rest": bool}`` with ``K`` the smallest number of targets meeting the
         bound (found by bisection on K; the per-frame residual never grows
         with K) and ``e`` the largest vertex error of the written file.
 
@@ -400,7 +475,8 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     path = Path(path)
     _check_suffix(path)
     if isinstance(frames, FrameSource):
-        return _write_sequence_stream(path, frames, faces, fps, tolerance, hold_bytes, progress)
+        rest = _check_rest(path, rest, frames.shape[1])
+        return _write_sequence_stream(path, frames, faces, fps, tolerance, hold_bytes, progress, rest)
     X = np.asarray(frames, dtype=np.float64)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] == 0:
         raise InputError(f"frames must have shape (T, n, 3) with T > 0, got {X.shape}", path)
@@ -410,6 +486,7 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     if not (np.isfinite(tol) and tol > 0):
         raise InputError(f"tolerance {tolerance} is not a positive number", path)
     T, n = X.shape[:2]
+    rest = _check_rest(path, rest, n)
     base = X.mean(axis=0)
     V, F = _mesh_arrays(path, base, faces)
     fps = _check_fps(path, fps)
@@ -467,9 +544,43 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     if err > tol:  # full rank and still above: float32 rounding of the positions themselves
         raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives {err:.3g}); "
                          f"use a larger tolerance", path)
-    _write_glb(path, _played_base(base, Dk).reshape(n, 3), F, Dk.reshape(K, n, 3), [f"svd{k:03d}" for k in range(K)],
-               W, fps, "facegeom write_sequence_glb", normals_of=V, rest_weights=W[0])
-    return path, {"targets": K, "max_error": err, "tolerance": tol, "frames": T}
+    sample = _normal_sample(T, K)
+    err += _write_sequence_file(path, _played_base(base, Dk).reshape(n, 3), F, Dk.reshape(K, n, 3), W, fps, V, rest,
+                                lambda a, b: X[sample[a:b]], W[sample])
+    return path, {"targets": K, "max_error": err, "tolerance": tol, "frames": T, "rest": rest is not None}
+
+
+def _normal_sample(T: int, K: int) -> np.ndarray:
+    """The frames the normal targets are fitted on: evenly spaced, twice the targets (at least 64), at most T."""
+    return np.unique(np.linspace(0, T - 1, min(T, max(64, 2 * K))).round().astype(np.int64))
+
+
+def _write_sequence_file(path: Path, played: np.ndarray, F: np.ndarray, Dk: np.ndarray, W: np.ndarray, fps: float,
+                         mean: np.ndarray, rest, sample_X, sample_W: np.ndarray) -> float:
+    """Write a sequence's ``.glb``: stored base ``played`` (n, 3) + targets ``Dk`` (K, n, 3) with weights ``W``.
+
+    With ``rest`` (n, 3) the mesh is stored at rest (what a client shows when nothing plays) and a first
+    target ``base`` (weight 1 in every frame) moves it to ``played``; without, the base is ``played`` and the
+    mesh's weights when nothing plays are the first frame's. Every target's normal offsets are fitted on the
+    sample frames ``sample_X(a, b)`` with weights ``sample_W`` (m, K) (:func:`fitted_normal_deltas`).
+    Returns the vertex error the extra target's float32 rounding adds (0 without ``rest``)."""
+    K = Dk.shape[0]
+    names = [f"svd{k:03d}" for k in range(K)]
+    F64 = F.astype(np.int64)
+    if rest is None:
+        dN = fitted_normal_deltas(mean, F64, sample_X, sample_W)
+        _write_glb(path, played, F, Dk, names, W, fps, "facegeom write_sequence_glb", normals_of=mean,
+                   rest_weights=W[0], normal_deltas=dN)
+        return 0.0
+    rest = np.asarray(rest, dtype=np.float64)
+    lift = (played - rest.astype(np.float32)).astype(np.float32)  # rest + lift plays the stored base
+    extra = float(np.sqrt((((rest.astype(np.float32).astype(np.float64) + lift) - played) ** 2).sum(axis=1).max()))
+    W1 = np.hstack([np.ones((W.shape[0], 1), dtype=W.dtype), W])
+    D1 = np.concatenate([lift[None], Dk.astype(np.float32)])
+    dN = fitted_normal_deltas(rest, F64, sample_X, np.hstack([np.ones((sample_W.shape[0], 1)), sample_W]))
+    _write_glb(path, rest, F, D1, ["base", *names], W1, fps, "facegeom write_sequence_glb", normals_of=rest,
+               normal_deltas=dN)
+    return extra
 
 
 def _principal_axes(D: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -661,7 +772,7 @@ def _residual_axes(R: np.ndarray, Q: np.ndarray, n: int, limit: float, most: int
 
 
 def _write_sequence_stream(path: Path, source: FrameSource, faces, fps, tolerance, hold_bytes,
-                           progress) -> tuple[Path, dict]:
+                           progress, rest=None) -> tuple[Path, dict]:
     """:func:`write_sequence_glb` for a :class:`FrameSource` (see its notes)."""
     from scipy.linalg import eigh
 
@@ -872,10 +983,11 @@ def _write_sequence_stream(path: Path, source: FrameSource, faces, fps, toleranc
             last = now
     K = k
     V, F = _mesh_arrays(path, base.reshape(n, 3), faces)
-    _write_glb(path, _played_base(base, Dk[:K]).reshape(n, 3), F, Dk[:K].reshape(K, n, 3),
-               [f"svd{i:03d}" for i in range(K)], W[:, :K], fps, "facegeom write_sequence_glb", normals_of=V,
-               rest_weights=W[0, :K])
-    return path, {"targets": K, "max_error": float(err), "tolerance": tol, "frames": T}
+    normal_frames = _normal_sample(T, K)
+    err += _write_sequence_file(path, _played_base(base, Dk[:K]).reshape(n, 3), F, Dk[:K].reshape(K, n, 3),
+                                W[:, :K], fps, V, rest, lambda a, b: fr.rows(normal_frames[a:b]).reshape(-1, n, 3),
+                                W[normal_frames, :K])
+    return path, {"targets": K, "max_error": float(err), "tolerance": tol, "frames": T, "rest": rest is not None}
 
 
 # ----------------------------------------------------------------------------- reading
