@@ -105,8 +105,9 @@ def capture(tmp_path_factory, face_model):
     W[:, rig.shape_index("jawOpen")] = 0.5 + 0.4 * np.sin(np.linspace(0, 3, T))
     W[:, rig.shape_index("mouthSmile_L")] = np.linspace(0, 0.8, T)
     F = rig.neutral[ids][None] + np.einsum("tb,bpi->tpi", W, rig.deltas[:, ids])
-    R = Rotation.from_rotvec(rng.normal(0, 0.2, (T, 3))).as_matrix()
-    t = rng.normal(0, 3, (T, 3))
+    # the actor faces sideways, 160 cm up and 2 m off the volume's centre, and moves about there
+    R = (Rotation.from_euler("y", 90, degrees=True) * Rotation.from_rotvec(rng.normal(0, 0.2, (T, 3)))).as_matrix()
+    t = rng.normal(0, 3, (T, 3)) + (200.0, 160.0, -50.0)
     X = np.einsum("tij,tpj->tpi", R, F) + t[:, None]
     write_marker_sequence(d / "cap.npz", X, names=[f"v{i}" for i in ids])
     return d, rig, W, R, t
@@ -120,7 +121,7 @@ def test_solve_onto_the_character(capture, character, tmp_path, capsys, validato
     main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
           str(tmp_path / "c.npz")])
     out = capsys.readouterr().out
-    assert "head translations x" in out
+    assert "the head's motion about the performance's mean pose, its translations x" in out
     z = np.load(tmp_path / "c.npz")
     names = list(z["names"])
     assert names == list(character.names)
@@ -129,21 +130,28 @@ def test_solve_onto_the_character(capture, character, tmp_path, capsys, validato
     np.testing.assert_allclose(z["weights"][:, names.index("mouthSmileLeft")], W[:, rig.shape_index("mouthSmile_L")],
                                atol=1e-3)
     assert np.abs(z["weights"][:, names.index("tongueOut")]).max() == 0.0  # no ICT shape drives it
-    # the head: the same turns, translations scaled to the character
+    # the head: the same turns and moves about the performance's mean pose, translations scaled to the character;
+    # at that pose the character stands where its rig puts it (not 160 cm up, facing sideways)
     k = size_ratio(character, rig)
     assert 0.5 < k < 2.0 and abs(k - 1.0) > 0.01
-    np.testing.assert_allclose(z["rotations"], R, atol=1e-4)
-    np.testing.assert_allclose(z["translations"], k * t, atol=1e-3)
+    ref = Rotation.from_matrix(R).mean().as_matrix()
+    np.testing.assert_allclose(z["rotations"], np.einsum("ji,tjk->tik", ref, R), atol=1e-4)
+    np.testing.assert_allclose(z["translations"], k * (t - np.median(t, axis=0)) @ ref, atol=1e-3)
+    assert np.abs(np.median(z["translations"], axis=0)).max() < 0.1  # cm: at home, not 2.6 m away
+    assert Rotation.from_matrix(z["rotations"]).mean().magnitude() < 1e-6
+    rel = np.einsum("tij,tkj->tik", z["rotations"][1:], z["rotations"][:-1])  # frame-to-frame turns kept
+    np.testing.assert_allclose(rel, np.einsum("tij,tkj->tik", np.einsum("ji,tjk->tik", ref, R)[1:],
+                                              np.einsum("ji,tjk->tik", ref, R)[:-1]), atol=1e-4)
     # the .glb: the character's mesh and shapes, its node turning and moving as the actor's head (metres)
     main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
           str(tmp_path / "c.glb")])
     issues = validate(validator_env, tmp_path / "c.glb")
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0
     motion = _glb_motion(tmp_path / "c.glb")
-    q = Rotation.from_matrix(R).as_quat()
+    q = Rotation.from_matrix(z["rotations"]).as_quat()
     dots = np.abs((motion["rotation"] * q).sum(axis=1))
     assert dots.min() > 1 - 1e-5
-    np.testing.assert_allclose(motion["translation"], k * t * 0.01, atol=1e-5)
+    np.testing.assert_allclose(motion["translation"], z["translations"] * 0.01, atol=1e-5)
     assert ((motion["rotation"][1:] * motion["rotation"][:-1]).sum(axis=1) > 0).all()  # slerp the short way
 
 

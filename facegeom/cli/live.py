@@ -33,8 +33,8 @@ import click
                    "repeatable.")
 @click.option("--record", "record_path", type=click.Path(dir_okay=False), default=None, metavar="OUT",
               help="Write what was passed on when the session ends (Ctrl-C included): OUT.csv a Live Link Face "
-                   "take, OUT.gesichter the packets, OUT.npz the values and arrival times, OUT.glb (with "
-                   "--character) the character performing it.")
+                   "take, OUT.gesichter the packets, OUT.npz the values and arrival times, OUT.glb or OUT.usda/.usdc/"
+                   ".usdz (with --character) the character performing it.")
 @click.option("--character", "character_path", type=click.Path(), default=None, metavar="RIG",
               help="Your character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from `facegeom transfer`): its "
                    "shapes follow the stream by name, its head turns with the actor's.")
@@ -84,9 +84,10 @@ def live_cmd(obj, listen, replay_path, video_path, camera, rig_path, loop, subje
         raise InputError("--view shows your character: give --character RIG")
     if screenshot is not None and not view:
         raise InputError("--screenshot goes with --view")
-    glb = record_path is not None and Path(record_path).suffix.lower() == ".glb"
+    glb = record_path is not None and Path(record_path).suffix.lower() in live.CHARACTER_SUFFIXES
     if glb and character_path is None:
-        raise InputError("--record OUT.glb records your character: give --character RIG", record_path)
+        raise InputError(f"--record OUT{Path(record_path).suffix.lower()} records your character: give --character "
+                         "RIG", record_path)
     if record_path is not None:
         if Path(record_path).suffix.lower() not in live.RECORD_SUFFIXES:
             raise InputError(f"--record must be one of {', '.join(live.RECORD_SUFFIXES)}", record_path)

@@ -473,7 +473,7 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
     from facegeom.io.markerseq import MarkerSequence
     from facegeom.cli.flags import as_flags
     from facegeom.pipelines.animate import solve_take
-    from facegeom.pipelines.solve import DEFAULT_FPS, SolvedCapture, write_curves
+    from facegeom.pipelines.solve import SolvedCapture, write_curves
     from facegeom.registry import parse_method
 
     if obj_dir:
@@ -489,7 +489,12 @@ def _animate_rig(obj: Context, take_path, takes_path, start, frames, labels, see
                                      lambda: parse_method(fitter).build("fitters"), amount)
     ms = MarkerSequence(np.arange(start, start + frames, dtype=np.int64), tuple(f"v{i}" for i in ids),
                         info["markers"], str(path))
-    solved = SolvedCapture(res, ms, ids, fitter, DEFAULT_FPS, False, rig)
+    from facegeom.io.takes import read_take
+    from facegeom.pipelines.solve import take_fps
+
+    tk = read_take(path)  # the take's rate and timecode carry over to what is written
+    start_s = tk.start_s + float(tk.times[start]) if start < tk.n_frames else None
+    solved = SolvedCapture(res, ms, ids, fitter, float(take_fps(tk)), True, rig, start_s=start_s)
     write_curves(output, solved)
     for line in solved.notes:
         click.echo(as_flags(line))

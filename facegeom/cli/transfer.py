@@ -53,25 +53,26 @@ def write_transfer_rig(rig, path, metres_per_unit: float, reg=None, skin=None) -
     import numpy as np
 
     from facegeom.cli.identity import write_rig
-    from facegeom.io.gltf import write_rig_glb
+    from facegeom.io.delivery import DELIVERY_SUFFIXES, write_rig_animation
     from facegeom.methods.transfer import character_arrays
 
     path = Path(path)
     if path.suffix.lower() == ".npz" and reg is not None:
         moved, S, k = in_facegeom_frame(rig, reg)
         return moved.save_npz(path, extra=None if skin is None else character_arrays(reg, skin, S, k))
-    if path.suffix.lower() == ".glb":
+    if path.suffix.lower() in DELIVERY_SUFFIXES:  # .glb or USD, in metres
         K = rig.n_shapes
         weights = np.r_[np.zeros((1, K)), np.eye(K), np.zeros((1, K))]  # neutral, each shape, neutral
-        return write_rig_glb(path, rig.neutral * metres_per_unit, rig.triangles, rig.deltas * metres_per_unit,
-                             rig.names, weights, GLB_FPS)
+        return write_rig_animation(path, rig.neutral * metres_per_unit, rig.triangles, rig.deltas * metres_per_unit,
+                                   rig.names, weights, GLB_FPS)
     return write_rig(rig, path)
 
 
 @click.command("transfer")
 @click.argument("head", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(),
-              help="The rig: .npz (facegeom's rig frame: cm, Y up), .glb (glTF, metres) or a new folder of OBJs "
+              help="The rig: .npz (facegeom's rig frame: cm, Y up), .glb (glTF, metres), .usda/.usdc/.usdz (USD "
+                   "blend shapes, metres) or a new folder of OBJs "
                    "(neutral.obj + one per expression, the head's units and axes).")
 @click.option("--engine", type=click.Choice(["deformation", "nearest", "tangent"]), default="deformation",
               show_default=True,
@@ -105,8 +106,9 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
 
     check_outputs([head, landmarks], [output])
     suffix = Path(output).suffix.lower()
-    if suffix and suffix not in (".npz", ".glb"):
-        raise InputError(f"unsupported rig format {suffix!r}; use .npz, .glb or a folder name (OBJ folder)", output)
+    if suffix and suffix not in (".npz", ".glb", ".usda", ".usdc", ".usdz"):
+        raise InputError(f"unsupported rig format {suffix!r}; use .npz, .glb, .usda/.usdc/.usdz or a folder name "
+                         "(OBJ folder)", output)
     roles = parse_pieces(pieces)
     model = obj.face_model()
     V, F, parts = read_head(head)
@@ -122,7 +124,8 @@ def transfer_cmd(obj: Context, head, output, engine, landmarks, units, pieces, a
         if missing:
             click.echo(f"ARKit names: {', '.join(missing)} left out (no ICT expression)")
     write_transfer_rig(rig, output, reg.units / 100.0, reg, res.info.get("skin_vertices"))
-    frame = {".glb": "metres", ".npz": "cm, Y up, facing +Z: facegeom's rig frame"}.get(
+    frame = {".glb": "metres", ".usda": "metres", ".usdc": "metres", ".usdz": "metres",
+             ".npz": "cm, Y up, facing +Z: facegeom's rig frame"}.get(
         suffix, f"{reg.report['units']['name']}, the head's axes")
     click.echo(f"wrote {output} ({rig.n_shapes} shapes, {rig.n_vertices} vertices, {frame})")
 

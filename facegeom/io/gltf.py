@@ -105,11 +105,19 @@ class GlbAnimation:
     weights: np.ndarray
     fps: float | None
     path: str = ""
+    rotations: np.ndarray | None = None
+    """``(T, 3, 3)`` the mesh node's animated rotation at each keyframe of the weights, or None."""
+    translations: np.ndarray | None = None
+    """``(T, 3)`` its animated translation (zeros when only the rotation is animated), or None."""
 
-    def frames(self) -> np.ndarray:
-        """``(T, n, 3)`` vertex positions at each keyframe: neutral + weights @ deltas."""
+    def frames(self, motion: bool = False) -> np.ndarray:
+        """``(T, n, 3)`` vertex positions at each keyframe: neutral + weights @ deltas (with ``motion``, turned
+        and moved by the node's animation when there is one)."""
         K, n = self.deltas.shape[:2]
-        return self.neutral + (self.weights @ self.deltas.reshape(K, 3 * n)).reshape(-1, n, 3)
+        X = self.neutral + (self.weights @ self.deltas.reshape(K, 3 * n)).reshape(-1, n, 3)
+        if motion and self.rotations is not None:
+            X = np.einsum("tij,tvj->tvi", self.rotations, X) + self.translations[:, None]
+        return X
 
 
 # ----------------------------------------------------------------------------- checks
@@ -1244,7 +1252,54 @@ def _unpack(doc, blob: bytes, path: Path) -> GlbAnimation:
             break
     if not (np.isfinite(V).all() and np.isfinite(D).all() and np.isfinite(W).all() and np.isfinite(times).all()):
         raise InputError("the .glb holds NaN or inf values", path)
-    return GlbAnimation(V, F, D, tuple(str(s) for s in names), times, W, fps, str(path))
+    R, t = _node_motion(doc, blob, path, times)
+    return GlbAnimation(V, F, D, tuple(str(s) for s in names), times, W, fps, str(path), R, t)
+
+
+def _node_motion(doc, blob: bytes, path, times: np.ndarray):
+    """The mesh node's animated rotation and translation sampled at ``times`` -> ``(R (T, 3, 3), t (T, 3))``, or
+    ``(None, None)`` when its rotation and translation are not animated (or there are no weight keyframes)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    node = next((i for i, nd in enumerate(doc.nodes or []) if getattr(nd, "mesh", None) == 0), None)
+    if node is None or times.size == 0:
+        return None, None
+    found = {}
+    for anim in doc.animations or []:
+        for ch in anim.channels or []:
+            tgt = ch.target
+            if tgt is None or tgt.node != node or tgt.path not in ("rotation", "translation") or tgt.path in found:
+                continue
+            if not isinstance(ch.sampler, int) or not 0 <= ch.sampler < len(anim.samplers or []):
+                raise InputError(f"animation channel names sampler {ch.sampler!r}, which does not exist", path)
+            smp = anim.samplers[ch.sampler]
+            ts = _accessor(doc, blob, smp.input, path, f"{tgt.path} times").reshape(-1)
+            width = 4 if tgt.path == "rotation" else 3
+            per = 3 if smp.interpolation == "CUBICSPLINE" else 1
+            out = _accessor(doc, blob, smp.output, path, f"{tgt.path} values").reshape(-1)
+            if ts.size == 0 or out.size != ts.size * per * width or not (np.isfinite(ts).all()
+                                                                         and np.isfinite(out).all()):
+                raise InputError(f"the node's {tgt.path} animation has {out.size} values for {ts.size} keyframes",
+                                 path)
+            if ts.size > 1 and not (np.diff(ts) > 0).all():
+                raise InputError(f"the node's {tgt.path} keyframe times do not increase", path)
+            found[tgt.path] = (ts, out.reshape(ts.size, per, width)[:, per // 2])
+    if not found:
+        return None, None
+    T = times.size
+    R = np.repeat(np.eye(3)[None], T, axis=0)
+    t = np.zeros((T, 3))
+    if "rotation" in found:
+        ts, q = found["rotation"]
+        if np.any(np.linalg.norm(q, axis=1) < 1e-6):
+            raise InputError("the node's rotation animation holds a zero quaternion", path)
+        rot = Rotation.from_quat(q)
+        R = rot.as_matrix()[np.zeros(T, dtype=int)] if ts.size == 1 else Slerp(ts, rot)(
+            np.clip(times, ts[0], ts[-1])).as_matrix()
+    if "translation" in found:
+        ts, v = found["translation"]
+        t = np.stack([np.interp(times, ts, v[:, i]) for i in range(3)], axis=1)
+    return R, t
 
 
 # ----------------------------------------------------------------------------- reading a blendshape rig

@@ -160,6 +160,8 @@ class Take:
     policy: str
     timecode_fps: float = _DEFAULT_FPS
     rotations: np.ndarray | None = None
+    start_s: float = 0.0
+    """Time of day of the first row kept, in seconds (its timecode): what a take written from it starts at."""
 
     @property
     def n_frames(self) -> int:
@@ -252,6 +254,7 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
         policy=policy,
         timecode_fps=fps,
         rotations=np.ascontiguousarray(weights[:, K:]) if weights.shape[1] > K else None,
+        start_s=float(times[0]),
     )
 
 

@@ -100,6 +100,8 @@ def load_rig(rig_path=None, face_model=None, *, neutral: str | None = None, name
             raise InputError("neutral=NAME names the neutral OBJ of a rig folder; this rig is a file", rp)
         if rp.suffix.lower() in (".glb", ".gltf"):
             raw, stated_units, stated_up = _gltf_rig(rp)
+        elif rp.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+            raw, stated_units, stated_up = _usd_rig(rp)
         else:
             raw, stated_units, stated_up = BlendshapeRig.read_npz(rp)
         if raw.parts:
@@ -128,6 +130,22 @@ def _gltf_rig(path: Path):
         raise InputError(exc.reason, path) from None
     up = str(g.up_axis).lstrip("+").lower()
     return rig, g.units, up if up in ("y", "z") else None
+
+
+def _usd_rig(path: Path):
+    """A USD file's rig (its mesh's points and blend shapes) -> ``(rig, units, up)`` as the stage states them."""
+    from facegeom.io.usd import read_usd_rig, unit_name
+    from facegeom.model.rig import BlendshapeRig
+
+    u = read_usd_rig(path)
+    if u.deltas.shape[0] == 0:
+        raise InputError("the USD mesh has no blend shapes: not a rig (as a head to rig, give it to "
+                         "`facegeom transfer`)", path)
+    try:
+        rig = BlendshapeRig(u.neutral, u.deltas, u.names, u.faces, None)
+    except InputError as exc:
+        raise InputError(exc.reason, path) from None
+    return rig, unit_name(u.meters_per_unit), u.up_axis.lower()
 
 
 def rig_note(rig, name: str | None, what: str = "") -> str:

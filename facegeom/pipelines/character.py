@@ -6,10 +6,11 @@ rig, or the ARKit weights of a Live Link take -- drive the character's rig
 through the one name map (:meth:`~facegeom.model.rig.BlendshapeRig.map_from`:
 ICT and ARKit names in any spelling, a mapping file's gains), with
 
-- the head's motion carried over: the same rotations; the translations
-  scaled by the character's size over the actor's (the root mean square
-  radius of the neutrals), so a character twice the actor's size moves twice
-  as far;
+- the head's motion carried over about the performance's mean pose
+  (:func:`relative_motion`: the character stands where its own rig puts it,
+  not where the actor stood in the capture volume), the translations scaled
+  by the character's size over the actor's (the root mean square radius of
+  the neutrals), so a character twice the actor's size moves twice as far;
 - the eyes: a character rig's eye-look shapes are driven like any other (its
   eyes, when :mod:`facegeom.methods.pieces` made them, turn inside those
   shapes); the Live Link output gets eye rotation columns from the ARKit
@@ -58,6 +59,23 @@ def _map_notes(m, character, what: str) -> list[str]:
     return notes
 
 
+def relative_motion(rotations, translations) -> tuple[np.ndarray, np.ndarray]:
+    """The head's motion about the performance's mean pose: ``(R_ref^T R_t, R_ref^T (t_t - t_ref))`` with
+    ``R_ref`` the rotations' mean (the chordal mean) and ``t_ref`` the translations' median.
+
+    A capture states where the actor stood in the volume and which way they faced; a character has its own
+    placement (its rig's). Played relative to the mean pose, the character stands where its rig puts it
+    whenever the actor is at that pose, and moves and turns as the actor does around it."""
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(rotations, dtype=np.float64)
+    t = np.asarray(translations, dtype=np.float64)
+    if R.shape[0] == 0:
+        return R, t
+    ref = Rotation.from_matrix(R).mean().as_matrix()
+    return np.einsum("ji,tjk->tik", ref, R), (t - np.median(t, axis=0)) @ ref
+
+
 def onto_character(solved: SolvedCapture, character, actor=None) -> SolvedCapture:
     """The actor's solve ``solved`` played on ``character`` (a :class:`~facegeom.model.rig.BlendshapeRig`).
 
@@ -74,12 +92,14 @@ def onto_character(solved: SolvedCapture, character, actor=None) -> SolvedCaptur
     # each character curve is a mix of the actor's smoothed curves: it carries the strongest smoothing among them
     drives = np.asarray(m.matrix) != 0
     smoothing = np.where(drives, np.asarray(s.smoothing, dtype=np.float64)[None, :], 0.0).max(axis=1, initial=0.0)
+    R, t = relative_motion(s.rotations, s.translations)
     out = replace(s, weights=m.apply(s.weights), raw_weights=m.apply(s.raw_weights), names=tuple(character.names),
-                  translations=s.translations * k, smoothing=smoothing,
+                  rotations=R, translations=t * k, smoothing=smoothing,
                   info={**s.info, "character_scale": k, "head_motion": True})
     notes = list(solved.notes) + _map_notes(m, character, "actor's rig")
-    notes.append(f"character: {int(m.matrix.any(axis=1).sum())} of its {len(character.names)} shapes driven; head "
-                 f"translations x{k:.3f} (the character's size over the actor's)")
+    notes.append(f"character: {int(m.matrix.any(axis=1).sum())} of its {len(character.names)} shapes driven; the "
+                 f"head's motion about the performance's mean pose, its translations x{k:.3f} (the character's size "
+                 "over the actor's); at that pose the character stands where its rig puts it")
     return replace(solved, solve=out, rig=character, notes=notes)
 
 
@@ -121,7 +141,10 @@ def take_onto_character(take, character, start: int = 0, frames: int | None = No
     notes = _map_notes(m, character, "take's")
     if tk.rotations is None or not np.any(tk.rotations[start:stop, :3]):
         notes.append(f"{Path(tk.path).name}: no head rotation in the take; the head stays still")
-    return SolvedCapture(solve, seq, np.zeros(0, dtype=np.int64), "take", take_fps(tk), True, character, notes)
+    fps = take_fps(tk)
+    start_s = getattr(tk, "start_s", 0.0) + float(tk.times[start]) if tk.times.size else None
+    return SolvedCapture(solve, seq, np.zeros(0, dtype=np.int64), "take", fps, True, character, notes,
+                         start_s=start_s)
 
 
 def stored_registration(model, path, V, F):
@@ -142,7 +165,8 @@ def stored_registration(model, path, V, F):
 
 
 def read_head(path):
-    """A head file -> ``(V, F, parts or None)``: a mesh, a glTF scene or a rig file's neutral."""
+    """A head file -> ``(V, F, parts or None)``: a mesh, a glTF scene, a USD file's mesh or a rig file's
+    neutral."""
     from facegeom.io.mesh import read_mesh
 
     suffix = Path(path).suffix.lower()
@@ -156,5 +180,10 @@ def read_head(path):
 
         rig, _, _ = BlendshapeRig.read_npz(path)
         return rig.neutral, rig.triangles, rig.parts
+    if suffix in (".usd", ".usda", ".usdc", ".usdz"):
+        from facegeom.io.usd import read_usd_rig
+
+        u = read_usd_rig(path)
+        return u.neutral, u.faces, None
     V, F = read_mesh(path)
     return V, F, None

@@ -49,7 +49,8 @@ __all__ = ["LiveFrame", "LiveStats", "UDPSource", "ReplaySource", "Calibration",
 
 DEFAULT_PORT = 11111  # the Live Link Face app's default target port
 N_WEIGHTS = 52
-RECORD_SUFFIXES = (".csv", ".gesichter", ".npz", ".glb")
+RECORD_SUFFIXES = (".csv", ".gesichter", ".npz", ".glb", ".usda", ".usdc", ".usdz")
+CHARACTER_SUFFIXES = (".glb", ".usda", ".usdc", ".usdz")  # what the character performing the session is written as
 LATENCY_SAMPLES = 100_000  # latencies kept for the percentiles (the last ~28 minutes at 60 fps)
 
 
@@ -179,11 +180,12 @@ class UDPSource:
         self.sock.close()
 
 
-def _packets(values: np.ndarray, fps: float, subject: str) -> list[bytes]:
-    """Rows of the 61 packet values -> Live Link Face packets at ``fps`` (non-finite values sent as 0)."""
+def _packets(values: np.ndarray, fps: float, subject: str, first: int = 0) -> list[bytes]:
+    """Rows of the 61 packet values -> Live Link Face packets at ``fps`` (non-finite values sent as 0), frame
+    numbers (the timecode in frames, as the phone sends it) from ``first``."""
     rate = (int(round(fps)), 1) if abs(fps - round(fps)) < 1e-3 * fps else (int(round(fps * 1000)), 1000)
     values = np.nan_to_num(np.asarray(values, dtype=np.float64))
-    return [encode_packet(w, "facegeom-replay", subject, i, 0.0, rate) for i, w in enumerate(values)]
+    return [encode_packet(w, "facegeom-replay", subject, first + i, 0.0, rate) for i, w in enumerate(values)]
 
 
 def _default_fitter():
@@ -248,7 +250,8 @@ class ReplaySource:
                 W[:, k] = take.weights[:, index[name.lower()]]
             if take.rotations is not None:
                 W[:, N_WEIGHTS:] = take.rotations[:, :len(ROTATION_NAMES)]
-            self.packets = _packets(W, self.fps, subject or self.path.stem)
+            first = int(round(take.start_s * self.fps))  # the take's own timecode goes on in the frame numbers
+            self.packets = _packets(W, self.fps, subject or self.path.stem, first)
         elif suffix == ".c3d":
             from facegeom.pipelines.solve import solve_file
 
@@ -440,12 +443,16 @@ class Recorder:
         self.values: list[np.ndarray] = []
         self.times: list[int] = []
         self.meta: tuple | None = None
+        self.start_s: float | None = None
 
     def __call__(self, frame: LiveFrame) -> None:
         self.values.append(frame.values.copy())
         self.times.append(frame.arrived_ns)
         if self.meta is None:
             self.meta = (frame.device_id, frame.subject, frame.rate)
+            r = frame.rate
+            # the first frame's timecode (its frame number at its rate): a recorded take starts there
+            self.start_s = (frame.frame + frame.sub_frame) * r[1] / r[0] if r[0] > 0 and r[1] > 0 else None
 
     def write(self) -> Path | None:
         """Write what was recorded (atomically); None when nothing was."""
@@ -460,7 +467,8 @@ class Recorder:
         if suffix == ".csv":
             from facegeom.io.takes import write_livelink_csv
 
-            return write_livelink_csv(self.path, V[:, :N_WEIGHTS], PACKET_NAMES[:N_WEIGHTS], fps,
+            start = self.start_s % 86400.0 if self.start_s is not None and np.isfinite(self.start_s) else None
+            return write_livelink_csv(self.path, V[:, :N_WEIGHTS], PACKET_NAMES[:N_WEIGHTS], fps, start=start,
                                       rotations=V[:, N_WEIGHTS:])
         if suffix == ".gesichter":
             return write_recording(self.path, [encode_packet(v, device, subject, i, 0.0, rate)
@@ -504,9 +512,10 @@ class CharacterSink:
             self.kept_rotations.append(self.rotation.copy())
 
     def write_glb(self, path, fps: float) -> Path | None:
-        """The kept frames as a ``.glb``: the character with its shapes as morph targets, the weights and the
-        head's rotation as an animation at ``fps`` (atomically). None when nothing was kept."""
-        from facegeom.io.gltf import write_rig_glb
+        """The kept frames as a ``.glb`` (or USD, by the suffix): the character with its shapes as morph targets,
+        the weights and the head's rotation as an animation at ``fps`` (atomically). None when nothing was
+        kept."""
+        from facegeom.io.delivery import write_rig_animation
         from facegeom.pipelines.solve import GLB_SCALE
 
         if not self.kept_weights:
@@ -514,8 +523,8 @@ class CharacterSink:
         rig = self.rig
         W = np.array(self.kept_weights)
         R = np.array(self.kept_rotations)
-        return write_rig_glb(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE, rig.names, W,
-                             fps, rotations=R, translations=np.zeros((W.shape[0], 3)))
+        return write_rig_animation(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE, rig.names,
+                                   W, fps, rotations=R, translations=np.zeros((W.shape[0], 3)))
 
     def face(self) -> np.ndarray:
         """The character now: its expression, turned by the head about its neutral's centroid, ``(n, 3)``."""

@@ -114,16 +114,23 @@ class VideoSource:
     stats : LiveStats, optional
     loop : bool
         Start over at the end.
+    subject : str, optional
+        The subject name the frames carry (default the file's stem).
+    speed : float
+        Play at this multiple of the video's rate (below 1: slower, every frame has more time).
     """
 
     def __init__(self, path, model, rig=None, stats: LiveStats | None = None, loop: bool = False,
-                 subject: str | None = None):
+                 subject: str | None = None, speed: float = 1.0):
         from facegeom.io.video import open_video
 
+        if not (np.isfinite(speed) and speed > 0):
+            raise InputError(f"speed must be a positive number, got {speed}", path)
         self.stats = stats if stats is not None else LiveStats()
         self.path = Path(path)
         self.reader = open_video(self.path)
-        self.fps = float(self.reader.fps or 30.0)
+        self.speed = float(speed)
+        self.fps = float(self.reader.fps or 30.0) * self.speed  # frames are due at their time over the speed
         try:
             self.face = FaceValues(model, rig, self.reader.width, self.reader.height)
         except BaseException:
@@ -162,7 +169,7 @@ class VideoSource:
             return None
         frame = self._next()
         while frame is not None:
-            due = self._t0 + frame.time_s
+            due = self._t0 + frame.time_s / self.speed
             nxt_due = due + 1.0 / self.fps
             if time.perf_counter() < nxt_due:  # this one is still current: track it
                 break
@@ -171,10 +178,10 @@ class VideoSource:
         if frame is None:
             self.done = True
             return None
-        wait = self._t0 + frame.time_s - time.perf_counter()
+        wait = self._t0 + frame.time_s / self.speed - time.perf_counter()
         if wait > 0:
             time.sleep(wait)
-        self._due = frame.time_s + 1.0 / self.fps
+        self._due = frame.time_s / self.speed + 1.0 / self.fps
         arrived = time.perf_counter_ns()
         self.stats.datagrams += 1
         values = self.face.values(frame.image)

@@ -81,6 +81,9 @@ class SolvedCapture:
     """The :class:`~facegeom.model.rig.BlendshapeRig` solved for (the ``.glb`` writer needs its mesh)."""
     notes: list = field(default_factory=list)
     """What was done to the inputs and outputs (a capture read in the rig's units, ARKit columns left at 0)."""
+    start_s: float | None = None
+    """Time of day of the first frame (seconds) when the source states one (a Live Link take's timecode): a Live
+    Link take written from the solve starts there."""
 
 
 MAP_HEADERS = (("marker", "vertex"), ("marker", "vertex_id"))
@@ -250,18 +253,19 @@ def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
 
 
 def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
-    """The rig (in metres) with its blendshapes as named morph targets and the weights as a glTF animation."""
-    from facegeom.io.gltf import write_rig_glb
+    """The rig (in metres) with its blendshapes as named morph targets (or USD blend shapes, by the suffix:
+    :func:`facegeom.io.delivery.write_rig_animation`) and the weights as its animation."""
+    from facegeom.io.delivery import write_rig_animation
 
     rig = solved.rig
     if rig is None:
-        raise InputError("a .glb needs the rig's mesh, and this solve carries no rig", path)
+        raise InputError(f"a {path.suffix} needs the rig's mesh, and this solve carries no rig", path)
     s = solved.solve
     motion = {}
     if isinstance(s.info, dict) and s.info.get("head_motion"):  # a performance on a character: the head moves too
         motion = {"rotations": s.rotations, "translations": s.translations * GLB_SCALE}
-    return write_rig_glb(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
-                         s.names, s.weights, solved.fps, **motion)
+    return write_rig_animation(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
+                               s.names, s.weights, solved.fps, **motion)
 
 
 def arkit_map(solved: SolvedCapture) -> ShapeMap:
@@ -306,12 +310,16 @@ def write_curves_livelink(path: Path, solved: SolvedCapture) -> Path:
     if m.unmapped_source:
         solved.notes.append(f"{path.name}: rig shapes a Live Link take has no column for (not written): "
                             f"{', '.join(m.unmapped_source)}")
-    return write_livelink_csv(path, W, ARKIT_NAMES, solved.fps, rotations=livelink_rotations(solved, W))
+    return write_livelink_csv(path, W, ARKIT_NAMES, solved.fps, start=solved.start_s,
+                              rotations=livelink_rotations(solved, W))
 
 
 CURVE_WRITERS = {
     ".npz": write_curves_npz,
     ".glb": write_curves_glb,
+    ".usda": write_curves_glb,
+    ".usdc": write_curves_glb,
+    ".usdz": write_curves_glb,
     ".csv": write_curves_livelink,
 }
 """Output suffix -> writer ``(path, SolvedCapture)``; every writer writes atomically."""
@@ -353,6 +361,10 @@ class RigAnimation:
     weights: np.ndarray
     fps: float
     path: str
+    rotations: np.ndarray | None = None
+    """``(T, 3, 3)`` the head's rotation per frame when the file animates it (a ``.glb`` node's, USD's joint's)."""
+    translations: np.ndarray | None = None
+    """``(T, 3)`` its translation in cm, with ``rotations``."""
 
     @property
     def n_frames(self) -> int:
@@ -360,9 +372,12 @@ class RigAnimation:
         return int(self.weights.shape[0])
 
     def frame(self, t: int) -> np.ndarray:
-        """``(n, 3)`` vertex positions of frame ``t``."""
+        """``(n, 3)`` vertex positions of frame ``t``, turned and moved by the head's motion when there is one."""
         K, n = self.deltas.shape[:2]
-        return self.neutral + (self.weights[t] @ self.deltas.reshape(K, 3 * n)).reshape(n, 3)
+        X = self.neutral + (self.weights[t] @ self.deltas.reshape(K, 3 * n)).reshape(n, 3)
+        if self.rotations is not None:
+            X = X @ self.rotations[t].T + self.translations[t]
+        return X
 
 
 def take_fps(take) -> float:
@@ -409,11 +424,27 @@ def read_animation(path: str | os.PathLike, rig=None) -> RigAnimation:
             raise InputError("the .glb has no weights animation to play (a rig without curves: drive or fit it "
                              "first, or play curves solved for it)", path)
         fps = g.fps if g.fps else DEFAULT_FPS
+        motion = {}
+        if g.rotations is not None:
+            motion = {"rotations": g.rotations, "translations": g.translations / GLB_SCALE}
         return RigAnimation(g.neutral / GLB_SCALE, g.faces, g.deltas / GLB_SCALE, tuple(g.names), g.weights,
-                            float(fps), str(path))
+                            float(fps), str(path), **motion)
+    if suffix in (".usd", ".usda", ".usdc", ".usdz"):
+        from facegeom.io.usd import read_usd_rig
+
+        u = read_usd_rig(path)
+        if u.weights is None or u.weights.shape[0] == 0 or u.deltas.shape[0] == 0:
+            raise InputError("the USD file has no blend-shape weights animation to play (a rig without curves: "
+                             "drive or fit it first, or play curves solved for it)", path)
+        scale = u.meters_per_unit / (GLB_SCALE)  # the file's units -> cm
+        motion = {}
+        if u.rotations is not None:
+            motion = {"rotations": u.rotations, "translations": u.translations * scale}
+        return RigAnimation(u.neutral * scale, u.faces, u.deltas * scale, tuple(u.names), u.weights,
+                            float(u.fps or DEFAULT_FPS), str(path), **motion)
     if suffix not in (".npz", ".csv"):
-        raise InputError(f"cannot play {suffix or 'a file without suffix'!r}; use .glb, .npz curves or a "
-                         "Live Link .csv take", path)
+        raise InputError(f"cannot play {suffix or 'a file without suffix'!r}; use .glb, .usda/.usdc/.usdz, .npz "
+                         "curves or a Live Link .csv take", path)
     rig = rig() if callable(rig) else rig
     if suffix == ".csv":
         from facegeom.io.takes import read_take
