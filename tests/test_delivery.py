@@ -134,3 +134,18 @@ def test_takes_keep_their_timecode(face_model, tmp_path):
     main(["live", "--replay", str(take), "--record", str(tmp_path / "live.csv"), "--quiet"])
     live = read_take(tmp_path / "live.csv")
     assert live.start_s == pytest.approx(start, abs=1e-6)
+
+
+def test_a_take_on_the_character_as_usd(tmp_path):
+    pytest.importorskip("pxr", reason="USD needs usd-core: pip install 'facegeom[usd]'")
+    from facegeom.cli.main import main
+    from facegeom.io.takes import ARKIT_NAMES, write_livelink_csv
+    from facegeom.pipelines.solve import read_animation
+
+    W = np.zeros((20, len(ARKIT_NAMES)))
+    W[:, ARKIT_NAMES.index("JawOpen")] = np.linspace(0, 1, 20)
+    take = write_livelink_csv(tmp_path / "take.csv", W, ARKIT_NAMES, 30.0)
+    main(["animate", "--take", str(take), "--character", str(CHARACTER), "-o", str(tmp_path / "a.usdz")])
+    a = read_animation(tmp_path / "a.usdz")
+    assert a.n_frames == 20 and a.fps == pytest.approx(30.0)
+    np.testing.assert_allclose(a.weights[:, a.names.index("jawOpen")], np.linspace(0, 1, 20), atol=1e-6)

@@ -256,7 +256,7 @@ def fit(ctx, target, kind, rig_path, neutral, names_map, units, up, method, para
 @click.option("--retargeter", default="tangent", show_default=True, help="Retargeter spec, e.g. 'rbf'.")
 @click.option("--deformer", default="tangent", show_default=True, help="Deformer spec, e.g. 'biharmonic'.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Output .npz (with --rig or --character also .glb or a Live Link .csv).")
+              help="Output .npz (with --rig or --character also .glb, USD (.usda/.usdc/.usdz) or a Live Link .csv).")
 @click.option("--obj-dir", type=click.Path(file_okay=False), default=None, help="Also write one OBJ per frame here.")
 @click.option("--rig", "rig_path", type=click.Path(), default=None,
               help="Solve the retargeted markers on this rig (an OBJ folder, .glb/.gltf or .npz with the ICT face's "

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-OUTPUTS = (".csv", ".npz", ".glb")
+OUTPUTS = (".csv", ".npz", ".glb", ".usda", ".usdc", ".usdz")
 
 
 @click.command("track")
@@ -13,7 +13,7 @@ OUTPUTS = (".csv", ".npz", ".glb")
 @click.option("-o", "--output", "outputs", required=True, multiple=True, type=click.Path(dir_okay=False),
               help="Output, repeatable: OUT.csv (a Live Link Face take: the 52 ARKit weights, head and eye "
                    "rotations), OUT.npz (curves, head pose, gaze, the 468 points and 68 landmarks per frame, "
-                   "per-frame fit residual, identity, camera) or OUT.glb (the fitted actor animated; with "
+                   "per-frame fit residual, identity, camera) or OUT.glb / OUT.usdc (the fitted actor animated; with "
                    "--character, your character).")
 @click.option("--character", "character_path", type=click.Path(), default=None,
               help="Play the performance on this character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from "
