@@ -37,7 +37,32 @@ Registration (the ICT face posed and shaped onto the head)
    head, ``igl.point_mesh_squared_distance``; pairs trimmed as outliers; a
    membrane smoothness term on the displacement with the cotangent
    Laplacian, ``igl.cotmatrix``; one sparse SPD solve per round; the
-   smoothing length :data:`NONRIGID_LENGTHS_CM` shrinking round after round).
+   smoothing length :data:`NONRIGID_LENGTHS_CM` shrinking round after round),
+   then two rounds (:data:`NONRIGID_FINAL_LENGTHS_CM`) without the trimming.
+   The trimming's threshold (median + 3 MADs) follows the median down (0.8-1.4
+   mm by the last round), so the vertices not yet on the head were dropped
+   round after round and never pulled there: the nostrils (the template's
+   are deeper than a scan's or an artist's), the eyelids' rims and the chin's
+   underside held the face area's 95th percentile at 2.3-3.0 mm (Lee
+   Perry-Smith, both MakeHuman heads; medians 0.07-0.12 mm). The final rounds
+   keep every pair of :func:`_untrimmed_region` (the face area below the
+   eyes, but the lips and the lids) but those past ``4 COVER_MM`` or on an
+   open edge of the head (a hole's rim), with a point-to-plane data term
+   (plus :data:`NONRIGID_POINT_WEIGHT` point-to-point): 95th percentile
+   1.73 / 1.09 / 1.17 mm, and 0.32 / 0.55 / 0.80 mm outside the lips and lids
+   (1.66 / 3.61 / 3.89 before). Measured on the way (the artist benchmark:
+   MakeHuman, ``deformation``, median relative error 0.823 before, 0.819
+   now; the fold check on the scan):
+   the lips and lids untrimmed too reach 0.69 / 0.69 / 0.78 mm, but the
+   scan's blink and lower-lip roll then fold beyond what the fold correction
+   may change (:data:`~facegeom.methods.folds.MAX_CHANGE`: 40 and 29 %); a
+   narrower band kept trimmed there (3 mm) left them folded too. Point-to-point
+   untrimmed pairs bunch the lids' rims at their closest points (0.843: the
+   compressed triangles amplify the gradients carried); the brows and forehead
+   (above the eyes, :data:`BROW_ABOVE_EYES_CM`) keep the trimming (their
+   untrimmed pairs moved the eyeLook shapes). Rejecting pairs whose normals
+   differ by more than 60 degrees left the nostrils off the head (95th
+   percentile 1.4-1.9 mm on the MakeHuman heads): not used.
 
 The fit is reported as the median and 95th percentile of the template ->
 head distance over the face area after each step (head units and mm).
@@ -162,6 +187,10 @@ RIGID_RETRY_MM = 3.0  # the next size is tried while the best pose's median dist
 SIMILARITY_ROUNDS = 20  # trimmed similarity ICP rounds at most (the scale)
 SIZE_RANGE = 1.15  # scales within [1/SIZE_RANGE, SIZE_RANGE] of the generic face are left to the identity modes
 NONRIGID_LENGTHS_CM = (2.0, 1.0, 0.5, 0.25, 0.12)  # non-rigid ICP: smoothing length per round (model cm)
+NONRIGID_FINAL_LENGTHS_CM = (0.12, 0.12)  # then these rounds untrimmed, point-to-plane (see "Non-rigid refinement")
+NONRIGID_POINT_WEIGHT = 0.1  # the final rounds: point-to-point weight beside the point-to-plane term
+EYE_BAND_CM = 1.0  # the eyelids: within this of the template's eye openings (along edges)
+BROW_ABOVE_EYES_CM = 0.5  # the face area this far above the eye openings' centres (outside the lids): kept trimmed
 NOT_A_HEAD_RIGID_MM = 4.0  # the posed generic face's median face-area distance above this: not a head
 NOT_A_HEAD_MM = 5.0  # the identity fit's median face-area distance above this: not a head
 IDENTITY_RMS_NOTE = 2.5  # the identity fit's coefficients (~ N(0, 1) for people) above this rms: a note
@@ -383,28 +412,40 @@ def _template_band(model) -> np.ndarray:
     return _BANDS[key]
 
 
-_MOUTHS: dict = {}
+_OPENINGS: dict = {}
 
 
-def _mouth_band(model) -> np.ndarray:
-    """The template's vertices within ``MOUTH_BAND_CM`` (along edges) of its mouth opening (the boundary loop
-    nearest the inner-lip landmarks 60-67)."""
+def _opening_bands(model) -> np.ndarray:
+    """The template's vertices near each of its openings -> ``(3, N)`` bool: within ``MOUTH_BAND_CM`` (along
+    edges) of the mouth opening (the boundary loop nearest the inner-lip landmarks 60-67) and within
+    ``EYE_BAND_CM`` of each eye opening (nearest the eye landmarks 36-41, 42-47): the lips and the lids."""
     key = id(model)
-    if key not in _MOUTHS:
+    if key not in _OPENINGS:
         from scipy.sparse.csgraph import dijkstra
 
         V = np.asarray(model.neutral, dtype=np.float64)
         T = np.asarray(model.triangles, dtype=np.int64)
-        lips = V[np.asarray(model.landmarks)[60:68]].mean(axis=0)
+        lm = np.asarray(model.landmarks)
         loops = [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(T)]
-        mouth = min(loops, key=lambda loop: float(np.linalg.norm(V[loop].mean(axis=0) - lips)))
         E = np.r_[T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]
         w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
         graph = sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(len(V), len(V))).tocsr()
-        d = dijkstra(graph, directed=False, indices=mouth, min_only=True, limit=MOUTH_BAND_CM)
-        _MOUTHS.clear()
-        _MOUTHS[key] = np.isfinite(d)
-    return _MOUTHS[key]
+        bands = np.zeros((3, len(V)), dtype=bool)
+        for row, (ids, limit) in enumerate(((slice(60, 68), MOUTH_BAND_CM), (slice(36, 42), EYE_BAND_CM),
+                                            (slice(42, 48), EYE_BAND_CM))):
+            if not loops or lm.size < ids.stop:
+                continue
+            centre = V[lm[ids]].mean(axis=0)
+            loop = min(loops, key=lambda loop: float(np.linalg.norm(V[loop].mean(axis=0) - centre)))
+            bands[row] = np.isfinite(dijkstra(graph, directed=False, indices=loop, min_only=True, limit=limit))
+        _OPENINGS.clear()
+        _OPENINGS[key] = bands
+    return _OPENINGS[key]
+
+
+def _mouth_band(model) -> np.ndarray:
+    """The template's lips: its vertices within ``MOUTH_BAND_CM`` (along edges) of its mouth opening."""
+    return _opening_bands(model)[0]
 
 
 def _mouth_interior(model, reg: HeadRegistration, region) -> np.ndarray:
@@ -453,7 +494,51 @@ def _harmonic_fill(F, region, D):
     return out
 
 
-def _nonrigid(Y, T, VH, FH, face, lengths, mm_per_y):
+_FREE: dict = {}
+
+
+def _untrimmed_region(model) -> np.ndarray:
+    """The template vertices whose pairs the final non-rigid rounds keep untrimmed -> ``(N,)`` bool: the face
+    area below the eyes' level (``BROW_ABOVE_EYES_CM`` over the eye openings' centres: forehead and brows
+    keep the trimming) but the lips and the lids (:func:`_opening_bands`), which keep it too (see
+    :data:`NONRIGID_FINAL_LENGTHS_CM`)."""
+    key = id(model)
+    if key not in _FREE:
+        V = np.asarray(model.neutral, dtype=np.float64)
+        lm = np.asarray(model.landmarks)
+        bands = _opening_bands(model)
+        free = (np.arange(len(V)) < min(FACE_AREA, len(V))) & ~bands.any(axis=0)
+        if lm.size >= 48 and bands[1:].any():
+            top = V[bands[1] | bands[2], 1].mean() + BROW_ABOVE_EYES_CM  # the model's frame: Y up
+            free &= V[:, 1] <= top
+        _FREE.clear()
+        _FREE[key] = free
+    return _FREE[key]
+
+
+def _on_open_edge(VH, FH, tri, C, tol):
+    """Closest points ``C (p,3)`` (on the head triangles ``tri``) that lie on an open edge of the head ``(VH, FH)``
+    (within ``tol`` of an edge used by one triangle) -> ``(p,)`` bool: the rim of a hole or of the mesh."""
+    out = np.zeros(len(C), dtype=bool)
+    rim = igl.boundary_facets(FH)
+    rim = np.asarray(rim[0] if isinstance(rim, tuple) else rim, dtype=np.int64).reshape(-1, 2)
+    if len(rim) == 0:
+        return out
+    m = VH.shape[0] + 1  # an undirected edge's id: min * m + max
+    open_edges = np.unique(rim.min(axis=1) * m + rim.max(axis=1))
+    for k in range(3):  # the triangle's edge k -> k + 1
+        a, b = FH[tri, k], FH[tri, (k + 1) % 3]
+        on = np.isin(np.minimum(a, b) * m + np.maximum(a, b), open_edges)
+        if not on.any():
+            continue
+        A, B, P = VH[a[on]], VH[b[on]], C[on]
+        ab = B - A
+        u = np.clip(((P - A) * ab).sum(axis=1) / np.maximum((ab * ab).sum(axis=1), 1e-300), 0.0, 1.0)
+        out[on] |= np.linalg.norm(A + u[:, None] * ab - P, axis=1) <= tol
+    return out
+
+
+def _nonrigid(Y, T, VH, FH, face, lengths, mm_per_y, final_lengths=(), free=None):
     """Non-rigid ICP of the template ``Y (N,3)`` (triangles ``T``) onto the head ``(VH, FH)`` (same frame).
 
     Data: face-area vertices ``face`` pulled to their closest head points,
@@ -461,6 +546,14 @@ def _nonrigid(Y, T, VH, FH, face, lengths, mm_per_y):
     membrane energy of the displacement, ``l^2 U' K U`` (``K`` the negated
     cotangent Laplacian of the template, ``l`` the round's length), over
     every template vertex.
+
+    Then the rounds of ``final_lengths`` (see :data:`NONRIGID_FINAL_LENGTHS_CM`):
+    the pairs of the vertices ``free`` (bool, N) kept untrimmed, but those
+    farther than ``4 COVER_MM`` and those whose closest point lies on an open
+    edge of the head (a hole's rim: the template over a hole is left to the
+    membrane, not drawn to the rim); the data term point-to-plane (the head's
+    normal at the closest point) plus ``NONRIGID_POINT_WEIGHT`` times
+    point-to-point, one ``3N x 3N`` SPD solve per round.
     """
     n = Y.shape[0]
     K = -igl.cotmatrix(Y, T)
@@ -476,6 +569,29 @@ def _nonrigid(Y, T, VH, FH, face, lengths, mm_per_y):
         target[face[keep]] = C[keep] - Y[face[keep]]  # the displacement from the identity fit that reaches the head
         A = sp.diags(w + eps) + (ell * ell) * K
         U = factorize_spd(A).solve(w[:, None] * target)
+        X = Y + U
+    if not final_lengths:
+        return X
+    free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    tol = 1e-6 * float(np.linalg.norm(VH.max(axis=0) - VH.min(axis=0)))
+    NH = igl.per_face_normals(VH, FH, np.array([0.0, 0.0, 1.0]))
+    K3 = sp.kron(K, sp.eye(3)).tocsr()
+    idx = 3 * np.arange(n)[:, None] + np.arange(3)[None, :]  # (n, 3) unknowns of each vertex
+    rows, cols = np.repeat(idx, 3, axis=1).ravel(), np.tile(idx, (1, 3)).ravel()
+    for ell in final_lengths:
+        d, tri, C = _distances(X[face], VH, FH)
+        keep = (d * mm_per_y <= 4 * COVER_MM) & (trim_outliers(d) | free[face]) & ~_on_open_edge(VH, FH, tri, C, tol)
+        w = np.zeros(n)
+        w[face[keep]] = M[face[keep]]
+        nrm = np.zeros((n, 3))
+        nrm[face] = NH[tri]
+        target = np.zeros((n, 3))
+        target[face[keep]] = C[keep] - Y[face[keep]]
+        # per vertex w [(n . (u - t))^2 + a |u - t|^2]: the 3 x 3 block w (n n' + a I)
+        B = w[:, None, None] * (nrm[:, :, None] * nrm[:, None, :] + NONRIGID_POINT_WEIGHT * np.eye(3)) \
+            + eps * np.eye(3)
+        A = sp.csr_matrix((B.ravel(), (rows, cols)), shape=(3 * n, 3 * n)) + (ell * ell) * K3
+        U = factorize_spd(A.tocsc()).solve(np.einsum("nij,nj->ni", B, target).reshape(-1, 1)).reshape(n, 3)
         X = Y + U
     return X
 
@@ -621,7 +737,8 @@ def register_head(model, V, F, *, landmarks=None, units="auto", path=None, sampl
             f"deviations on average, people about 1.3): the non-rigid step carries the rest of the fit")
     # 4. non-rigid refinement: every template vertex pulled to the head (trimmed), a membrane term between
     t0 = time.perf_counter()
-    X = _nonrigid(Y, T, H_y, F, np.arange(N), tuple(ell / scale_cm for ell in NONRIGID_LENGTHS_CM), mm_per_y)
+    X = _nonrigid(Y, T, H_y, F, np.arange(N), tuple(ell / scale_cm for ell in NONRIGID_LENGTHS_CM), mm_per_y,
+                  tuple(ell / scale_cm for ell in NONRIGID_FINAL_LENGTHS_CM), _untrimmed_region(model))
     d, _, _ = _distances(X[face], H_y, F)
     covered = float(np.mean(d * mm_per_y <= COVER_MM))
     report["nonrigid"] = {"time_s": time.perf_counter() - t0, "covered": covered,
