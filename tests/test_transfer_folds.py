@@ -97,7 +97,8 @@ def test_the_engine_keeps_the_mouth_with_the_lips(face_model, lps):
 
 def test_no_shape_or_pair_folds_the_scan(face_model, lps):
     """What the default transfer hands back: every shape at 1 and every pair, no flipped triangle and no new
-    crossing (outside the scan's own folds), checked afresh; the report says what was corrected."""
+    crossing (outside the scan's own folds), checked afresh, and none at lower weights either; the report says
+    what was corrected."""
     from facegeom.methods.transfer import fold_lines, transfer_character
 
     res = transfer_character(face_model, lps)
@@ -109,6 +110,9 @@ def test_no_shape_or_pair_folds_the_scan(face_model, lps):
     skin = lps.pieces[0].vertices
     fc = _check(face_model, lps, res.deltas[:, skin])
     assert fc.total == 0, fc.counts()
+    for w in (0.25, 0.5, 0.75):  # nor on the way there
+        part = _check(face_model, lps, w * res.deltas[:, skin])
+        assert part.total == 0, (w, part.counts())
     assert rep["check_s"] < 10.0  # about 2-3 s on a 2-core machine
     reg = lps.registration
     rest = folds.RestCrossings(reg.head_vertices, reg.head_faces)
