@@ -346,3 +346,16 @@ def test_animate_on_an_arkit_rig(rigs, tmp_path, real_takes):
     assert "rig arkit: 51 shapes" in r.stdout and "weight error vs the take" in r.stdout  # the take speaks ICT
     z = np.load(out)
     assert sorted(map(str, z["names"])) == sorted(rig.names) and z["weights"].shape == (40, 51)
+
+
+@pytest.mark.parametrize("suffix, name", [(".fbx", "FBX"), (".blend", "Blender"), (".ma", "Maya")])
+def test_a_scene_format_not_read_is_named_not_called_an_npz(tmp_path, suffix, name):
+    """An FBX (the Rocketbox avatars' format), a .blend or a Maya scene: refused with what it is and what to
+    export, not as a broken npz."""
+    path = tmp_path / f"face{suffix}"
+    path.write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + bytes(64))
+    with pytest.raises(InputError) as info:
+        load_rig(path)
+    text = str(info.value)
+    assert str(path) in text and f"{name} files are not read as rigs" in text and "glTF" in text
+    assert "npz" not in text

@@ -19,6 +19,12 @@ from facegeom.model.landmarks import SIDE_CONTOUR, to_model_convention
 __all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'rig_note', 'scan_scale']
 
 
+#: scene formats of animation tools that a rig may come in but facegeom does not read (their own exporters
+#: write glTF or USD with the blend shapes): named in the refusal instead of "not an npz"
+SCENE_FORMATS_NOT_READ = {".fbx": "FBX", ".blend": "Blender", ".ma": "Maya", ".mb": "Maya", ".max": "3ds Max",
+                          ".c4d": "Cinema 4D", ".abc": "Alembic", ".dae": "COLLADA"}
+
+
 def load_rig(rig_path=None, face_model=None, *, neutral: str | None = None, names=None, units: str = "auto",
              up: str = "auto", notes: list | None = None):
     """The rig of ``facegeom fit`` / ``solve`` / ``animate``, from wherever it comes, in facegeom's frame.
@@ -102,6 +108,9 @@ def load_rig(rig_path=None, face_model=None, *, neutral: str | None = None, name
             raw, stated_units, stated_up = _gltf_rig(rp)
         elif rp.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
             raw, stated_units, stated_up = _usd_rig(rp)
+        elif rp.suffix.lower() in SCENE_FORMATS_NOT_READ:
+            raise InputError(f"{SCENE_FORMATS_NOT_READ[rp.suffix.lower()]} files are not read as rigs; export the "
+                             "face with its blend shapes as glTF (.glb), USD (.usd*) or a folder of OBJs", rp)
         else:
             raw, stated_units, stated_up = BlendshapeRig.read_npz(rp)
         if raw.parts:
