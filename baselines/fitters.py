@@ -364,6 +364,10 @@ def _solve_free(H, rhs, free):
     return out
 
 
+#: The ridge added to the box QP's Hessian, relative to its mean diagonal (see ``_solve_mesh_batch``).
+_BOX_QP_RIDGE = 1e-10
+
+
 def _batched_box_qp(H, F, lo=0.0, hi=1.0, max_rounds=60, backup=3):
     """Exactly minimise ``1/2 x^T H x - f_t^T x`` over ``lo <= x <= hi`` for every row ``f_t`` of ``F``.
 
@@ -630,6 +634,14 @@ class _BaseFitter(Params):
         F = 2.0 * k * Bm - model.a[None]
         if not model.bounded:
             return np.linalg.solve(H, F.T).T
+        # A shape equal to the neutral (a zero delta: Rocketbox's tongueOut moves no skin), a duplicate, or more
+        # shapes than the data have coordinates (80 markers: 240) make the Gram matrix singular, and L1Reg has no
+        # L2 term to lift it: a ridge of _BOX_QP_RIDGE x its mean diagonal keeps H positive definite (the active-set
+        # solves need it) and picks, among equal minima, the one of least norm: a zero shape gets weight 0, a
+        # duplicate pair shares its weight. Its bias is that fraction of a shape's own energy, far below rounding
+        # of the fits themselves.
+        scale = float(np.mean(np.diag(H)))
+        H[np.diag_indices_from(H)] += _BOX_QP_RIDGE * (scale if scale > 0 else 1.0)  # no shape moves: any ridge
         X, ok = _batched_box_qp(H, F, max_rounds=self.max_active_set)
         if not ok.all():  # cycling (rare): L-BFGS-B from the last iterate
             for t in np.flatnonzero(~ok):

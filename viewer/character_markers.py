@@ -104,7 +104,8 @@ class MarkerCharacterView(MarkerDragging, TakeView):
         rel, labels = resolve_keys(key_labels, keys or (), start, start + T, len(ids))
         route = markers_onto_character(model, X, X0, ids, head_vertices, head_faces, keys=rel, n_keys=n_keys,
                                        labels=labels, parts=parts, roles=roles, progress=progress,
-                                       character=character)
+                                       character=character, first_frame=start,
+                                       labels_path=None if key_labels is None else key_labels.path)
         if key_labels is not None:
             key_labels.check_vertices(route.marker_vertices)
         super().__init__(model, tk, T, start, frame, take_fps(tk))

@@ -105,6 +105,9 @@ def write_rig(rig, path) -> Path:
         raise InputError("the parent folder does not exist", path)
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"cannot write here: the folder {parent} is not writable", path)
+    from facegeom.io.files import sweep_stale_temporaries
+
+    sweep_stale_temporaries(parent, path)  # what a killed write of this folder left
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
     except OSError as exc:  # the error names the rig folder, not the hidden one it would be built in

@@ -435,7 +435,7 @@ def _animate_markers(obj: Context, take_path, takes_path, start, frames, output,
     if stored is not None:
         click.echo("registration: the one `facegeom transfer` stored with the rig")
     mr = markers_onto_character(model, X, X0, ids, V, F, keys=rel, n_keys=count or 10, labels=labels, parts=parts,
-                                character=stored,
+                                character=stored, labels_path=key_labels, first_frame=start,
                                 retargeter=parse_method(retargeter).build("retargeters"),
                                 deformer=parse_method(deformer).build("deformers"),
                                 progress=lambda line: click.echo(as_flags(line)))

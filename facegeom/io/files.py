@@ -34,7 +34,7 @@ from typing import Iterable, Sequence
 
 from facegeom.errors import InputError
 
-__all__ = ["atomic_path", "new_file_mode", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
+__all__ = ["atomic_path", "sweep_stale_temporaries", "new_file_mode", "all_or_nothing", "check_outputs", "check_writable_folder", "same_file",
            "read_csv_rows", "iter_csv_rows", "parse_csv_text"]
 
 
@@ -53,6 +53,59 @@ def _umask() -> int:
 def new_file_mode() -> int:
     """The mode a new file gets from ``open()``: ``0o666`` less the process umask."""
     return 0o666 & ~_umask()
+
+
+#: A temporary file or folder of an output untouched this long (seconds) belongs to a write that was killed: the
+#: next write of the same output removes it. A running write keeps touching its file (chunks of frames, shapes),
+#: and none of facegeom's writes takes an hour.
+STALE_TEMPORARY_S = 3600.0
+
+
+def _temporary_pattern(target: Path):
+    import re
+
+    if target.suffix:
+        file = re.escape(f".{target.stem}.") + r"[0-9a-f]{8}" + re.escape(f".tmp{target.suffix}")
+    else:
+        file = re.escape(f".{target.name}-") + r"[0-9a-f]{8}-tmp"
+    folder = re.escape(f".{target.name}.") + r"[a-z0-9_]{8}"  # tempfile.mkdtemp(prefix=".NAME.")
+    return re.compile(file), re.compile(folder)
+
+
+def sweep_stale_temporaries(folder: Path, target: Path, now: float | None = None) -> list:
+    """Remove the temporaries of ``target`` (``.STEM.XXXXXXXX.tmp.EXT`` files of :func:`atomic_path`,
+    ``.NAME.XXXXXXXX`` folders of a rig folder's write) in ``folder`` untouched for
+    :data:`STALE_TEMPORARY_S`: what a killed write left. Symbolic links and anything else are never touched;
+    errors are ignored (another process may sweep at the same time) -> the paths removed."""
+    import shutil
+    import time
+
+    now = time.time() if now is None else now
+    file_re, dir_re = _temporary_pattern(target)
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        is_file = file_re.fullmatch(entry.name) is not None
+        is_dir = dir_re.fullmatch(entry.name) is not None
+        if not (is_file or is_dir):
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+            if now - st.st_mtime < STALE_TEMPORARY_S:
+                continue
+            if is_file and stat.S_ISREG(st.st_mode):
+                os.unlink(entry.path)
+            elif is_dir and stat.S_ISDIR(st.st_mode):
+                shutil.rmtree(entry.path)
+            else:
+                continue
+            removed.append(Path(entry.path))
+        except OSError:
+            continue
+    return removed
 
 
 def _create_temporary(folder: Path, target: Path, mode: int, shown: Path) -> Path:
@@ -141,6 +194,7 @@ def atomic_path(path: str | os.PathLike):
     except OSError:
         old = None
     mode = stat.S_IMODE(old.st_mode) if old is not None and stat.S_ISREG(old.st_mode) else 0o666
+    sweep_stale_temporaries(folder, target)
     tmp = _create_temporary(folder, target, mode, shown)
     try:
         if old is not None and stat.S_ISREG(old.st_mode):

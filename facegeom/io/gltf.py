@@ -30,6 +30,16 @@ meshes by name. Every accessor's size is checked against its buffer, and the
 rig's size against the file's, before anything is allocated. Draco-compressed
 primitives are decoded by the optional ``DracoPy`` package; meshopt-compressed
 buffers are refused with the command that writes an uncompressed copy.
+
+Hostile files: both readers parse the JSON with ``json.loads`` and check it
+before pygltflib builds its objects (0.2-0.7 ms each): counts no character
+needs (:data:`MAX_NODES`, :data:`MAX_ACCESSORS`, :data:`MAX_MORPH_TARGETS` and
+the others below, each with its reason) and ``extensionsRequired`` they cannot
+honour are refused in one line naming the file. The morph targets' offsets are
+bounded by the file's size and by :func:`facegeom.io.npzcheck.memory_budget`
+before they are allocated (every target may name the same data). A buffer
+file must be a regular file in the document's folder (a named pipe would make
+the read wait forever).
 """
 from __future__ import annotations
 
@@ -50,6 +60,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.io.files import atomic_path
 from facegeom.io.frames import FrameSource
+from facegeom.io.npzcheck import memory_budget
 
 __all__ = ["GlbAnimation", "GltfRig", "RigPart", "write_rig_glb", "write_sequence_glb", "read_glb_animation",
            "read_gltf_rig", "DEFAULT_TOLERANCE"]
@@ -1154,7 +1165,11 @@ def read_glb_animation(path: str | os.PathLike) -> GlbAnimation:
         Naming the file: missing, not a ``.glb``, truncated or corrupt (bad
         header, chunks, JSON, accessors or offsets outside the buffer), no
         triangle mesh, targets without positions, or an animation whose sizes
-        do not match the targets.
+        do not match the targets; counts no character needs (as
+        :func:`read_gltf_rig`), targets larger than the file or half this
+        machine's memory can hold, a required extension other than those of
+        materials, textures and lights (compressed or quantized data is not
+        decoded here).
     """
     path = Path(path)
     if not path.exists():
@@ -1172,19 +1187,11 @@ def read_glb_animation(path: str | os.PathLike) -> GlbAnimation:
         raise InputError(f"glTF binary version {version}; only version 2 is read", path)
     if length > len(data):
         raise InputError(f"truncated .glb: the header gives {length} bytes, the file has {len(data)}", path)
+    text, chunk = _glb_chunks(data, path)
+    tree = _json_tree(text, path)
+    doc = _parse_document(tree, path, frozenset(), "read_glb_animation", "corrupt .glb")
     try:
-        import pygltflib
-
-        with warnings.catch_warnings():  # pygltflib warns about unknown chunks: the errors below say enough
-            warnings.simplefilter("ignore")
-            doc = pygltflib.GLTF2.load_from_bytes(data[:length])
-            blob = doc.binary_blob() if doc is not None else None
-    except Exception as exc:  # noqa: BLE001 - pygltflib raises anything on a corrupt file
-        raise InputError(f"corrupt .glb: {exc.__class__.__name__}", path) from None
-    if doc is None:
-        raise InputError("corrupt .glb: no JSON chunk", path)
-    try:
-        return _unpack(doc, blob or b"", path)
+        return _unpack(doc, chunk if chunk is not None else b"", path)
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - a field of the wrong type deep in the JSON
@@ -1211,17 +1218,22 @@ def _unpack(doc, blob: bytes, path: Path) -> GlbAnimation:
         F = F.reshape(-1, 3)
     if F.size and (F.min() < 0 or F.max() >= n):
         raise InputError(f"triangles index vertices outside 0..{n - 1}", path)
-    deltas = []
-    for k, tgt in enumerate(prim.targets or []):
+    targets = prim.targets or []
+    K = len(targets)
+    # Every target may name the same data: the offsets' size is bounded by the file's and the machine's, first.
+    if 3 * n * (K + 1) > _BASE_VALUES + _VALUES_PER_BYTE * len(blob):
+        raise InputError(f"the file declares {n} vertices and {K} morph targets, more than {len(blob)} bytes of "
+                         f"glTF data can hold", path)
+    _check_targets_memory(K, n, 1.0, path)
+    D = np.empty((K, n, 3))
+    for k, tgt in enumerate(targets):
         pos = getattr(tgt, "POSITION", None) if not isinstance(tgt, dict) else tgt.get("POSITION")
         if pos is None:
             raise InputError(f"morph target {k} has no POSITION", path)
         d = _accessor(doc, blob, pos, path, f"morph target {k}")
         if d.shape != (n, 3):
             raise InputError(f"morph target {k} has {d.shape[0]} offsets for {n} vertices", path)
-        deltas.append(d)
-    K = len(deltas)
-    D = np.stack(deltas) if K else np.zeros((0, n, 3))
+        D[k] = d
     extras = mesh.extras if isinstance(mesh.extras, dict) else {}
     names = extras.get("targetNames")
     if not (isinstance(names, list) and len(names) == K):
@@ -1315,6 +1327,157 @@ _DRACO = "KHR_draco_mesh_compression"
 _DECOMPRESS = "gltf-transform copy in.glb out.glb (npm package @gltf-transform/cli)"
 _ARRAYS = ("accessors", "animations", "bufferViews", "buffers", "meshes", "nodes", "scenes", "skins")
 _URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")
+
+# Counts no face rig or animation needs, refused from the JSON (``json.loads``: milliseconds) before pygltflib
+# turns it into objects, which costs 0.2-0.7 ms an object (100,000 nodes, a 3.1 MB JSON: 46 s). Materials,
+# textures, images, texture samplers and cameras are not read, so pygltflib is not given them and they have no
+# limit. The largest documents considered: a MetaHuman exported with its body (about 1,200 joints, 800 face
+# shapes with normals on the head, a few thousand accessors, a take animating every joint) and a VRoid avatar
+# (about 300 nodes with its hair bones, 57 shapes on each of about 15 face primitives).
+
+#: Nodes: a skeleton and its meshes. A MetaHuman, face and body, has about 1,200 joints, a VRoid avatar about
+#: 300 nodes, a Ready Player Me avatar 70; 10,000 leaves room for a character in a small scene.
+MAX_NODES = 10_000
+#: Meshes: a character has tens (head, teeth, tongue, eyes, lashes, brows, hair, clothes), a few hundred with
+#: every level of detail.
+MAX_MESHES = 1_000
+#: Primitives, over all meshes: one per material of a mesh (a VRoid face has about 15).
+MAX_PRIMITIVES = 4_000
+#: Accessors: each primitive's attributes and each morph target's positions, normals and tangents (a MetaHuman's
+#: head alone, 800 shapes with normals: about 1,600).
+MAX_ACCESSORS = 20_000
+#: Buffer views: exporters write at most one per accessor.
+MAX_BUFFER_VIEWS = 20_000
+#: Animations (clips): a game character has tens, a library of takes a few hundred.
+MAX_ANIMATIONS = 1_000
+#: Animation channels, and samplers, over all clips: a take animating every joint of a MetaHuman (translation,
+#: rotation, scale of 1,200 joints) has 3,600; a game character's 70 bones in 50 clips 10,000.
+MAX_ANIMATION_CHANNELS = 20_000
+#: Morph targets of one primitive, and blendshapes of a rig (distinct names over its meshes): ARKit has 52,
+#: Ready Player Me avatars 72, FLAME's bases exported as targets 400, a MetaHuman's face about 800; no face rig
+#: has a thousand. (The 10,000 targets of one audit file, sharing one buffer view, asked for 8.9 GB.)
+MAX_MORPH_TARGETS = 4_096
+#: Morph-target entries over all primitives (cheap objects, 10 us each): a VRoid face's 57 shapes on 15
+#: primitives are 860, a MetaHuman's face on each of its 8 levels of detail 6,400.
+MAX_TARGET_ENTRIES = 100_000
+#: Scenes, skins and buffers, each: a file has one scene (a few at most), a skin per skinned mesh and one buffer
+#: (a few with external files).
+MAX_SMALL_ARRAYS = 1_000
+#: All the objects above (morph-target entries aside) together: about 10 s of pygltflib on a laptop, more than
+#: twice the largest character above.
+MAX_JSON_OBJECTS = 30_000
+
+#: Required extensions whose data :func:`read_gltf_rig` decodes (Draco through the optional DracoPy package).
+_RIG_EXTENSIONS = frozenset({"KHR_mesh_quantization", _DRACO})
+#: Required extensions that change nothing either reader reads (materials, textures, lights, metadata): a file
+#: requiring them is read all the same.
+_LOOKS_ONLY = frozenset({"KHR_lights_punctual", "EXT_lights_image_based", "KHR_xmp", "KHR_xmp_json_ld",
+                         "KHR_techniques_webgl", "KHR_materials_variants", "EXT_texture_webp", "EXT_texture_avif",
+                         "KHR_texture_basisu", "KHR_texture_transform", "MSFT_texture_dds"})
+_LOOKS_ONLY_PREFIXES = ("KHR_materials_", "KHR_texture_", "EXT_texture_", "MSFT_texture_")
+#: What pygltflib is given of a document: the rest is never read.
+_PARSED = ("asset", "scene", "scenes", "nodes", "meshes", "accessors", "bufferViews", "buffers", "animations",
+           "skins", "extensionsUsed", "extensionsRequired", "extensions", "extras")
+
+
+def _megabytes(n: float) -> str:
+    return f"{n / 1e6:,.1f} MB" if n < 1e9 else f"{n / 1e9:,.1f} GB"
+
+
+def _check_required(tree: dict, path: Path, readable: frozenset, reader: str) -> None:
+    """Refuse ``extensionsRequired`` this reader cannot honour, naming them and what to do."""
+    required = tree.get("extensionsRequired", [])
+    if not isinstance(required, list) or not all(isinstance(x, str) for x in required):
+        raise InputError("bad glTF JSON: extensionsRequired must be a list of extension names", path)
+    unread = sorted({x for x in required if x not in readable and x not in _LOOKS_ONLY
+                     and not x.startswith(_LOOKS_ONLY_PREFIXES)})
+    if not unread:
+        return
+    names = ", ".join(x[:80] for x in unread[:6]) + (f" and {len(unread) - 6} more" if len(unread) > 6 else "")
+    packed = [x for x in unread if x in _MESHOPT or x == _DRACO]
+    if packed:
+        raise InputError(f"the file requires {names} (extensionsRequired): {reader} does not decode "
+                         f"{', '.join(packed)}; export it without mesh compression, or write an uncompressed copy "
+                         f"with {_DECOMPRESS}", path)
+    if "KHR_mesh_quantization" in unread:
+        raise InputError(f"the file requires {names} (extensionsRequired): {reader} does not decode "
+                         f"KHR_mesh_quantization; export it without quantization (positions as floats)", path)
+    raise InputError(f"the file requires the glTF extension{'s' if len(unread) > 1 else ''} {names} "
+                     f"(extensionsRequired), which facegeom does not read; export it without "
+                     f"{'them' if len(unread) > 1 else 'it'}", path)
+
+
+def _check_counts(tree: dict, path: Path) -> None:
+    """Refuse counts no face rig or animation needs (see :data:`MAX_NODES` and the others), from the JSON alone."""
+    for key in _ARRAYS:
+        if key in tree and not (isinstance(tree[key], list) and all(isinstance(x, dict) for x in tree[key])):
+            raise InputError(f"bad glTF JSON: {key!r} must be a list of objects", path)
+
+    def refuse(count: int, what: str, limit: int, why: str):
+        if count > limit:
+            raise InputError(f"{count} {what}, more than the {limit:,} {why}: refused before reading", path)
+
+    def items(obj, key) -> list:
+        value = obj.get(key)
+        return value if isinstance(value, list) else []
+
+    nodes, meshes = tree.get("nodes", []), tree.get("meshes", [])
+    accessors, views, anims = tree.get("accessors", []), tree.get("bufferViews", []), tree.get("animations", [])
+    refuse(len(nodes), "nodes", MAX_NODES, "a character with its skeleton needs")
+    refuse(len(meshes), "meshes", MAX_MESHES, "a character needs")
+    prims = [p for m in meshes for p in items(m, "primitives")]
+    refuse(len(prims), "mesh primitives", MAX_PRIMITIVES, "a character needs")
+    refuse(len(accessors), "accessors", MAX_ACCESSORS, "a character and its blendshapes need")
+    refuse(len(views), "bufferViews", MAX_BUFFER_VIEWS, "a character and its blendshapes need")
+    refuse(len(anims), "animations", MAX_ANIMATIONS, "a character's clips need")
+    channels = sum(len(items(a, "channels")) for a in anims)
+    samplers = sum(len(items(a, "samplers")) for a in anims)
+    refuse(channels, "animation channels", MAX_ANIMATION_CHANNELS, "a character's clips need")
+    refuse(samplers, "animation samplers", MAX_ANIMATION_CHANNELS, "a character's clips need")
+    entries = 0
+    for mi, mesh in enumerate(meshes):
+        for pj, prim in enumerate(items(mesh, "primitives")):
+            k = len(items(prim, "targets")) if isinstance(prim, dict) else 0
+            refuse(k, f"morph targets on mesh {mi} primitive {pj}", MAX_MORPH_TARGETS, "a face rig has")
+            entries += k
+    refuse(entries, "morph targets over all primitives", MAX_TARGET_ENTRIES, "a character's meshes have")
+    for key in ("scenes", "skins", "buffers"):
+        refuse(len(tree.get(key, [])), key, MAX_SMALL_ARRAYS, "a character needs")
+    total = (len(nodes) + len(meshes) + len(prims) + len(accessors) + len(views) + len(anims) + channels + samplers
+             + sum(len(tree.get(key, [])) for key in ("scenes", "skins", "buffers")))
+    refuse(total, "glTF objects (nodes, meshes, accessors, buffer views, animation channels ...)", MAX_JSON_OBJECTS,
+           "a character needs in all")
+
+
+def _parse_document(tree: dict, path: Path, readable: frozenset, reader: str, corrupt: str):
+    """The pygltflib document of a parsed JSON ``tree``: counts and required extensions checked first, and only
+    what is read handed to pygltflib."""
+    _check_counts(tree, path)
+    _check_required(tree, path, readable, reader)
+    try:
+        import pygltflib
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            # from_json (not from_dict): it turns primitives' attributes into pygltflib's Attributes
+            doc = pygltflib.GLTF2.from_json(json.dumps({k: v for k, v in tree.items() if k in _PARSED}),
+                                            infer_missing=True)
+    except Exception as exc:  # noqa: BLE001 - pygltflib raises anything on JSON of the wrong shape
+        raise InputError(f"{corrupt}: unexpected content ({exc.__class__.__name__})", path) from None
+    return doc
+
+
+def _check_targets_memory(K: int, n: int, copies: float, path: Path, what: str = "") -> None:
+    """Refuse ``K`` morph targets of ``n`` vertices when their float64 offsets (``copies`` of ``K x n x 3``) need
+    more than :func:`facegeom.io.npzcheck.memory_budget` (half this machine's memory)."""
+    if K > MAX_MORPH_TARGETS:
+        raise InputError(f"{what}{K} morph targets, more than the {MAX_MORPH_TARGETS:,} a face rig has: refused "
+                         f"before reading", path)
+    need = int(copies * K * n * 3 * 8)
+    budget = memory_budget()
+    if need > budget:
+        raise InputError(f"{what}{K} morph targets of {n:,} vertices need {_megabytes(need)}, more than this "
+                         f"machine can spare ({_megabytes(budget)}, half of its memory)", path)
 
 
 @dataclass(frozen=True)
@@ -1425,9 +1588,14 @@ def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None, 
         chunks, accessors outside their buffers or larger than the file can
         describe, counts that disagree, NaN or inf positions, points or lines
         primitives, no mesh with triangles, no morph targets ("no blendshapes
-        (morph targets)", unless ``require_targets`` is False), a buffer outside the folder, compressed geometry
-        that cannot be decoded here (``EXT_meshopt_compression``; Draco
-        without the optional ``DracoPy`` package), an unknown ``mesh`` name.
+        (morph targets)", unless ``require_targets`` is False), a buffer
+        outside the folder or not a regular file (a pipe, a device),
+        compressed geometry that cannot be decoded here
+        (``EXT_meshopt_compression``; Draco without the optional ``DracoPy``
+        package), an unknown ``mesh`` name; counts no character needs
+        (:data:`MAX_NODES` and the others), more than
+        :data:`MAX_MORPH_TARGETS` blendshapes or offsets larger than half this
+        machine's memory, an ``extensionsRequired`` entry it cannot honour.
 
     Notes
     -----
@@ -1437,7 +1605,9 @@ def read_gltf_rig(path: str | os.PathLike, mesh: str | list[str] | None = None, 
     triangle strips and fans, several primitives, meshes and buffers, and
     ``KHR_draco_mesh_compression`` when ``DracoPy`` is installed (``pip install
     DracoPy``). The mesh's default ``weights`` are not applied: ``neutral`` is
-    the base mesh.
+    the base mesh. Required extensions of materials, textures and lights are
+    ignored (nothing read depends on them); any other required extension
+    than the two above is refused, naming it.
     """
     path = Path(path)
     wanted = _wanted_meshes(mesh, path)
@@ -1482,6 +1652,14 @@ def _load_gltf(path: Path):
         text, chunk = data, None
     else:
         raise InputError("not a glTF file (neither a .glb 'glTF' header nor JSON)", path)
+    tree = _json_tree(text, path)
+    doc = _parse_document(tree, path, _RIG_EXTENSIONS, "read_gltf_rig", "corrupt glTF JSON")
+    buffers = _Buffers(doc, path, chunk)
+    return doc, buffers, len(data) + buffers.external_bytes()
+
+
+def _json_tree(text, path: Path) -> dict:
+    """The glTF JSON (bytes of a ``.gltf`` or of a ``.glb``'s JSON chunk) as a dict, a glTF 2.0 document."""
     try:
         text = bytes(text).decode("utf-8-sig")
         tree = json.loads(text)
@@ -1497,19 +1675,7 @@ def _load_gltf(path: Path):
     version = asset.get("version") if isinstance(asset, dict) else None
     if isinstance(version, str) and not version.startswith("2"):
         raise InputError(f"glTF version {version!r}; only glTF 2.0 is read", path)
-    for key in _ARRAYS:
-        if key in tree and not (isinstance(tree[key], list) and all(isinstance(x, dict) for x in tree[key])):
-            raise InputError(f"bad glTF JSON: {key!r} must be a list of objects", path)
-    try:
-        import pygltflib
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            doc = pygltflib.GLTF2.from_json(text, infer_missing=True)
-    except Exception as exc:  # noqa: BLE001 - pygltflib raises anything on JSON of the wrong shape
-        raise InputError(f"corrupt glTF JSON: unexpected content ({exc.__class__.__name__})", path) from None
-    buffers = _Buffers(doc, path, chunk)
-    return doc, buffers, len(data) + buffers.external_bytes()
+    return tree
 
 
 def _glb_chunks(data: bytes, path: Path) -> tuple[memoryview, memoryview | None]:
@@ -1536,6 +1702,28 @@ def _glb_chunks(data: bytes, path: Path) -> tuple[memoryview, memoryview | None]
             chunk = view[at + 8:at + 8 + size]
         at += 8 + size
     return text, chunk
+
+
+def _open_regular(target: Path, uri: str, index: int, path: Path):
+    """``target`` opened for reading in binary, refused unless it is a regular file: opening a named pipe would
+    wait for a writer (forever), a device could give endless bytes. Opened without waiting (``O_NONBLOCK``) and
+    checked on the open file, so a file swapped for a pipe after a first look is refused too."""
+    import stat
+
+    refuse = InputError(f"buffer {index}: {uri[:80]!r} is not a regular file (a pipe, a device or a folder); only "
+                        f"files next to the document are read", path)
+    if not stat.S_ISREG(os.stat(target).st_mode):
+        raise refuse
+    fd = os.open(target, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise refuse
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 class _Buffers:
@@ -1612,8 +1800,10 @@ class _Buffers:
         else:
             target = self._file(uri, index)
             try:
-                with open(target, "rb") as fh:
+                with _open_regular(target, uri, index, self.path) as fh:
                     data = memoryview(fh.read(length))
+            except InputError:
+                raise
             except FileNotFoundError:
                 raise InputError(f"buffer {index}: {uri[:80]!r} not found next to the document", self.path) \
                     from None
@@ -1963,19 +2153,24 @@ def _skin_transform(doc, scene: _Scene, data_of, node: int, geom: _Geometry, mi:
 
 
 def _place(geom: _Geometry, T: np.ndarray):
-    """Positions, triangles and offsets moved by ``T`` (4x4, or (n, 4, 4) per vertex); winding kept outward."""
+    """Positions and triangles moved by ``T`` (4x4, or (n, 4, 4) per vertex; winding kept outward), and the map
+    moving an offset array of the primitive (applied one target at a time: no second copy of them all)."""
     if T.ndim == 2:
         L = T[:3, :3]
         V = geom.V @ L.T + T[:3, 3]
-        D = [None if d is None else d @ L.T for d in geom.targets]
         det = np.linalg.det(L)
+
+        def move(d):
+            return d @ L.T
     else:
         L = T[:, :3, :3]
         V = np.einsum("nij,nj->ni", L, geom.V) + T[:, :3, 3]
-        D = [None if d is None else np.einsum("nij,nj->ni", L, d) for d in geom.targets]
         det = np.linalg.det(L.mean(axis=0))
+
+        def move(d):
+            return np.einsum("nij,nj->ni", L, d)
     F = geom.F[:, [0, 2, 1]] if det < 0 else geom.F
-    return V, F, D
+    return V, F, move
 
 
 def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None, require_targets: bool = True) -> GltfRig:
@@ -1997,17 +2192,21 @@ def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None, req
                              f"(it has: {shown or 'none'})", path)
         placed = kept
     # Plan: parts, names and sizes from the JSON alone, checked against the file's size before decoding.
-    plan, union, total = [], {}, 0
+    plan, union, total, held, uses = [], {}, 0, {}, {}
     for node, mi in placed:
         prims = doc.meshes[mi].primitives
         if not isinstance(prims, list):
             raise InputError(f"mesh {mi}: primitives must be a list", path)
         for pj in range(len(prims)):
             _check_mode(doc, mi, pj, path)
-            total += _declared_count(doc, mi, pj, path)
+            count = _declared_count(doc, mi, pj, path)
+            total += count
             targets = prims[pj].targets or []
-            for name in _target_names(doc.meshes[mi], prims[pj], len(targets) if isinstance(targets, list) else 0):
+            names = _target_names(doc.meshes[mi], prims[pj], len(targets) if isinstance(targets, list) else 0)
+            for name in names:
                 union.setdefault(name, len(union))
+            held[(mi, pj)] = len(names) * count
+            uses[(mi, pj)] = uses.get((mi, pj), 0) + 1
             plan.append((node, mi, pj))
     if not plan or total == 0:
         raise InputError("no mesh with triangles in the scene", path)
@@ -2017,21 +2216,28 @@ def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None, req
     if 3 * total * (K + 1) > budget:
         raise InputError(f"the file declares {total} vertices and {K} blendshapes, more than {size} bytes of "
                          f"glTF data can hold", path)
-    # Decode each primitive once, place it for every node that uses it.
+    # Memory: the rig's offsets (K x vertices x 3 float64) and, at most, every primitive's own decoded offsets
+    # (kept while a node still has to place them).
+    _check_targets_memory(K, total, 1.0 + sum(held.values()) / max(K * total, 1), path, "the scene's ")
+    deltas = np.zeros((K, total, 3))
+    # Decode each primitive once, place it for every node that uses it; its offsets go straight into ``deltas``.
     cache: dict[tuple[int, int], _Geometry] = {}
-    Vs, Fs, parts, moved, used = [], [], [], [], {}
+    Vs, Fs, parts, used = [], [], [], {}
     nv = nf = 0
     for node, mi, pj in plan:
         if (mi, pj) not in cache:
             cache[(mi, pj)] = _geometry(doc, data_of, mi, pj, path, budget)
         geom = cache[(mi, pj)]
+        uses[(mi, pj)] -= 1
+        if uses[(mi, pj)] == 0:  # the last node placing it: not kept past this
+            del cache[(mi, pj)]
         if node is None:
             T = np.eye(4)
         elif scene.nodes[node].skin is not None:
             T = _skin_transform(doc, scene, data_of, node, geom, mi, pj, path, budget)
         else:
             T = scene.world(node)
-        V, F, D = _place(geom, T)
+        V, F, move = _place(geom, T)
         nodename = scene.nodes[node].name if node is not None else None
         meshname = doc.meshes[mi].name
         base = next((x for x in (nodename, meshname) if isinstance(x, str) and x), None)
@@ -2043,18 +2249,20 @@ def _build_rig(doc, data_of, size: int, path: Path, wanted: set[str] | None, req
             name = f"{base}.{used[base]}"
         used.setdefault(name, 0)
         n, m = V.shape[0], F.shape[0]
+        if nv + n > total:  # pragma: no cover - a primitive has the vertices its POSITION accessor declares
+            raise InputError(f"{geom.label}: more vertices than its POSITION accessor declares", path)
         parts.append(RigPart(name, nv, nv + n, nf, nf + m, bool(geom.targets)))
         Vs.append(V)
         Fs.append(F + nv)
-        moved.append((nv, D, geom.names))
+        for d, target in zip(geom.targets, geom.names):
+            if d is not None:
+                deltas[union[target], nv:nv + d.shape[0]] = move(d)
+        del geom
         nv, nf = nv + n, nf + m
     if nf == 0:
         raise InputError("no mesh with triangles in the scene", path)
-    deltas = np.zeros((K, nv, 3))
-    for start, D, names in moved:
-        for d, name in zip(D, names):
-            if d is not None:
-                deltas[union[name], start:start + d.shape[0]] = d
+    if nv != total:  # pragma: no cover - as above
+        deltas = deltas[:, :nv]
     neutral = np.concatenate(Vs)
     if not (np.isfinite(neutral).all() and np.isfinite(deltas).all()):
         raise InputError("positions are not finite after the node transforms", path)

@@ -20,6 +20,21 @@ One row per labelled marker::
 A frame may list only some markers: the others keep their proposed position
 (:func:`facegeom.pipelines.character_markers.propose_labels`). The frames
 listed are key frames.
+
+Limits
+------
+- A file over 8 MiB (:data:`MAX_KEY_LABEL_BYTES`) is refused by its size
+  before it is read: labels are a few key frames (10 by default, tens when
+  edited) of the layout's 80 markers, about 60 bytes a row (50 key frames:
+  250 kB); 8 MiB holds over 1,500 key frames.
+- A coordinate beyond 1e12 (:data:`MAX_COORDINATE`, what every mesh reader
+  refuses) is refused naming its line and value.
+- Where the labels meet the head (:func:`check_labels_on_head`, before any
+  work): a label more than the head's size outside the head's bounding box
+  (:data:`MAX_OUTSIDE`: labels of another head, or in other units), and the
+  labels of a key frame squashed to one point, one line or one plane, or to
+  less than a quarter of the spread of the face's markers as proposed
+  (:data:`MIN_SPREAD`) are refused in one line, naming the key frame.
 """
 from __future__ import annotations
 
@@ -30,12 +45,37 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io.files import atomic_path, read_csv_rows
+from facegeom.io.files import atomic_path
 from facegeom.io.ints import check_int64
 
-__all__ = ["KeyLabels", "read_key_labels", "write_key_labels", "KEY_LABEL_HEADERS"]
+__all__ = ["KeyLabels", "read_key_labels", "write_key_labels", "check_labels_on_head", "KEY_LABEL_HEADERS",
+           "MAX_KEY_LABEL_BYTES", "MAX_COORDINATE", "MAX_OUTSIDE", "MIN_SPREAD"]
 
 KEY_LABEL_HEADERS = (("frame", "marker", "x", "y", "z"), ("frame", "marker", "vertex", "x", "y", "z"))
+
+#: A key-labels file larger than this is refused before it is read: labels are a few key frames (10 by default,
+#: tens when edited) of the layout's 80 markers at ~60 bytes a row (50 key frames: 250 kB); 8 MiB holds over
+#: 1,500 key frames and reads in ~5 s and under 200 MB (100 MB once took 2.5 GB before its refusal).
+MAX_KEY_LABEL_BYTES = 8 << 20
+
+#: A coordinate beyond this is refused (as by every mesh reader, :data:`facegeom.io.mesh.MAX_COORDINATE`): no real
+#: head reaches it in any unit, and the retargeter's squared distances would overflow (1e308 was an IndexError).
+MAX_COORDINATE = 1e12
+
+#: A label farther than this many head sizes (the diagonal of the head's bounding box) outside that box is refused:
+#: markers sit on the face and move millimetres to centimetres; one a head's size away is a label of another head
+#: or in other units.
+MAX_OUTSIDE = 1.0
+
+#: A key frame's labels spreading less than this fraction of the face's markers as proposed (along each of their
+#: three main axes) are refused: no expression shrinks the face to a quarter of its size, or flattens it onto a
+#: line or a plane; such labels (all at one point, 2-D labels, metres for a head in centimetres) squash the head.
+MIN_SPREAD = 0.25
+
+
+def _q(text: str) -> str:
+    text = text.strip()
+    return repr(text if len(text) <= 80 else text[:80] + "…")
 
 
 @dataclass
@@ -80,7 +120,7 @@ def _int(cell: str, what: str, line_no: int, path: Path) -> int:
     try:
         value = int(cell.strip())
     except ValueError:
-        raise InputError(f"line {line_no}: {what} {cell.strip()[:40]!r} is not an integer", path) from None
+        raise InputError(f"line {line_no}: {what} {_q(cell)} is not an integer", path) from None
     check_int64(value, what, line_no, path)
     if value < 0:
         raise InputError(f"line {line_no}: {what} {value} is negative", path)
@@ -95,19 +135,25 @@ def read_key_labels(path: str | os.PathLike, n_markers: int, n_frames: int | Non
     Raises
     ------
     InputError
-        One line naming the file (and the line): not a CSV of these columns, a
-        cell that is not a number, a marker outside the layout, a frame outside
+        One line naming the file (and the line): a file over
+        :data:`MAX_KEY_LABEL_BYTES` (refused before it is read), not a CSV of
+        these columns, a cell that is not a number, a coordinate beyond
+        :data:`MAX_COORDINATE`, a marker outside the layout, a frame outside
         the take, a marker given twice at one frame, one vertex given for two
         markers' rows that disagree, no rows.
     """
+    from facegeom.io.shape_names import _capped_csv_rows
+
     path = Path(path)
-    rows = [(i, r) for i, r in enumerate(read_csv_rows(path, "key labels"), start=1)
+    read = _capped_csv_rows(path, MAX_KEY_LABEL_BYTES, "key-labels CSV",
+                            "labels are a few key frames of 80 markers, tens of kB")
+    rows = [(i, r) for i, r in enumerate(read, start=1)
             if any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise InputError("empty key-labels file (expected the header frame,marker,x,y,z)", path)
     header = tuple(c.strip().lower() for c in rows[0][1])
     if header not in KEY_LABEL_HEADERS:
-        raise InputError(f"wrong columns {','.join(c.strip() for c in rows[0][1])[:80]}; expected the header "
+        raise InputError(f"wrong columns {_q(','.join(c.strip() for c in rows[0][1]))}; expected the header "
                          f"frame,marker,x,y,z (or frame,marker,vertex,x,y,z)", path)
     if len(rows) == 1:
         raise InputError("no label rows after the header", path)
@@ -135,6 +181,10 @@ def read_key_labels(path: str | os.PathLike, n_markers: int, n_frames: int | Non
             raise InputError(f"line {line_no}: a coordinate is not a number", path) from None
         if not np.isfinite(xyz).all():
             raise InputError(f"line {line_no}: a coordinate is NaN or inf", path)
+        big = np.flatnonzero(np.abs(xyz) > MAX_COORDINATE)
+        if big.size:
+            raise InputError(f"line {line_no}: {'xyz'[big[0]]} {_q(r[-3 + int(big[0])])} is beyond "
+                             f"{MAX_COORDINATE:g}, which no head reaches in any unit", path)
         if (frame, marker) in got:
             raise InputError(f"line {line_no}: marker {marker} at frame {frame} is given twice", path)
         got[(frame, marker)] = xyz
@@ -144,6 +194,68 @@ def read_key_labels(path: str | os.PathLike, n_markers: int, n_frames: int | Non
     for (f, m), xyz in got.items():
         labels[row[f], m] = xyz
     return KeyLabels(frames, labels, vertices, path)
+
+
+def _spreads(P: np.ndarray) -> np.ndarray:
+    """The RMS spread of points ``(p, 3)`` along their three main axes, widest first."""
+    C = P - P.mean(axis=0)
+    return np.linalg.svd(C, compute_uv=False) / np.sqrt(max(len(P), 1))
+
+
+def check_labels_on_head(labels, keys, head_vertices=None, proposed=None, path=None, first_frame: int = 0) -> None:
+    """Refuse labels no head has, in one line naming ``path`` (the key-labels file, if any) and the key frame.
+
+    Parameters
+    ----------
+    labels : (L, p, 3)
+        The labels at the key frames, NaN where none is given.
+    keys : (L,) int
+        The key frames (``first_frame`` is added when they are named: take frames).
+    head_vertices : (n, 3), optional
+        The head: every given label must lie within :data:`MAX_OUTSIDE` head sizes of its bounding box.
+    proposed : (L, p, 3), optional
+        The labels proposed at the key frames (the face's markers where the registration puts them): the labels of
+        each key frame that gives any, the others filled from ``proposed``, must spread at least
+        :data:`MIN_SPREAD` of the proposal's spread along each of their three main axes (not at one point, on
+        one line or in one plane, not a fraction of the face's size).
+    """
+    L = np.asarray(labels, dtype=np.float64)
+    keys = np.asarray(keys).reshape(-1)
+    if L.ndim != 3 or L.shape[0] != keys.size or L.shape[2] != 3:
+        return  # not labels of these key frames: the caller's shape check says so
+    given = ~np.isnan(L).any(axis=2)
+
+    def fail(k: int, what: str):
+        raise InputError(f"key frame {int(keys[k]) + first_frame}: {what}", path)
+
+    if head_vertices is not None:
+        V = np.asarray(head_vertices, dtype=np.float64)
+        lo, hi = V.min(axis=0), V.max(axis=0)
+        size = float(np.linalg.norm(hi - lo))
+        with np.errstate(invalid="ignore"):
+            out = given & ((L < lo - MAX_OUTSIDE * size) | (L > hi + MAX_OUTSIDE * size)).any(axis=2)
+        if out.any():
+            k, m = (int(i) for i in np.argwhere(out)[0])
+            x, y, z = L[k, m]
+            fail(k, f"marker {m}'s label ({x:g}, {y:g}, {z:g}) lies more than the head's size ({size:.3g}) outside "
+                    "the head: labels of another head, or in other units?")
+    if proposed is not None:
+        P = np.asarray(proposed, dtype=np.float64)
+        full = np.where(given[..., None], L, P)
+        for k in np.flatnonzero(given.any(axis=1)):
+            s, ref = _spreads(full[k]), _spreads(P[k])
+            if not (np.isfinite(ref).all() and ref[2] > 0):
+                continue  # no proposal to measure the face by
+            if s[0] <= 1e-9 * ref[0]:
+                fail(k, f"the labels put all {L.shape[1]} markers at one point: that squashes the head")
+            if s[0] < MIN_SPREAD * ref[0]:
+                fail(k, f"the labels spread {s[0]:.3g} at most, under {MIN_SPREAD:g} of the {ref[0]:.3g} the face's "
+                        "markers spread: that squashes the head (labels in other units?)")
+            for axis, shape in ((1, "one line"), (2, "one plane")):
+                if s[axis] < MIN_SPREAD * ref[axis]:
+                    fail(k, f"the labels put the markers on {shape} (spread {s[axis]:.3g} across it, under "
+                            f"{MIN_SPREAD:g} of the face's {ref[axis]:.3g}): that squashes the head"
+                            + (" (2-D labels?)" if axis == 2 else ""))
 
 
 def write_key_labels(path: str | os.PathLike, frames, labels, marker_vertices=None, comment: str | None = None) -> Path:

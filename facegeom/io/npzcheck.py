@@ -6,12 +6,14 @@ before reading the data, so a 4.6 MB file declaring 4.5 GB of deltas used to
 be allocated (and then fail with a traceback). :func:`check_npz` reads only the
 zip directory and each member's header: a member that declares more bytes than
 it holds, an object array, or arrays larger than this machine can spare are
-refused in one line naming the file and the member.
+refused in one line naming the file and the member. :func:`npz_members` returns what each key declares (for a
+reader's own limits: a rig's shapes and vertices, :meth:`facegeom.model.rig.BlendshapeRig.read_npz`).
 """
 from __future__ import annotations
 
 import os
 import zipfile
+from dataclasses import dataclass
 from math import prod
 from pathlib import Path
 
@@ -19,7 +21,7 @@ import numpy as np
 
 from facegeom.errors import InputError
 
-__all__ = ["check_npz", "check_text", "memory_budget"]
+__all__ = ["NpzMember", "check_npz", "check_text", "memory_budget", "npz_members"]
 
 
 #: No dimension of a real array reaches this (2**40 elements of one byte are a terabyte); a larger one, with a
@@ -50,6 +52,21 @@ def _header(fh):
     return np.lib.format._read_array_header(fh, version)  # 3.0: a utf-8 header, same fields
 
 
+@dataclass(frozen=True)
+class NpzMember:
+    """What one member of an npz declares, read from the zip directory and the member's header (nothing loaded).
+
+    ``key`` is the name ``numpy.load`` gives it (without ``.npy``); ``shape`` and ``dtype`` are None for a member
+    that is not an array (``numpy.load`` returns its bytes); ``nbytes`` is what it takes once loaded, ``stored``
+    what it takes in the file (compressed)."""
+
+    key: str
+    shape: tuple | None
+    dtype: np.dtype | None
+    nbytes: int
+    stored: int
+
+
 def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
     """Check every member's declared array against the bytes it holds -> the arrays' total bytes.
 
@@ -60,15 +77,45 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
         pickle); a member declaring more bytes than it holds; arrays larger in
         all than ``budget`` (default :func:`memory_budget`).
     """
-    path = Path(path)
+    return sum(m.nbytes for m in _check(Path(path), budget)[0])
+
+
+def npz_members(path: str | os.PathLike, budget: int | None = None) -> dict[str, NpzMember]:
+    """:func:`check_npz`'s checks -> what each key of the file declares, as ``numpy.load(path)[key]`` reads it.
+
+    ``numpy.load`` reads a member called ``KEY`` as the key ``KEY`` even without the ``.npy`` suffix (and
+    prefers it to ``KEY.npy``): such a member is checked like the others when it starts as an array does.
+    """
+    members, by_name = _check(Path(path), budget)
+    keys = {m.key for m in members}
+    return {k: by_name.get(k) or by_name[k + ".npy"] for k in keys if k in by_name or k + ".npy" in by_name}
+
+
+def _check(path: Path, budget: int | None) -> tuple[list[NpzMember], dict[str, NpzMember]]:
     budget = memory_budget() if budget is None else int(budget)
     total = 0
+    members: list[NpzMember] = []
+    by_name: dict[str, NpzMember] = {}
     try:
         with zipfile.ZipFile(path) as zf:
             for info in zf.infolist():
-                if not info.filename.endswith(".npy"):
-                    continue
-                name = info.filename[:-4]
+                npy = info.filename.endswith(".npy")
+                name = info.filename[:-4] if npy else info.filename
+                if not npy:  # numpy.load reads it as an array if it starts as one, else returns its bytes
+                    try:
+                        with zf.open(info) as fh:
+                            is_array = fh.read(len(np.lib.format.MAGIC_PREFIX)) == np.lib.format.MAGIC_PREFIX
+                    except Exception:  # noqa: BLE001 - unreadable (encrypted, an unknown method): not an array
+                        is_array = False  # numpy can load; a reader that asks for it is told it is not one
+                    if not is_array:
+                        m = NpzMember(name, None, None, int(info.file_size), int(info.compress_size))
+                        members.append(m)
+                        by_name[info.filename] = m
+                        total += m.nbytes
+                        if total > budget:
+                            raise InputError(f"its arrays need more than {_mb(budget)}, more than this machine can "
+                                             f"spare (half of its memory)", path)
+                        continue
                 try:
                     with zf.open(info) as fh:
                         shape, _, dtype = _header(fh)
@@ -92,6 +139,9 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
                 if need > held:
                     raise InputError(f"array {name!r} declares shape {tuple(shape)} ({_mb(need)}) but holds "
                                      f"{_mb(max(held, 0))}: a damaged or forged file", path)
+                m = NpzMember(name, tuple(dims), dtype, int(need), int(info.compress_size))
+                members.append(m)
+                by_name[info.filename] = m
                 total += need
                 if total > budget:
                     raise InputError(f"its arrays need more than {_mb(budget)}, more than this machine can spare "
@@ -104,7 +154,7 @@ def check_npz(path: str | os.PathLike, budget: int | None = None) -> int:
         raise InputError(f"cannot read as npz ({exc})", path) from None
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
-    return total
+    return members, by_name
 
 
 def check_text(array: np.ndarray, name: str, path) -> None:

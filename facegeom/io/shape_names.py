@@ -48,7 +48,30 @@ source weight of ``source_shape``. Rig shapes the file does not name keep the
 automatic match (a row with gain 0 switches one off). ``source_shape`` may be
 spelled in any convention (``mouthSmileLeft`` reaches an ICT source's
 ``mouthSmile_L``). Blank lines and lines starting with ``#`` are ignored.
-:func:`read_name_mapping` reads it; errors name the file and the line.
+:func:`read_name_mapping` reads it; errors name the file and the line and
+quote at most 80 characters of its text.
+
+Limits, checked before any work: a file over 1 MiB (:data:`MAX_MAPPING_BYTES`)
+is refused by its size before it is read (a real mapping has at most a few
+thousand rows of a few tens of bytes); every gain is finite with
+``|gain| <= 10`` (:data:`MAX_GAIN`), and so is the sum of the ``|gain|`` of the
+rows of one rig shape: a mapping scales source weights in [0, 1] onto a rig
+shape sculpted for weights in [0, 1], and ten times its sculpted motion is
+already far past any use (a gain of 1e308 once wrote inf weights).
+
+Two spellings of one shape
+--------------------------
+Some rigs carry a shape twice under two conventions (Microsoft Rocketbox's
+175-channel heads hold ARKit's ``AK_25_JawOpen`` and Vive SRanipal's
+``SR_21_Jaw_Open``); driving both would open the jaw twice. When several rig
+shapes match one source name automatically (the same key, or an unsided shape
+and the sided ones of its base), :meth:`ShapeMap.between` drives one: an exact
+match of the source's name first, then the shape spelled as ICT or ARKit spell
+it once decorations are removed (``AK_25_JawOpen`` -> ``JawOpen``), then a
+direct match over a mean or split of sides, then the rig's order. The others
+stay at 0 and are listed (:attr:`ShapeMap.ambiguous`, and
+:meth:`ShapeMap.describe`); a mapping file drives them. A rig shape a mapping
+file drives claims its sources the same way.
 """
 from __future__ import annotations
 
@@ -64,6 +87,8 @@ import numpy as np
 from facegeom.errors import InputError
 
 __all__ = [
+    "MAX_GAIN",
+    "MAX_MAPPING_BYTES",
     "ARKIT_NAMES",
     "ARKIT_CAMEL_NAMES",
     "ICT_NAMES",
@@ -79,6 +104,31 @@ __all__ = [
     "shape_key",
     "undecorate",
 ]
+
+#: A mapping file larger than this is refused before it is read: one row per (rig shape, source shape) pair it
+#: sets, a few thousand rows of a few tens of bytes at most (a 175-shape rig with three sources a shape is ~20 kB);
+#: 1 MiB holds ~25,000 rows, and reads in well under a second and tens of MB (100 MB once took 98 s and 3.5 GB).
+MAX_MAPPING_BYTES = 1 << 20
+
+#: Largest ``|gain|`` of a mapping row, and of the sum of the ``|gain|`` of one rig shape's rows: a mapping scales
+#: source weights in [0, 1] onto a rig shape sculpted for weights in [0, 1]; ten times its sculpted motion is far
+#: past any use, and the rig weights stay finite in float32 (.glb) whatever the rows.
+MAX_GAIN = 10.0
+
+#: Characters of a file's text an error quotes at most (the rest: an ellipsis).
+QUOTE_CHARS = 80
+
+
+def _cut(text) -> str:
+    """``text`` cut to :data:`QUOTE_CHARS` characters (an ellipsis marks a cut)."""
+    text = str(text)
+    return text if len(text) <= QUOTE_CHARS else text[:QUOTE_CHARS] + "…"
+
+
+def _q(text) -> str:
+    """``repr`` of ``text`` cut to :data:`QUOTE_CHARS` characters."""
+    return repr(_cut(text))
+
 
 #: The 52 ARKit blendshape names, PascalCase, in the order Live Link Face writes them.
 ARKIT_NAMES: tuple[str, ...] = (
@@ -132,7 +182,7 @@ def arkit_to_ict_name(name: str) -> list[str]:
     """
     pascal = name[:1].upper() + name[1:]
     if pascal not in _ARKIT_SET:
-        raise InputError(f"not an ARKit blendshape name: {name!r}")
+        raise InputError(f"not an ARKit blendshape name: {_q(name)}")
     if pascal in _NO_ICT:
         return []
     camel = pascal[0].lower() + pascal[1:]
@@ -162,7 +212,7 @@ def ict_to_arkit_name(name: str) -> str:
         ``name`` is not one of the 53 ICT expressions.
     """
     if name not in _ICT_SET:
-        raise InputError(f"not an ICT expression name: {name!r}")
+        raise InputError(f"not an ICT expression name: {_q(name)}")
     for a in ARKIT_NAMES:
         if name in arkit_to_ict_name(a):
             return a
@@ -316,21 +366,50 @@ class NameMapping:
         return Path(self.path).name if self.path else "the mapping"
 
 
+def _capped_csv_rows(path: Path, cap: int, what: str, why: str) -> list[list[str]]:
+    """The rows of the text CSV ``path`` as :func:`facegeom.io.files.read_csv_rows` gives them, refused in one line
+    when the file holds more than ``cap`` bytes: by its size before a byte is read, and, for a file whose size says
+    nothing (a pipe, a device), once ``cap + 1`` bytes have come. ``what``: the kind of file; ``why``: the cap's
+    reason, for the message."""
+    from facegeom.io.files import _check_csv_path, parse_csv_text
+
+    _check_csv_path(path, what)
+
+    def too_big(size: str) -> InputError:
+        return InputError(f"{size} over the {cap:,}-byte limit of a {what} ({why}): not read", path)
+
+    try:
+        size = os.stat(path).st_size
+        if size > cap:
+            raise too_big(f"{size:,} bytes:")
+        with open(path, "rb") as fh:
+            data = fh.read(cap + 1)
+    except OSError as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+    if len(data) > cap:
+        raise too_big("more than that:")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", path) from None
+    return parse_csv_text(text.replace("\r\n", "\n").replace("\r", "\n"), path)  # newlines as a text read reads them
+
+
 def read_name_mapping(path: str | os.PathLike) -> NameMapping:
     """Read a mapping CSV ``rig_shape,source_shape,gain`` (see the module notes).
 
     Raises
     ------
     InputError
-        Naming the file and the line: missing or unreadable file, a wrong
-        header, a row without two or three cells, an empty name, a gain that
-        is not a finite number, a (rig_shape, source_shape) pair given twice,
-        no row at all.
+        Naming the file and the line: missing or unreadable file, a file over
+        :data:`MAX_MAPPING_BYTES` (refused before it is read), a wrong header,
+        a row without two or three cells, an empty name, a gain that is not a
+        finite number in ``[-MAX_GAIN, MAX_GAIN]``, a (rig_shape, source_shape)
+        pair given twice, no row at all.
     """
-    from facegeom.io.files import read_csv_rows
-
     p = Path(path)
-    rows = read_csv_rows(p, "shape mapping CSV")
+    rows = _capped_csv_rows(p, MAX_MAPPING_BYTES, "shape mapping CSV",
+                            "a mapping has at most a few thousand rows of a few tens of bytes")
     body = [(i + 1, [c.strip() for c in r]) for i, r in enumerate(rows)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not body:
@@ -341,7 +420,7 @@ def read_name_mapping(path: str | os.PathLike) -> NameMapping:
         header.pop()
     if tuple(header) not in (MAPPING_HEADER, MAPPING_HEADER[:2]):
         raise InputError(f"line {line}: the header must be rig_shape,source_shape,gain (gain optional), "
-                         f"got {','.join(header)!r}", p)
+                         f"got {_q(','.join(header))}", p)
     out: list[MappingRow] = []
     seen: dict[tuple[str, str], int] = {}
     for line, cells in body[1:]:
@@ -359,14 +438,40 @@ def read_name_mapping(path: str | os.PathLike) -> NameMapping:
             except ValueError:
                 gain = float("nan")
             if not math.isfinite(gain):
-                raise InputError(f"line {line}: gain {cells[2]!r} is not a finite number", p)
+                raise InputError(f"line {line}: gain {_q(cells[2])} is not a finite number", p)
+            if abs(gain) > MAX_GAIN:
+                raise InputError(f"line {line}: gain {_q(cells[2])} is outside [-{MAX_GAIN:g}, {MAX_GAIN:g}] {_WHY_GAIN}",
+                                 p)
         if (rig, source) in seen:
-            raise InputError(f"line {line}: {rig},{source} is already on line {seen[(rig, source)]}", p)
+            raise InputError(f"line {line}: {_cut(f'{rig},{source}')} is already on line {seen[(rig, source)]}", p)
         seen[(rig, source)] = line
         out.append(MappingRow(rig, source, gain, line))
     if not out:
         raise InputError("the shape mapping has a header but no rows", p)
     return NameMapping(tuple(out), str(p))
+
+
+_WHY_GAIN = "(a mapping scales source weights in [0, 1] onto a rig shape sculpted for [0, 1])"
+
+
+def _check_gains(mapping: NameMapping, rows_of: dict) -> None:
+    """Every row's gain finite and within :data:`MAX_GAIN`, and the ``|gain|`` of the rows of each rig shape
+    (``rows_of``: the rig's name of the shape -> its rows, names resolved) summed within it too, else one line
+    naming the file and the row (mappings not read by :func:`read_name_mapping`, e.g. a rig file's, reach here
+    unchecked)."""
+    path = mapping.path or None
+    for row in mapping.rows:
+        if not (math.isfinite(row.gain) and abs(row.gain) <= MAX_GAIN):
+            raise InputError(f"line {row.line}: gain {row.gain:g} of {_q(row.rig)} is not a finite number within "
+                             f"[-{MAX_GAIN:g}, {MAX_GAIN:g}] {_WHY_GAIN}", path)
+    for name, rows in rows_of.items():
+        total = 0.0
+        for row in rows:
+            total += abs(row.gain)
+            if total > MAX_GAIN:
+                lines = ", ".join(str(r.line) for r in rows[:8]) + (", ..." if len(rows) > 8 else "")
+                raise InputError(f"line {row.line}: the gains of rig shape {_q(name)} add up to {total:g} "
+                                 f"(|gain| over lines {lines}), beyond {MAX_GAIN:g} {_WHY_GAIN}", path)
 
 
 def _as_mapping(mapping) -> NameMapping | None:
@@ -385,19 +490,41 @@ def _names(names, what: str) -> tuple[str, ...]:
     seen = set()
     for n in out:
         if n in seen:
-            raise InputError(f"{what}: the shape name {n!r} repeats")
+            raise InputError(f"{what}: the shape name {_q(n)} repeats")
         seen.add(n)
     return out
 
 
+_SPELLED = _ICT_SET | _ARKIT_SET | _CAMEL_SET
+
+
+def _spelled_as_known(name: str) -> bool:
+    """``name``, decorations removed, is an ICT or ARKit name as those spell it (``AK_25_JawOpen``: yes,
+    ``SR_21_Jaw_Open``: no)."""
+    return undecorate(name) in _SPELLED
+
+
+def _coverage(name: str) -> frozenset:
+    """The (base, side) pieces of the face a shape moves: both sides for an unsided shape, its side for a sided one."""
+    base, side = shape_key(name)
+    return frozenset({(base, "L"), (base, "R")} if side is None else {(base, side)})
+
+
 class _Matcher:
-    """Automatic matching of names against one list of source names."""
+    """Automatic matching of names against one list of source names.
+
+    Several source names of one key (``AK_25_JawOpen`` and ``SR_21_Jaw_Open``): the one spelled as ICT or ARKit
+    spell it answers, else the first.
+    """
 
     def __init__(self, source_names: tuple[str, ...]):
         self.exact = {n: i for i, n in enumerate(source_names)}
         self.by_key: dict[tuple, list[int]] = {}
         for i, n in enumerate(source_names):
             self.by_key.setdefault(shape_key(n), []).append(i)
+        for found in self.by_key.values():
+            if len(found) > 1:
+                found.sort(key=lambda i: not _spelled_as_known(source_names[i]))  # stable: else the first
 
     def row(self, name: str) -> tuple[dict[int, float], str]:
         """``{source index: gain}`` for ``name`` and how it was matched (``exact``, ``key``, ``mean``, ``both``)."""
@@ -439,6 +566,10 @@ class ShapeMap:
         the sources (those rows drive nothing).
     mapping_name : str
         The mapping file's name, or ``""``.
+    ambiguous : tuple of (str, str)
+        ``(rig shape, the rig shape driven instead)``: rig shapes left at 0
+        because another rig shape matches the same source name (two spellings
+        of one shape, see the module notes); a mapping file drives them.
     """
 
     rig_names: tuple[str, ...]
@@ -451,11 +582,33 @@ class ShapeMap:
     mapping_name: str = ""
     _splits: tuple[str, ...] = field(default=(), repr=False)
     _means: tuple[str, ...] = field(default=(), repr=False)
+    _ambiguous: tuple[tuple[str, str], ...] = field(default=(), repr=False)
+
+    @property
+    def ambiguous(self) -> tuple[str, ...]:
+        """Rig shapes left at 0 because another rig shape matches the same source name (see the module notes)."""
+        return tuple(a for a, _ in self._ambiguous)
+
+    def ambiguity_note(self) -> str:
+        """:attr:`ambiguous` for a note, each with the shape driven instead; ``""`` when there is none."""
+        if not self._ambiguous:
+            return ""
+        shown = ", ".join(f"{a} ({b} driven instead)" for a, b in self._ambiguous)
+        n = len(self._ambiguous)
+        return (f"{n} shape{'' if n == 1 else 's'} of the rig match{'es' if n == 1 else ''} no source name "
+                f"uniquely: {shown} left at 0; give a mapping CSV to drive them")
 
     # ----------------------------------------------------------------- construction
     @classmethod
     def between(cls, rig_names: Sequence[str], source_names: Sequence[str], mapping_csv=None) -> "ShapeMap":
         """The map that drives ``rig_names`` from ``source_names``.
+
+        One source name matched automatically by several rig shapes that
+        overlap (two spellings of one shape, ``AK_25_JawOpen`` and
+        ``SR_21_Jaw_Open``; or an unsided shape and the sided ones of its base)
+        drives one of them (see the module notes); the others stay at 0 and are
+        listed in :attr:`ambiguous`. A rig shape a mapping file drives claims
+        its source names the same way.
 
         Parameters
         ----------
@@ -469,7 +622,9 @@ class ShapeMap:
         ------
         InputError
             A name repeats; a mapping row names a rig shape that is not in
-            ``rig_names`` (file and line named); the mapping file's own errors.
+            ``rig_names`` (file and line named); a gain, or the sum of one rig
+            shape's ``|gain|``, beyond :data:`MAX_GAIN`; the mapping file's own
+            errors.
         """
         rig = _names(rig_names, "rig_names")
         src = _names(source_names, "source_names")
@@ -485,9 +640,11 @@ class ShapeMap:
                 r, how = rig_matcher.row(row.rig)
                 if how not in ("exact", "key"):
                     close = _close(row.rig, rig)
-                    raise InputError(f"line {row.line}: {row.rig!r} is not a shape of the rig{close}",
+                    raise InputError(f"line {row.line}: {_q(row.rig)} is not a shape of the rig{close}",
                                      mapping.path or None)
                 manual.setdefault(next(iter(r)), []).append(row)
+            _check_gains(mapping, {rig[i]: rows for i, rows in manual.items()})
+        auto: dict[int, tuple[dict, str]] = {}
         for i, name in enumerate(rig):
             if i in manual:
                 for row in manual[i]:
@@ -498,15 +655,36 @@ class ShapeMap:
                         M[i, j] += row.gain * g
                 continue
             gains, how = matcher.row(name)
+            if gains:
+                auto[i] = (gains, how)
+        # one rig shape per source name: what a source column drives, with the part of the face it moves
+        claimed: dict[int, list[tuple[frozenset, int]]] = {}
+        for i in manual:
+            for j in np.flatnonzero(M[i]):
+                claimed.setdefault(int(j), []).append((_coverage(rig[i]), i))
+        ambiguous = []
+        for i in sorted(auto, key=lambda i: (auto[i][1] != "exact", not _spelled_as_known(rig[i]),
+                                             auto[i][1] != "key", i)):
+            gains, how = auto[i]
+            cover = _coverage(rig[i])
+            rival = next((k for j in gains for c, k in claimed.get(j, ()) if c & cover), None)
+            if rival is not None:
+                ambiguous.append((i, rival))
+                continue
             for j, g in gains.items():
                 M[i, j] = g
-            if how == "mean":
-                means.append(name)
-            elif how == "both":
-                splits.append(name)
+                claimed.setdefault(j, []).append((cover, i))
+        ambiguous.sort()
+        for i, name in enumerate(rig):
+            if i in auto and M[i].any():
+                if auto[i][1] == "mean":
+                    means.append(name)
+                elif auto[i][1] == "both":
+                    splits.append(name)
         return cls(rig, src, M, naming_convention(rig), naming_convention(src),
                    tuple(rig[i] for i in sorted(manual)), tuple(unresolved),
-                   mapping.name if mapping is not None else "", tuple(splits), tuple(means))
+                   mapping.name if mapping is not None else "", tuple(splits), tuple(means),
+                   tuple((rig[i], rig[k]) for i, k in ambiguous))
 
     # ----------------------------------------------------------------- what is left out
     @property
@@ -565,13 +743,16 @@ class ShapeMap:
         if self._splits:
             parts[-1] += f"; {_list(self._splits)} from the source's one shape for both sides"
         parts[-1] += "."
-        if self.unmapped_rig:
-            parts.append(f"Rig shapes no source drives (kept at 0): {_list(self.unmapped_rig)}.")
+        if self._ambiguous:
+            parts.append(self.ambiguity_note() + ".")
+        unmatched = tuple(n for n in self.unmapped_rig if n not in set(self.ambiguous))
+        if unmatched:
+            parts.append(f"Rig shapes no source drives (kept at 0): {_list(unmatched)}.")
         if self.unmapped_source:
             parts.append(f"Source shapes that drive nothing: {_list(self.unmapped_source)}.")
         if self.unresolved:
             parts.append(f"Rows of {self.mapping_name} whose source shape is not among the sources: "
-                         + ", ".join(f"{s} (line {ln})" for s, ln in self.unresolved) + ".")
+                         + ", ".join(f"{_cut(s)} (line {ln})" for s, ln in self.unresolved) + ".")
         return " ".join(parts)
 
 
@@ -582,7 +763,8 @@ def _list(names) -> str:
 def _close(name: str, names: Sequence[str]) -> str:
     import difflib
 
-    close = difflib.get_close_matches(name, list(names), n=3, cutoff=0.6)
+    close = difflib.get_close_matches(name[:1000], list(names), n=3, cutoff=0.6)
     if close:
-        return f" (did you mean {', '.join(repr(c) for c in close)}?)"
-    return f" (the rig has {len(names)} shapes: {', '.join(list(names)[:6])}{', ...' if len(names) > 6 else ''})"
+        return f" (did you mean {', '.join(_q(c) for c in close)}?)"
+    shown = ", ".join(_cut(n) for n in list(names)[:6])
+    return f" (the rig has {len(names)} shapes: {shown}{', ...' if len(names) > 6 else ''})"

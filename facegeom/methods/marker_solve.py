@@ -176,7 +176,9 @@ def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS
     D = sub.deltas.transpose(1, 2, 0).reshape(3 * p, B)  # rows (marker, axis)
     N = sub.neutral.reshape(-1)
     w3 = np.repeat(W, 3, axis=1)  # (K, 3p)
-    mu = DAMPING * float(np.mean(np.einsum("rb,rb->b", D, D)))
+    # shapes that move none of the markers (every shape of a rig of tongue shapes, or of one shape equal to the
+    # neutral) leave D^T D zero: any positive damping then keeps their weights at 0 and the solve regular
+    mu = DAMPING * float(np.mean(np.einsum("rb,rb->b", D, D))) or DAMPING
     reg = np.zeros(B + 6)
     reg[:B] = mu
     uniform = bool(np.all(W == 1.0))

@@ -79,7 +79,16 @@ head, 3.7-4.7 for the balls; the prior is N(0, 1)) with a note above
 :data:`IDENTITY_RMS_NOTE`: the face lies outside the identity model's people
 and the non-rigid step carries the fit. (A refusal on that number alone,
 tried first, refused the MakeHuman head, a real human head from another
-source.)
+source.) Refused too: a mesh the identity fit places beyond
+:data:`NOT_A_HEAD_IDENTITY_RMS` **and** onto which the face had to be
+stretched beyond :data:`NOT_A_HEAD_STRAIN` (:func:`_face_strain`, the
+median over the face area's edges of the log length ratio to the generic
+face, the overall scale left out). Measured: the public heads (Lee
+Perry-Smith, MakeHuman, its stylised character, two Rocketbox heads)
+1.6-3.7 standard deviations and 7-15 % strain; objects the rigid step let
+through (the bunny, a CAD part, a chair, two objects, a plane: trimesh's
+test models) 5.3-6.5 and 24-37 %. Both must say "not a head", so a
+stylised character far from the people (one number) is still given a rig.
 
 Transfer (two engines)
 ----------------------
@@ -194,6 +203,8 @@ BROW_ABOVE_EYES_CM = 0.5  # the face area this far above the eye openings' centr
 NOT_A_HEAD_RIGID_MM = 4.0  # the posed generic face's median face-area distance above this: not a head
 NOT_A_HEAD_MM = 5.0  # the identity fit's median face-area distance above this: not a head
 IDENTITY_RMS_NOTE = 2.5  # the identity fit's coefficients (~ N(0, 1) for people) above this rms: a note
+NOT_A_HEAD_IDENTITY_RMS = 4.5  # with NOT_A_HEAD_STRAIN: not a head (see "Refused"; heads 1.6-3.7, non-heads 5.3-6.5)
+NOT_A_HEAD_STRAIN = 0.2  # the registered face's median edge strain above this, with the rms above: not a head
 COVER_MM = 5.0  # a face-area vertex / head triangle within this of the other surface is on the face
 MIN_COVERED = 0.5  # at least this fraction of the face area must lie on the head
 ANCHOR_CM = 3.0  # deformation transfer: head vertices farther than this from the region's triangles are held
@@ -497,6 +508,21 @@ def _harmonic_fill(F, region, D):
 _FREE: dict = {}
 
 
+def _face_strain(model, X) -> float:
+    """How far the registered template ``X (N, 3)`` is stretched from the generic face: the median over the face
+    area's edges of ``|log(l / l0) - m|`` (``l0`` the generic face's edge length, ``m`` the median log ratio:
+    the overall scale left out)."""
+    T = np.asarray(model.triangles, dtype=np.int64)
+    T = T[(T < min(FACE_AREA, len(X))).all(axis=1)]
+    E = np.unique(np.sort(np.r_[T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]], axis=1), axis=0)
+    V0 = np.asarray(model.neutral, dtype=np.float64)
+    l0 = np.linalg.norm(V0[E[:, 0]] - V0[E[:, 1]], axis=1)
+    l1 = np.linalg.norm(X[E[:, 0]] - X[E[:, 1]], axis=1)
+    ok = (l0 > 0) & (l1 > 0)
+    r = np.log(l1[ok] / l0[ok])
+    return float(np.median(np.abs(r - np.median(r)))) if r.size else float("inf")
+
+
 def _untrimmed_region(model) -> np.ndarray:
     """The template vertices whose pairs the final non-rigid rounds keep untrimmed -> ``(N,)`` bool: the face
     area below the eyes' level (``BROW_ABOVE_EYES_CM`` over the eye openings' centres: forehead and brows
@@ -749,6 +775,13 @@ def register_head(model, V, F, *, landmarks=None, units="auto", path=None, sampl
     if covered < MIN_COVERED or not np.isfinite(X).all():
         raise InputError(f"no face area found: only {100 * covered:.0f}% of the face model lies within "
                          f"{COVER_MM:g} mm of the mesh", path)
+    strain = _face_strain(model, X)
+    report["nonrigid"]["strain"] = strain
+    if id_rms > NOT_A_HEAD_IDENTITY_RMS and strain > NOT_A_HEAD_STRAIN:
+        raise InputError(f"not a head: the face model fits it only {id_rms:.1f} standard deviations from the people "
+                         f"it was built from (heads: 1.6-3.7) and stretched by {100 * strain:.0f}% (median over its "
+                         f"edges; heads: 7-15%); at most {NOT_A_HEAD_IDENTITY_RMS:g} and {100 * NOT_A_HEAD_STRAIN:.0f}%",
+                         path)
     report["time_s"] = time.perf_counter() - t_all
     scale = scale_cm / su
     return HeadRegistration(V, F, (X @ Rt.T * scale_cm + tt) / su, scale, Rt, tt / su, su, mm_per_unit,

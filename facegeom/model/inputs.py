@@ -95,33 +95,37 @@ def load_rig(rig_path=None, face_model=None, *, neutral: str | None = None, name
     rp = Path(rig_path)
     if not rp.exists():
         raise InputError("rig not found", rp)
-    stated_units = stated_up = None
-    what = ""
-    if rp.is_dir():
-        neutral_path = find_neutral(rp, neutral)
-        raw = BlendshapeRig.from_obj_folder(rp, neutral_path.stem)
-        what = f"neutral {neutral_path.name}"
-    else:
-        if neutral is not None:
-            raise InputError("neutral=NAME names the neutral OBJ of a rig folder; this rig is a file", rp)
-        if rp.suffix.lower() in (".glb", ".gltf"):
-            raw, stated_units, stated_up = _gltf_rig(rp)
-        elif rp.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
-            raw, stated_units, stated_up = _usd_rig(rp)
-        elif rp.suffix.lower() in SCENE_FORMATS_NOT_READ:
-            raise InputError(f"{SCENE_FORMATS_NOT_READ[rp.suffix.lower()]} files are not read as rigs; export the "
-                             "face with its blend shapes as glTF (.glb), USD (.usd*) or a folder of OBJs", rp)
+    try:  # numpy's MemoryError (a rig too large for the memory left) is one line naming the rig, anywhere here
+        stated_units = stated_up = None
+        what = ""
+        if rp.is_dir():
+            neutral_path = find_neutral(rp, neutral)
+            raw = BlendshapeRig.from_obj_folder(rp, neutral_path.stem)
+            what = f"neutral {neutral_path.name}"
         else:
-            raw, stated_units, stated_up = BlendshapeRig.read_npz(rp)
-        if raw.parts:
-            what = f"{len(raw.parts)} part{'s' if len(raw.parts) != 1 else ''} ({', '.join(p.name for p in raw.parts)})"
-    if name_map is not None:
-        raw = raw.with_name_map(name_map)
-    try:
-        frame = rig_frame(raw.neutral, raw.triangles, raw.deltas, units, up, stated_units, stated_up)
-    except InputError as exc:
-        raise InputError(exc.reason, rp) from None
-    rig = raw.in_frame(frame)
+            if neutral is not None:
+                raise InputError("neutral=NAME names the neutral OBJ of a rig folder; this rig is a file", rp)
+            if rp.suffix.lower() in (".glb", ".gltf"):
+                raw, stated_units, stated_up = _gltf_rig(rp)
+            elif rp.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+                raw, stated_units, stated_up = _usd_rig(rp)
+            elif rp.suffix.lower() in SCENE_FORMATS_NOT_READ:
+                raise InputError(f"{SCENE_FORMATS_NOT_READ[rp.suffix.lower()]} files are not read as rigs; export the "
+                                 "face with its blend shapes as glTF (.glb), USD (.usd*) or a folder of OBJs", rp)
+            else:
+                raw, stated_units, stated_up = BlendshapeRig.read_npz(rp)
+            if raw.parts:
+                what = (f"{len(raw.parts)} part{'s' if len(raw.parts) != 1 else ''} "
+                        f"({', '.join(p.name for p in raw.parts)})")
+        if name_map is not None:
+            raw = raw.with_name_map(name_map)
+        try:
+            frame = rig_frame(raw.neutral, raw.triangles, raw.deltas, units, up, stated_units, stated_up)
+        except InputError as exc:
+            raise InputError(exc.reason, rp) from None
+        rig = raw.in_frame(frame)
+    except MemoryError as exc:
+        raise InputError(f"not enough memory to load the rig ({str(exc) or 'MemoryError'})", rp) from None
     if notes is not None:
         notes.append(rig_note(rig, rp.name, what))
     return rig
@@ -179,8 +183,11 @@ def rig_note(rig, name: str | None, what: str = "") -> str:
         parts.append("no shape has an ICT or ARKit name: results keep the rig's names (a mapping file, "
                      "names=MAP.csv, maps them)")
         return "; ".join(parts)
-    if m.unmapped_rig:
-        parts.append(f"its shapes no ICT expression drives: {', '.join(m.unmapped_rig)}")
+    unmatched = [n for n in m.unmapped_rig if n not in set(m.ambiguous)]
+    if unmatched:
+        parts.append(f"its shapes no ICT expression drives: {', '.join(unmatched)}")
+    if m.ambiguous:  # two spellings of one shape (ARKit's and SRanipal's): one driven, the others listed
+        parts.append(m.ambiguity_note())
     if m.unmapped_source:
         parts.append(f"ICT expressions it lacks: {', '.join(m.unmapped_source)}")
     return "; ".join(parts)

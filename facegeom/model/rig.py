@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import stat
 import zipfile
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -58,8 +59,85 @@ __all__ = [
 NEUTRAL_NAMES: tuple[str, ...] = ("neutral", "base", "neutral_mesh", "default", "basis", "generic_neutral_mesh")
 
 
+# --------------------------------------------------------------------------- what a rig may ask for
+#: Shapes of a rig (the OBJ files of a folder besides its neutral; the deltas of an npz). ARKit has 52, the ICT
+#: face 53, Rocketbox's avatars 175 channels, film rigs a few hundred, a MetaHuman's face about 800 (the most of
+#: any face rig we know, see :data:`facegeom.io.gltf.MAX_MORPH_TARGETS`): a thousand leaves room. A fit costs the
+#: square of the shapes (their Gram matrix, SEM's selection); the audit's folder of 5,000 files asked for 67 GiB.
+MAX_RIG_SHAPES = 1_000
+#: Vertices of a rig's neutral: the ICT face has 9,409, the MakeHuman head 4,817, a film head some 100,000; a rig
+#: made by ``facegeom transfer`` keeps its head's vertices, a scan's too (the 2.4-million-vertex scan of
+#: docs/security.md). As many as a USD rig's mesh may have (:data:`facegeom.io.usd.MAX_POINTS`).
+MAX_RIG_VERTICES = 5_000_000
+#: A rig's deltas (float64, shapes x vertices x 3 x 8 bytes) are held this many times at once: the array read,
+#: the rig's own float64 copy, the copy brought into cm and Y-up. Measured, 53 shapes x 200,000 vertices (254 MB):
+#: ``load_rig`` peaks at 3.1 (npz) to 3.5 (OBJ folder) times the deltas, and ``fit`` and ``solve`` add nothing
+#: measurable to that. So the deltas may take 1/4 of :func:`facegeom.io.npzcheck.memory_budget` (half the
+#: machine's memory): 2.9 GB on a 23 GB machine, 53 shapes of 2.3 million vertices or 1,000 of 120,000.
+RIG_DELTA_COPIES = 4
+#: An array of a rig npz of at least this many bytes is checked for how much it is compressed (below it the memory
+#: is not at stake, and :data:`RIG_DELTA_COPIES` bounds it anyway).
+RATIO_CHECKED_FROM = 256 << 20
+#: ... and refused if it is compressed more than this. Deflate's ceiling is 1,032:1, which only bytes that are
+#: (almost) all zeros reach: zeros give 1,025:1. Measured: the rigs of tests/data/heads 14:1 to 18:1 (MakeHuman's
+#: deltas are 84 % zeros), the ICT face's 4:1; deltas whose every shape moves 0.1 % of the coordinates 485:1, and
+#: 0.03 % 770:1. Beyond 900:1 a rig's shapes move nothing: a file of zeros, like the audit's 4.5 GB of deltas in
+#: 4.6 MB.
+MAX_COMPRESSION_RATIO = 900
+#: A shape OBJ holds each vertex in a line ``v x y z`` of at least 7 characters and a line break.
+MIN_VERTEX_BYTES = 8
+
+
 def _obj_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".obj")
+    """The folder's entries called ``*.obj`` (any case) that are not folders, sorted: FIFOs, sockets and links
+    pointing out of the folder are listed (and refused when read, :func:`_confined`), not silently left out."""
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".obj" and not p.is_dir())
+
+
+_KINDS = ((stat.S_ISFIFO, "FIFO (a named pipe)"), (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "character device"),
+          (stat.S_ISBLK, "block device"), (stat.S_ISDIR, "folder"))
+
+
+def _confined(root: Path, p: Path) -> tuple[Path, os.stat_result]:
+    """Check, without opening it, that the rig folder's entry ``p`` is a regular file inside the folder (whose
+    real path is ``root``) once its links are followed -> ``(real path, stat)``.
+
+    A link whose target lies in the folder is followed; one pointing out of it (a system file, another folder's
+    OBJ) is refused naming where it points, as are a dangling link, a FIFO (opening one blocks), a socket or a
+    device."""
+    real = Path(os.path.realpath(p))
+    if not real.is_relative_to(root):
+        raise InputError(f"is a link to {real}, outside the rig folder {root}: a rig's files must lie in its folder",
+                         p)
+    try:
+        st = os.stat(real)
+    except FileNotFoundError:
+        raise InputError(f"is a link to {real}, which does not exist" if p.is_symlink() else "file not found",
+                         p) from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or type(exc).__name__})", p) from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((name for test, name in _KINDS if test(st.st_mode)), "special file")
+        raise InputError(f"is a {kind}, not a regular file: not read", p)
+    return real, st
+
+
+def _read_confined(p: Path, real: Path, checked: os.stat_result) -> bytes:
+    """The bytes of the file ``p`` checked by :func:`_confined` (its real path ``real``): opened without following
+    a link and without blocking, and refused if it is no longer the file that was checked."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(real, flags)
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or type(exc).__name__})", p) from None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode) or (st.st_dev, st.st_ino) != (checked.st_dev, checked.st_ino):
+            raise InputError("was replaced while the rig was read: not read", p)
+        try:
+            return fh.read()
+        except OSError as exc:
+            raise InputError(f"cannot read the file ({exc.strerror or type(exc).__name__})", p) from None
 
 
 def _listing(files: Sequence[Path]) -> str:
@@ -111,6 +189,42 @@ _NPZ_KINDS = tuple((k, "fiu", "numbers") for k in ("neutral", "deltas", "map_gai
     ("part_targets", "b", "true/false values"),)
 
 
+#: The keys of a rig file that are read (save_npz's ``extra`` arrays are left in the file).
+_NPZ_READ = frozenset(k for k, _, _ in _NPZ_KINDS)
+
+
+def _check_npz_rig(members: dict, path) -> None:
+    """A rig npz's declared arrays (:func:`facegeom.io.npzcheck.npz_members`) against a rig's caps, before one is
+    loaded: :data:`MAX_RIG_SHAPES`, :data:`MAX_RIG_VERTICES`, :data:`MAX_COMPRESSION_RATIO` and the deltas'
+    memory budget (:data:`RIG_DELTA_COPIES`)."""
+    from facegeom.io.npzcheck import _mb
+
+    for key in sorted(_NPZ_READ & set(members)):
+        m = members[key]
+        if m.shape is None:
+            raise InputError(f"'{key}' is not an array (a member without an .npy header)", path)
+        if m.nbytes >= RATIO_CHECKED_FROM and m.nbytes > MAX_COMPRESSION_RATIO * m.stored:
+            raise InputError(f"'{key}' holds {_mb(m.nbytes)} compressed into {_mb(m.stored)}, "
+                             f"{m.nbytes / max(m.stored, 1):,.0f}:1: beyond the {MAX_COMPRESSION_RATIO}:1 only "
+                             f"(almost) all-zero data reach (real rigs compress 4:1 to 18:1): not a rig", path)
+    for key, axis in (("neutral", 0), ("deltas", 1)):
+        m = members.get(key)
+        if m is not None and len(m.shape) > axis and m.shape[axis] > MAX_RIG_VERTICES:
+            raise InputError(f"'{key}' declares {m.shape[axis]:,} vertices, more than the {MAX_RIG_VERTICES:,} a "
+                             f"rig may have", path)
+    d = members.get("deltas")
+    if d is None:
+        return
+    if len(d.shape) == 3 and d.shape[0] > MAX_RIG_SHAPES:
+        raise InputError(f"'deltas' declares {d.shape[0]:,} shapes, more than the {MAX_RIG_SHAPES:,} a rig may have "
+                         f"(ARKit has 52, a MetaHuman face about 800)", path)
+    count = 1
+    for k in d.shape:
+        count *= k
+    label = f"{d.shape[0]:,} shapes x {d.shape[1]:,} vertices" if len(d.shape) == 3 else f"{count:,} numbers"
+    _check_deltas_budget(count, f"'deltas': {label}", path)  # read as float64 whatever the file's dtype
+
+
 def _as_parts(parts, n_vertices: int, n_faces: int):
     """Parts as a tuple of :class:`~facegeom.io.gltf.RigPart` (a glTF rig's placed primitives: a name, its slices
     of the vertices and the triangles), checked against the rig's sizes; None stays None."""
@@ -131,6 +245,19 @@ def _as_parts(parts, n_vertices: int, n_faces: int):
                              f"{n_vertices} vertices and {n_faces} faces")
         out.append(p if isinstance(p, RigPart) else RigPart(name, vs, ve, fs, fe, has))
     return tuple(out)
+
+
+def _check_deltas_budget(count: int, label: str, path) -> None:
+    """Refuse deltas of ``count`` numbers (``label``: shapes x vertices) whose float64 bytes,
+    :data:`RIG_DELTA_COPIES` times, exceed the memory budget (:func:`facegeom.io.npzcheck.memory_budget`)."""
+    from facegeom.io import npzcheck
+
+    need = count * 8
+    budget = npzcheck.memory_budget()
+    if need * RIG_DELTA_COPIES > budget:
+        raise InputError(f"{label} make {npzcheck._mb(need)} of deltas, held {RIG_DELTA_COPIES} times over while the "
+                         f"rig is loaded and fitted: more than the {npzcheck._mb(budget)} this machine can spare (half "
+                         f"of its memory)", path)
 
 
 # --------------------------------------------------------------------------- the rig
@@ -390,33 +517,84 @@ class BlendshapeRig:
         neutral's; shapes are named by file stem and sorted by file name.
         Triangles come from the neutral. No landmark ids.
 
+        The folder is confined: every OBJ read is a regular file inside it once its links are followed (a link to
+        a file of the folder is fine). Before the deltas are allocated: at most :data:`MAX_RIG_SHAPES` shapes and
+        :data:`MAX_RIG_VERTICES` vertices, deltas that fit the memory budget (:data:`RIG_DELTA_COPIES`), and
+        every shape file large enough to hold the neutral's vertices.
+
         Raises
         ------
         InputError
             One line naming the folder or the file: no neutral or two
             candidates (the OBJ files listed), no shape besides the neutral, a
-            shape with another vertex count than the neutral's, an unreadable OBJ.
+            shape with another vertex count than the neutral's, an unreadable OBJ;
+            a link pointing out of the folder (and where it points), a FIFO, socket
+            or device; more shapes or vertices than the caps, deltas beyond the
+            memory budget; not enough memory.
         """
-        from facegeom.io import read_mesh
-        from facegeom.io.mesh import MAX_COORDINATE
-        from facegeom.model.face import read_obj_positions
-
         folder = Path(folder)
         neutral_path = find_neutral(folder, neutral_name)
-        V0, F = read_mesh(neutral_path)
         files = [p for p in _obj_files(folder) if p != neutral_path]
+        try:
+            return cls._read_obj_folder(folder, neutral_path, files)
+        except MemoryError as exc:
+            raise InputError(f"not enough memory to read the rig ({str(exc) or 'MemoryError'})", folder) from None
+
+    @classmethod
+    def _read_obj_folder(cls, folder: Path, neutral_path: Path, files: list[Path]) -> "BlendshapeRig":
+        from facegeom.io.formats.obj import read_obj
+        from facegeom.io.mesh import MAX_COORDINATE
+
         if not files:
             raise InputError(f"no blendshape OBJ besides {neutral_path.name!r}", folder)
-        deltas = np.empty((len(files), V0.shape[0], 3))
-        for b, p in enumerate(files):
-            V = read_obj_positions(p)
-            if V.size and np.abs(V).max() > MAX_COORDINATE:  # as every mesh reader refuses it
+        B = len(files)
+        if B > MAX_RIG_SHAPES:
+            raise InputError(f"{B:,} shape files besides the neutral: more than the {MAX_RIG_SHAPES:,} shapes a rig "
+                             f"may have (ARKit has 52, a MetaHuman face about 800)", folder)
+        root = Path(os.path.realpath(folder))
+        checked = {p: _confined(root, p) for p in [neutral_path, *files]}  # every file, before one is read
+        data = _read_confined(neutral_path, *checked[neutral_path])
+        if not data:
+            raise InputError("empty file", neutral_path)
+        mesh = read_obj(neutral_path, data)
+        del data
+        if mesh.vertices.shape[0] == 0:
+            raise InputError("malformed mesh: no vertex could be read", neutral_path)
+        if mesh.n_faces == 0:
+            raise InputError("the mesh has no face", neutral_path)
+        V0, F = mesh.vertices, np.ascontiguousarray(mesh.triangles(), dtype=np.int64)
+        del mesh
+        n = V0.shape[0]
+        big = np.abs(V0).max(axis=1) > MAX_COORDINATE  # as read_mesh refuses it
+        if big.any():
+            k = int(np.flatnonzero(big)[0])
+            raise InputError(f"vertex {k + 1} has a coordinate of {np.abs(V0[k]).max():.3g}: beyond "
+                             f"{MAX_COORDINATE:g} in any unit no real mesh reaches, and distances overflow",
+                             neutral_path)
+        if n > MAX_RIG_VERTICES:
+            raise InputError(f"{n:,} vertices, more than the {MAX_RIG_VERTICES:,} a rig may have", neutral_path)
+        _check_deltas_budget(B * n * 3, f"{B:,} shapes x {n:,} vertices", folder)
+
+        def shape(p: Path) -> np.ndarray:
+            V = read_obj(p, _read_confined(p, *checked[p]), faces=False).vertices
+            if V.shape[0] == 0:
+                raise InputError("no vertex ('v') lines: not an OBJ mesh", p)
+            if np.abs(V).max() > MAX_COORDINATE:  # as every mesh reader refuses it
                 raise InputError(f"a coordinate of {np.abs(V).max():.3g}: beyond {MAX_COORDINATE:g} in any unit no "
                                  f"real mesh reaches, and distances overflow", p)
-            if V.shape[0] != V0.shape[0]:
-                raise InputError(
-                    f"has {V.shape[0]} vertices but the neutral {neutral_path.name!r} has {V0.shape[0]}", p)
-            deltas[b] = V - V0
+            if V.shape[0] != n:
+                raise InputError(f"has {V.shape[0]} vertices but the neutral {neutral_path.name!r} has {n}", p)
+            return V
+
+        for p in files:  # a file too small to hold the neutral's vertices is found before the others are read
+            size = checked[p][1].st_size
+            if size < MIN_VERTEX_BYTES * n - 1:
+                shape(p)  # (small: reading it says what it holds instead)
+                raise InputError(f"{size:,} bytes cannot hold the {n:,} vertices of the neutral "
+                                 f"{neutral_path.name!r} (a vertex line takes {MIN_VERTEX_BYTES} or more)", p)
+        deltas = np.empty((B, n, 3))
+        for b, p in enumerate(files):
+            np.subtract(shape(p), V0, out=deltas[b])
         try:
             return cls(V0, deltas, tuple(p.stem for p in files), F)
         except InputError as exc:
@@ -463,19 +641,23 @@ class BlendshapeRig:
         path = Path(path)
         if not path.is_file():
             raise InputError("file not found" if not path.exists() else "not a file", path)
-        from facegeom.io.npzcheck import check_npz
+        from facegeom.io.npzcheck import npz_members
 
-        check_npz(path)  # declared shapes against what the file holds, before anything is allocated
+        # declared shapes against what the file holds, and against a rig's caps, before anything is allocated
+        members = npz_members(path)
+        _check_npz_rig(members, path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 missing = [k for k in cls.NPZ_KEYS if k not in z.files]
                 if missing:
                     raise InputError(f"not a rig file: missing key(s) {', '.join(missing)}", path)
-                a = {k: z[k] for k in z.files}
+                a = {k: z[k] for k in z.files if k in _NPZ_READ}  # other arrays (a transfer's) are not loaded
         except InputError:
             raise
         except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
             raise InputError(f"cannot read as npz ({exc})", path) from None
+        except MemoryError as exc:
+            raise InputError(f"not enough memory to read the rig ({str(exc) or 'MemoryError'})", path) from None
         from facegeom.io.npzcheck import check_text
 
         for key, kinds, what in _NPZ_KINDS:
@@ -492,6 +674,8 @@ class BlendshapeRig:
                       a["triangles"], None if lm.size == 0 else lm, parts=_npz_parts(a), name_map=_npz_map(a))
         except InputError as exc:
             raise InputError(exc.reason, path) from None
+        except MemoryError as exc:
+            raise InputError(f"not enough memory to read the rig ({str(exc) or 'MemoryError'})", path) from None
         return rig, units, up
 
     def in_frame(self, frame) -> "BlendshapeRig":

@@ -23,7 +23,15 @@ from facegeom.model._checks import _as_ids, _first_nonfinite, _readonly
 from facegeom.model.camera import PinholeCamera
 from facegeom.model.rig import BlendshapeRig
 
-__all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget', 'MarkerTarget']
+__all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget', 'MarkerTarget', 'MIN_FACE_PX']
+
+#: Landmarks spanning less than this (pixels, the larger side of their bounding box) hold no face to fit: no
+#: annotation or detector places a face's landmarks within one pixel, and the pose's depth follows the face's size
+#: in the photo (0.0005 px put the head 2,500 km from the camera). Checked from 4 landmarks (fewer: the fitters'
+#: own minimum refuses them).
+MIN_FACE_PX = 1.0
+#: Landmarks whose second principal spread is below this fraction of the first lie on one line: no pose to estimate.
+MIN_LANDMARK_FLATNESS = 1e-3
 
 
 class MeshTarget:
@@ -102,6 +110,14 @@ class LandmarkTarget:
             raise InputError(f"{p.shape[0]} landmark points for {ids.size} vertex ids")
         if not isinstance(camera, PinholeCamera):
             raise InputError(f"camera must be a PinholeCamera, got {type(camera).__name__}")
+        if p.shape[0] >= 4:
+            span = float(np.max(p.max(axis=0) - p.min(axis=0)))
+            if not span >= MIN_FACE_PX:
+                raise InputError(f"the landmarks span {span:.3g} px: no face to fit (at least {MIN_FACE_PX:g} px; "
+                                 f"pixels, not another unit?)")
+            sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+            if sv[1] <= MIN_LANDMARK_FLATNESS * sv[0]:
+                raise InputError("the landmarks all lie on one line: no face to fit, no pose to estimate")
         self.points2d = _readonly(p.copy())
         self.vertex_ids = _readonly(ids)
         self.camera = camera

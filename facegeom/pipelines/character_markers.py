@@ -283,12 +283,18 @@ def take_markers(model, take, start: int = 0, frames: int | None = None, marker_
 
 def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_ids, V, F, *, labels=None,
                            keys=None, n_keys: int = 10, retargeter=None, deformer=None, parts=None, roles=None,
-                           progress=None, character=None) -> MarkerRoute:
+                           progress=None, character=None, labels_path=None, first_frame: int = 0) -> MarkerRoute:
     """Drive the head ``(V, F)`` by the actor's markers ``(T, p, 3)`` (model frame, cm) on template vertices
     ``marker_ids`` (see the module docstring); ``labels (L, p, 3)`` at ``keys`` (frames of the window) replace
     the proposal where they are not NaN.
     ``character``: the head already registered (:func:`~facegeom.methods.transfer.register_character` of
-    ``(V, F)``), not registered again."""
+    ``(V, F)``), not registered again.
+
+    Labels no head has are refused in one line before the work they would spoil
+    (:func:`facegeom.io.key_labels.check_labels_on_head`: far outside the head, before the registration; squashed
+    to a point, a line, a plane or a fraction of the face, before the retargeting), naming ``labels_path`` (their
+    file) and the key frame plus ``first_frame`` (the window's first take frame)."""
+    from facegeom.io.key_labels import check_labels_on_head
     from facegeom.methods.transfer import register_character
     from facegeom.registry import parse_method
 
@@ -296,6 +302,9 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     X = np.asarray(actor_markers, dtype=np.float64)
     if X.ndim != 3 or X.shape[1] != len(marker_ids) or X.shape[2] != 3 or X.shape[0] < 2:
         raise InputError(f"actor markers must be (T >= 2, {len(marker_ids)}, 3), got {X.shape}")
+    if labels is not None and keys is not None:
+        check_labels_on_head(np.asarray(labels, dtype=np.float64), np.asarray(keys).reshape(-1), V,
+                             path=labels_path, first_frame=first_frame)
     times = {}
     t0 = time.perf_counter()
     ch = character or register_character(model, V, F, parts=parts, roles=roles, progress=progress)
@@ -312,6 +321,7 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     labels = np.asarray(labels, dtype=np.float64)
     if labels.shape != (keys.size, len(mv), 3):
         raise InputError(f"labels must be ({keys.size}, {len(mv)}, 3) for the key frames, got {labels.shape}")
+    check_labels_on_head(labels, keys, V, proposed, path=labels_path, first_frame=first_frame)
     labels = np.where(np.isnan(labels), proposed, labels)  # markers not given keep the proposal
     say(f"{keys.size} key frames ({', '.join(map(str, keys[:12]))}{', ...' if keys.size > 12 else ''}); "
         f"{len(mv)} markers on the character")

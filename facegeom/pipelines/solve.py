@@ -41,6 +41,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from facegeom.constants import CM_TO_MM
 from facegeom.errors import InputError
 from facegeom.interfaces import as_handles
 from facegeom.io.files import atomic_path, read_csv_rows
@@ -232,9 +233,33 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
         if exc.path:
             raise
         raise InputError(exc.reason, capture) from None
+    check_residual(res.rms, capture, markers)
     fps = getattr(seq, "fps", None)
     known = fps is not None and np.isfinite(fps) and fps > 0
     return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known), rig, notes)
+
+
+#: A solve whose median marker residual is above this (mm) did not fit the rig: the markers are not on this
+#: rig's vertices (another head's vertex ids, a wrong map). A capture solved on its own rig leaves 0.1-2 mm
+#: (marker noise, an actor the generic face does not match), and the largest expression moves a marker
+#: 20-25 mm (the chin at jawOpen): 15 mm is more than any fit leaves and less than what a wrong layout does
+#: (112 mm: a head's own capture's vertex ids read on another rig).
+SOLVE_RESIDUAL_MAX_MM = 15.0
+
+
+def check_residual(rms, capture, markers=None) -> None:
+    """Refuse a solve whose median per-frame marker residual (``rms``, cm: the rig unit) is above
+    :data:`SOLVE_RESIDUAL_MAX_MM`, in one line naming the capture."""
+    r = np.asarray(rms, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return
+    med = float(np.median(r)) * CM_TO_MM
+    if med > SOLVE_RESIDUAL_MAX_MM:
+        how = "the map" if markers is not None else "the markers' vertex ids (v123)"
+        raise InputError(f"the markers do not fit the rig: residual median {med:.3g} mm (a capture on its own rig "
+                         f"leaves 0.1-2 mm; at most {SOLVE_RESIDUAL_MAX_MM:g}); are {how} this rig's vertices? "
+                         f"pass markers=MAP.csv (marker,vertex_id of this rig)", capture)
 
 
 def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
