@@ -175,6 +175,10 @@ class Take:
 def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     """Read a Live Link Face CSV take.
 
+    The file is read a chunk of rows at a time (:data:`CHUNK_ROWS`): only the
+    numbers are kept, never the rows' text, so memory follows ``T x 61``
+    float64 values (about 0.5 kB a frame) whatever the take's length.
+
     Parameters
     ----------
     path : str or os.PathLike
@@ -206,8 +210,9 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     if not p.is_file():
         raise InputError("not a file (expected a Live Link Face .csv take)", path)
     try:
+        bound = _row_bound(p)
         with open(p, newline="", encoding="utf-8-sig") as fh:
-            header, columns, good, lost = _scan(fh, path)
+            read = _scan(fh, path, bound)
     except OSError as exc:
         raise InputError(f"cannot read the take: {exc.strerror or exc}", path) from None
     except UnicodeDecodeError:
@@ -215,51 +220,173 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     except csv.Error as exc:
         raise InputError(f"cannot read the take: malformed CSV ({exc})", path) from None
 
-    n_rows = len(good[0]) + len(lost)
+    n_good, n_rows = read.n_good, read.n_rows
+    n_lost = n_rows - n_good
     if n_rows == 0:
         raise InputError("the take has a header but no data rows", path)
-    if not good[0]:
-        raise InputError(f"nothing usable: all {len(lost)} data rows are lost-tracking rows", path)
+    if not n_good:
+        raise InputError(f"nothing usable: all {n_lost} data rows are lost-tracking rows", path)
+    if read.number_error is not None:  # the first bad cell of the good rows, as if all were converted at once
+        raise read.number_error
+    if read.timecode_error is not None:  # then the first bad timecode, good and lost rows in file order
+        raise read.timecode_error
 
-    good_lines, good_tc, good_cells = good
-    W = _to_float(good_cells, good_lines, columns, header, path)
-
-    # Timecodes of all rows (good and lost), in file order.
-    lines = np.asarray(good_lines + [ln for ln, _ in lost], dtype=np.int64)
-    tcs = good_tc + [tc for _, tc in lost]
-    order = np.argsort(lines, kind="stable")
-    lines = lines[order]
-    tcs = [tcs[i] for i in order]
-    frame_secs, frames = _parse_timecodes(tcs, lines, path)
+    frame_secs, frames, is_good = read.timecodes()  # every row, in file order
     fps = timecode_fps(frames)
     t = frame_secs + frames / fps
     t = _unwrap_midnight(t)
 
-    is_good = np.zeros(n_rows, dtype=bool)
-    is_good[: len(good_lines)] = True
-    is_good = is_good[order]
-
-    if policy == "drop" or not lost:
-        weights, times = W, t[is_good]
-    else:
-        weights = _interpolate(W, t, is_good)
+    weights, rotations = read.numbers()
+    if policy == "drop" or not n_lost:
+        times = t[is_good]
+    else:  # column by column: the weights and the rotations are filled alike
+        weights = _interpolate(weights, t, is_good)
+        rotations = None if rotations is None else _interpolate(rotations, t, is_good)
         times = t
-    K = len(ARKIT_NAMES)
     return Take(
         path=str(p),
         names=ARKIT_NAMES,
-        weights=np.ascontiguousarray(weights[:, :K]),
+        weights=weights,
         times=times - times[0],
-        lost_rows=len(lost),
+        lost_rows=n_lost,
         policy=policy,
         timecode_fps=fps,
-        rotations=np.ascontiguousarray(weights[:, K:]) if weights.shape[1] > K else None,
+        rotations=rotations,
         start_s=float(times[0]),
     )
 
 
-def _scan(fh, path):
-    """Split the file into header, good rows (raw cells) and lost rows."""
+#: Rows converted to numbers at a time while a take is read: only one chunk's text is held (Python
+#: strings: about 4 kB a row, 8 times its numbers), so memory does not grow with the take's text.
+CHUNK_ROWS = 1024
+
+
+def _row_bound(p: Path) -> tuple[int, int]:
+    """``(line breaks + 1, bytes)`` of the file (``\\r\\n``, ``\\r`` and ``\\n`` each one break): no more rows than
+    that, what the arrays are sized for (they grow if the file grew meanwhile)."""
+    breaks = size = 0
+    last = b""
+    with open(p, "rb") as fh:
+        while block := fh.read(1 << 20):
+            breaks += block.count(b"\n") + block.count(b"\r") - block.count(b"\r\n")
+            if last == b"\r" and block[:1] == b"\n":
+                breaks -= 1  # a \r\n cut between two blocks
+            last = block[-1:]
+            size += len(block)
+    return breaks + 1, size
+
+
+class _Column:
+    """A growing ``(rows, *shape)`` array filled in order; :meth:`array` gives the rows filled.
+
+    Sized for the most rows the file can hold (memory is only used as rows are filled: the pages of the rest
+    are never touched); when that cannot be reserved, it starts at :data:`CHUNK_ROWS` rows and grows.
+    """
+
+    def __init__(self, capacity: int, shape: tuple[int, ...] = (), dtype=np.float64):
+        self.shape, self.dtype, self.size = shape, dtype, 0
+        try:
+            self.data = np.empty((max(int(capacity), 1), *shape), dtype=dtype)
+        except MemoryError:
+            self.data = np.empty((CHUNK_ROWS, *shape), dtype=dtype)
+
+    def reserve(self, n: int) -> np.ndarray:
+        """Room for ``n`` rows more -> the view to fill (the array grows by half or more when full)."""
+        need = self.size + n
+        if need > self.data.shape[0]:
+            grown = np.empty((max(need, self.data.shape[0] * 3 // 2), *self.shape), self.dtype)
+            grown[:self.size] = self.data[:self.size]
+            self.data = grown
+        view = self.data[self.size:need]
+        self.size = need
+        return view
+
+    def array(self) -> np.ndarray:
+        """The filled rows (a view: the rows never filled were never touched)."""
+        return self.data[:self.size]
+
+
+class _Scanned:
+    """The rows of a take as :func:`_scan` reads them: the numbers of the good rows, the timecodes of all rows in
+    file order, and the first bad cell and bad timecode found (raised by :func:`read_take` after the checks that
+    come first)."""
+
+    def __init__(self, bound: tuple[int, int], columns: list[int], header: list[str], path):
+        K = len(ARKIT_NAMES)
+        self.columns, self.header, self.path = columns, header, path
+        breaks, size = bound
+        rows = min(breaks, size // 4 + 1)  # a row has 4 bytes at least ("t,0" and its line break)
+        good = min(rows, size // len(header) + 1)  # a good row has a comma between its cells and a line break
+        self.weights = _Column(good, (K,))
+        self.rotations = _Column(good, (len(columns) - K,)) if len(columns) > K else None
+        self.secs = _Column(rows)
+        self.frames = _Column(rows)
+        self.good = _Column(rows, dtype=bool)
+        self.n_good = 0
+        self.number_error: InputError | None = None
+        self.timecode_error: InputError | None = None
+        self._secs: list[float] = []  # the rows not yet stored (at most CHUNK_ROWS)
+        self._frames: list[float] = []
+        self._good: list[bool] = []
+        self._cells: list[tuple[str, ...]] = []
+        self._lines: list[int] = []
+
+    @property
+    def n_rows(self) -> int:
+        """Data rows read (good and lost; blank lines aside)."""
+        return self.good.size + len(self._good)
+
+    def row(self, line: int, timecode: str, cells: tuple[str, ...] | None) -> None:
+        """One data row: ``cells`` the picked cells of a good row, None for a lost-tracking row."""
+        secs = frame = 0.0
+        if self.timecode_error is None:
+            try:
+                secs, frame = _parse_timecode(timecode, line, self.path)
+            except InputError as exc:
+                self.timecode_error = exc
+        self._secs.append(secs)
+        self._frames.append(frame)
+        self._good.append(cells is not None)
+        if cells is not None:
+            self.n_good += 1
+            if self.number_error is None:
+                self._cells.append(cells)
+                self._lines.append(line)
+        if len(self._good) >= CHUNK_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Store the rows held as numbers (the first bad cell is kept, and no cell converted after it)."""
+        n = len(self._good)
+        self.secs.reserve(n)[:] = self._secs
+        self.frames.reserve(n)[:] = self._frames
+        self.good.reserve(n)[:] = self._good
+        cells, lines = self._cells, self._lines
+        self._secs, self._frames, self._good, self._cells, self._lines = [], [], [], [], []
+        if not cells or self.number_error is not None:
+            return
+        try:
+            W = _to_float(cells, lines, self.columns, self.header, self.path)
+        except InputError as exc:
+            self.number_error = exc
+            return
+        K = len(ARKIT_NAMES)
+        self.weights.reserve(W.shape[0])[:] = W[:, :K]
+        if self.rotations is not None:
+            self.rotations.reserve(W.shape[0])[:] = W[:, K:]
+
+    def timecodes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(whole seconds of the day, frame numbers, good?)`` of every row, in file order."""
+        return self.secs.array(), self.frames.array(), self.good.array()
+
+    def numbers(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(weights (T, 52), rotations (T, 9) or None)`` of the good rows."""
+        return self.weights.array(), None if self.rotations is None else self.rotations.array()
+
+
+def _scan(fh, path, bound: tuple[int, int] = (CHUNK_ROWS, 1 << 30)) -> _Scanned:
+    """Read the header, then the rows, a chunk at a time (``bound``: the file's line breaks and bytes, from
+    :func:`_row_bound`, which size the arrays)."""
     reader = csv.reader(fh)
     header = None
     for raw in reader:
@@ -288,19 +415,14 @@ def _scan(fh, path):
         columns += [header.index(n) for n in ROTATION_NAMES]
     pick = operator.itemgetter(*columns)
 
-    good_lines: list[int] = []
-    good_tc: list[str] = []
-    good_cells: list[tuple[str, ...]] = []
-    lost: list[tuple[int, str]] = []
+    out = _Scanned(bound, columns, header, path)
     for raw in reader:
         line = reader.line_num
         n = len(raw)
         while n > width and raw[n - 1].strip() == "":  # trailing commas
             n -= 1
         if n == width:
-            good_lines.append(line)
-            good_tc.append(raw[tc_col])
-            good_cells.append(pick(raw))
+            out.row(line, raw[tc_col], pick(raw))
             continue
         if n == 0 or not any(c.strip() for c in raw):
             continue  # blank line
@@ -308,12 +430,13 @@ def _scan(fh, path):
         while core and core[-1] == "":
             core.pop()
         if len(core) == 2 and tc_col == 0 and _is_zero(core[1]):
-            lost.append((line, core[0]))
+            out.row(line, core[0], None)
             continue
         raise InputError(
             f"row {line} has {n} columns where the header has {width}, "
             "and it is not a lost-tracking row ('timecode,0')", path)
-    return header, columns, (good_lines, good_tc, good_cells), lost
+    out.flush()
+    return out
 
 
 def _is_zero(cell: str) -> bool:
@@ -325,7 +448,7 @@ def _is_zero(cell: str) -> bool:
 
 def _to_float(cells: list[tuple[str, ...]], lines: list[int], columns: list[int], header: list[str],
               path) -> np.ndarray:
-    """``(T, 52)`` float64 from the raw cells; the first bad cell is named on failure."""
+    """``(rows, columns)`` float64 from the raw cells; the first bad cell is named on failure."""
     try:
         W = np.array(cells, dtype=np.float64)
     except ValueError:
@@ -344,26 +467,21 @@ def _to_float(cells: list[tuple[str, ...]], lines: list[int], columns: list[int]
     raise InputError("the weights could not be read as numbers", path)  # pragma: no cover
 
 
-def _parse_timecodes(tcs: list[str], lines: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:
-    """Whole seconds of the day and fractional frame numbers of ``HH:MM:SS:FF(.fff)`` timecodes."""
-    secs = np.empty(len(tcs))
-    frames = np.empty(len(tcs))
-    for i, tc in enumerate(tcs):
-        parts = tc.strip().split(":")
-        try:
-            if len(parts) != 4:
-                raise ValueError
-            h, m, s = int(parts[0]), int(parts[1]), int(parts[2])
-            f = float(parts[3])
-            if not (0 <= m < 60 and 0 <= s < 61 and h >= 0 and 0.0 <= f < 1000.0):
-                raise ValueError
-        except ValueError:
-            raise InputError(
-                f"row {int(lines[i])}, column Timecode: bad timecode {tc!r} (expected HH:MM:SS:FF.fff)",
-                path) from None
-        secs[i] = h * 3600 + m * 60 + s
-        frames[i] = f
-    return secs, frames
+def _parse_timecode(tc: str, line: int, path) -> tuple[float, float]:
+    """Whole seconds of the day and the fractional frame number of a ``HH:MM:SS:FF(.fff)`` timecode."""
+    parts = tc.strip().split(":")
+    try:
+        if len(parts) != 4:
+            raise ValueError
+        h, m, s = int(parts[0]), int(parts[1]), int(parts[2])
+        f = float(parts[3])
+        if not (0 <= m < 60 and 0 <= s < 61 and h >= 0 and 0.0 <= f < 1000.0):
+            raise ValueError
+    except ValueError:
+        raise InputError(
+            f"row {int(line)}, column Timecode: bad timecode {tc!r} (expected HH:MM:SS:FF.fff)",
+            path) from None
+    return float(h * 3600 + m * 60 + s), f
 
 
 def timecode_fps(frames: Sequence[float] | np.ndarray) -> float:
@@ -495,8 +613,9 @@ def ict_to_arkit(weights, ict_names: Sequence[str]) -> tuple[np.ndarray, tuple[s
 _TIMECODE_BASES = (60.0, 30.0)  # the app's (60), else one the reader cannot misread (30: no frame field >= 30)
 
 
-def _timecodes(times: np.ndarray) -> tuple[list[str], float]:
-    """``HH:MM:SS:FF.fff`` strings of ``times`` (seconds of the day) and the frame base used.
+def _timecodes(times: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(whole seconds, thousandths of a frame, frame base)`` of ``times`` (seconds of the day), for
+    :func:`_timecode_text`.
 
     The app's frame base is 60; :func:`read_take` infers the base from the
     largest frame field, so 60 is used when the take shows a frame field of
@@ -508,11 +627,16 @@ def _timecodes(times: np.ndarray) -> tuple[list[str], float]:
         secs, rest = np.divmod(milli, per_second)
         if timecode_fps(rest / 1000.0) == base:
             break
+    return secs, rest, base
+
+
+def _timecode_text(secs: np.ndarray, rest: np.ndarray) -> list[str]:
+    """``HH:MM:SS:FF.fff`` strings of whole seconds of the day and thousandths of a frame (from :func:`_timecodes`)."""
     out = []
     for sec, r in zip(secs.tolist(), rest.tolist()):
         h, m, s_ = (sec // 3600) % 24, (sec // 60) % 60, sec % 60
         out.append(f"{h:02d}:{m:02d}:{s_:02d}:{r // 1000:02d}.{r % 1000:03d}")
-    return out, base
+    return out
 
 
 def write_livelink_csv(path: str | os.PathLike, weights, names: Sequence[str], fps: float,
@@ -582,18 +706,20 @@ def write_livelink_csv(path: str | os.PathLike, weights, names: Sequence[str], f
         raise InputError(f"frame rate {fps} is not a positive number", path)
     if not (math.isfinite(t0) and t0 >= 0):
         raise InputError(f"start {t0} is not a time of day in seconds (>= 0)", path)
-    out = np.zeros((T, len(ARKIT_NAMES)))
     index = {n: k for k, n in enumerate(ARKIT_NAMES)}
-    for k, p in enumerate(pascal):
-        out[:, index[p]] = W[:, k]
-    stamps, _ = _timecodes(t0 + np.arange(T) / fps)
+    secs, rest, _ = _timecodes(t0 + np.arange(T) / fps)
     header = ["Timecode", "BlendShapeCount", *ARKIT_NAMES, *ROTATION_NAMES]
     count = str(len(ARKIT_NAMES) + len(ROTATION_NAMES))
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
             fh.write(",".join(header) + "\n")
-            for stamp, w, r in zip(stamps, out, R):
-                fh.write(",".join([stamp, count, *(f"{x:.10f}" for x in w), *(f"{x:.10f}" for x in r)]) + "\n")
+            for a in range(0, T, CHUNK_ROWS):  # a chunk of rows at a time: the text is never held whole
+                b = min(T, a + CHUNK_ROWS)
+                out = np.zeros((b - a, len(ARKIT_NAMES)))
+                for k, p in enumerate(pascal):
+                    out[:, index[p]] = W[a:b, k]
+                fh.write("".join(",".join([stamp, count, *(f"{x:.10f}" for x in w), *(f"{x:.10f}" for x in r)])
+                                 + "\n" for stamp, w, r in zip(_timecode_text(secs[a:b], rest[a:b]), out, R[a:b])))
     return path
 
 

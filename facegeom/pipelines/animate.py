@@ -15,7 +15,7 @@ writes the result.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -116,14 +116,15 @@ def _take_window(model, path, start: int, frames: int, labels: int, seed: int):
     ``W`` are the window's ICT weights ``(frames, K)``; errors name the take.
     """
     path = Path(path)
-    W = ict_weights(read_take(path), model.expression_names)
-    if start + frames > W.shape[0]:
-        raise InputError(f"the take has {W.shape[0]} frames; the window of {frames} frames from frame {start} "
+    take = read_take(path)
+    if start + frames > take.n_frames:
+        raise InputError(f"the take has {take.n_frames} frames; the window of {frames} frames from frame {start} "
                          f"runs past its end", path)
     if labels > frames:
         raise InputError(f"{labels} labelled frames exceed the window's {frames} frames")
     ids = layout(model, "ict80")
-    W = W[start:start + frames]
+    # only the window's weights are mapped (and kept: the take's own are dropped on return)
+    W = ict_weights(replace(take, weights=take.weights[start:start + frames]), model.expression_names)
     seq = sq.make_sequence(model, W, ids, seed, sq.make_character(model, seed), f"{path.stem}@{start}")
     return W, seq, ids
 
