@@ -72,3 +72,31 @@ def test_a_long_take_plays_in_the_memory_of_a_short_one(takes, tmp_path, suffix)
     growth = peaks[LONG] - peaks[SHORT]
     assert growth < GROWTH_MB, (f"{suffix}: peak {peaks[SHORT]:.0f} MB at {SHORT} frames, {peaks[LONG]:.0f} MB at "
                                 f"{LONG} frames (+{growth:.0f} MB, at most +{GROWTH_MB} MB allowed)")
+
+
+#: The tangent retargeter's working memory per frame of a long take (kB): 10 measured (its inputs, the base map's
+#: candidates and the alignment's sparse entries), 30 when every window's frames were gathered at once.
+RETARGET_KB_PER_FRAME = 15
+
+
+def test_the_retargeter_gathers_a_long_takes_windows_in_groups():
+    """``animate --rig`` retargets every frame in one solve: its memory may grow with the take, but by the solve's
+    arrays, not by a copy of every window's frames (7 frames x 240 coordinates each, 13 kB a frame)."""
+    import tracemalloc
+
+    from facegeom.methods.tangent_retarget import TangentRetargeter, evenly_spread
+
+    rng = np.random.default_rng(0)
+    peaks = {}
+    for T in (1500, 6000):
+        t = np.arange(T)[:, None, None] / 60.0
+        S = rng.normal(size=(80, 3)) * 30 + 3 * np.sin(t * (0.3 + 0.05 * np.arange(80))[:, None] + np.arange(3))
+        lab = evenly_spread(T, 10)
+        tracemalloc.start()
+        try:
+            TangentRetargeter().fit(S, lab, 1.2 * S[lab] + 1.0)
+            peaks[T] = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    per_frame = (peaks[6000] - peaks[1500]) / 4500 / 1024
+    assert per_frame < RETARGET_KB_PER_FRAME, f"{per_frame:.1f} kB a frame"

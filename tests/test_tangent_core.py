@@ -61,6 +61,20 @@ def test_B_symmetric_psd_and_null_space():
     assert np.abs(alignment_matrix(V, R, 2) @ V[:, 2]).max() > 1e-3
 
 
+def test_alignment_in_groups_equals_all_at_once(monkeypatch):
+    """Neighbourhoods gathered a few at a time (a long take's windows) give the matrix gathered all at once."""
+    import facegeom.methods.tangent as tangent
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(300, 12))
+    R = [np.arange(max(0, i - 3), min(300, i + 4)) for i in range(300)]  # windows of 7 frames, fewer at the ends
+    w = rng.uniform(0.5, 2.0, 300)
+    whole = alignment_matrix(X, R, 3, weights=w, rank_tol=1e-3)
+    monkeypatch.setattr(tangent, "ALIGNMENT_BLOCK_BYTES", 8 * 7 * 12 * 5)  # groups of 5 windows
+    parts = alignment_matrix(X, R, 3, weights=w, rank_tol=1e-3)
+    assert whole.nnz == parts.nnz and abs(whole - parts).max() < 1e-12
+
+
 def test_neighbourhood_matrix_equals_lists():
     V, F = grid_mesh(6, 6, bump=0.2)
     R = geometry.k_ring(F, len(V), 1)

@@ -132,6 +132,11 @@ def local_tangent_bases(P: np.ndarray, d: int, abs_tol: float = 0.0) -> np.ndarr
     return U
 
 
+#: Bytes of neighbourhood points gathered at once by :func:`alignment_matrix` (the local PCA's working set; the
+#: result does not depend on it, a group's blocks are the same computed alone).
+ALIGNMENT_BLOCK_BYTES = 32 * 2 ** 20
+
+
 def alignment_matrix(X, neighbourhoods, d: int, weights=None, rank_tol: float = 0.0) -> sp.csr_matrix:
     """The alignment matrix ``B`` of Algorithm 1, as one sparse ``(N, N)`` matrix.
 
@@ -183,17 +188,22 @@ def alignment_matrix(X, neighbourhoods, d: int, weights=None, rank_tol: float = 
         ids = np.flatnonzero(sizes == k)
         if k <= d + 1:
             continue  # an affine map of d coordinates fits k <= d+1 points exactly
-        idx = R.indices[R.indptr[ids][:, None] + np.arange(k)]  # (m, k)
-        U = local_tangent_bases(X[idx], d, abs_tol)
-        # I - G G^T with G = [e/sqrt(k), U]
-        blk = -np.einsum("mkd,mld->mkl", U, U)
-        blk -= 1.0 / k
-        blk[:, np.arange(k), np.arange(k)] += 1.0
-        if weights is not None:
-            blk *= weights[ids][:, None, None]
-        rows.append(np.repeat(idx, k, axis=1).ravel())
-        cols.append(np.tile(idx, (1, k)).ravel())
-        vals.append(blk.ravel())
+        # neighbourhoods in groups whose gathered points X[idx] stay near ALIGNMENT_BLOCK_BYTES: a long take's
+        # frames as points (100,000 windows of 7 frames x 240 coordinates) would otherwise gather 1.3 GB at once
+        step = max(1, ALIGNMENT_BLOCK_BYTES // (8 * k * max(X.shape[1], k)))
+        for s in range(0, ids.size, step):
+            part = ids[s:s + step]
+            idx = R.indices[R.indptr[part][:, None] + np.arange(k)]  # (m, k)
+            U = local_tangent_bases(X[idx], d, abs_tol)
+            # I - G G^T with G = [e/sqrt(k), U]
+            blk = -np.einsum("mkd,mld->mkl", U, U)
+            blk -= 1.0 / k
+            blk[:, np.arange(k), np.arange(k)] += 1.0
+            if weights is not None:
+                blk *= weights[part][:, None, None]
+            rows.append(np.repeat(idx, k, axis=1).ravel())
+            cols.append(np.tile(idx, (1, k)).ravel())
+            vals.append(blk.ravel())
     if not vals:
         return sp.csr_matrix((N, N))
     B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(N, N))
