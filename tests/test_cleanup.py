@@ -374,6 +374,51 @@ def test_decimate_arguments(face):
     assert imap.is_identity and np.array_equal(F2, F)
 
 
+def _misoriented(F) -> int:
+    """Edges with two faces that run them the same way (counted here independently of the library)."""
+    H = np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]
+    key = np.sort(H, axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    pairs = {}
+    for row, e in enumerate(inv.ravel()):
+        if cnt[e] == 2:
+            pairs.setdefault(e, []).append(tuple(H[row]))
+    return sum(a == b for a, b in pairs.values())
+
+
+def test_decimate_says_when_the_input_was_not_coherently_oriented():
+    V, F = grid_mesh(30, 30, bump=0.3)
+    F = F.copy()
+    band = np.flatnonzero(np.abs(V[F].mean(axis=1)[:, 0] - 0.5) < 0.1)  # a band of faces turned over
+    F[band] = F[band, ::-1]
+    had = _misoriented(F)
+    V2, F2, _, rep = C.decimate(V, F, 300)
+    wrong = _misoriented(F2)
+    assert had > 0 and wrong > 0
+    note = [n for n in rep.notes if "disagree in orientation" in n]
+    assert note == [f"the result has {wrong} edges whose two faces disagree in orientation; the input already had "
+                    f"{had}: run `facegeom clean` first (it orients the faces)"]
+
+
+def test_decimate_turns_back_a_face_the_collapses_turned_over(monkeypatch):
+    import facegeom.pipelines.cleanup.decimation as D
+
+    once = D._decimate_once
+
+    def turning(*args):  # a collapse that leaves one face turned over against its neighbours
+        V2, F2, imap, run = once(*args)
+        F2 = F2.copy()
+        F2[F2.shape[0] // 2] = F2[F2.shape[0] // 2, ::-1]
+        return V2, F2, imap, run
+
+    monkeypatch.setattr(D, "_decimate_once", turning)
+    V, F = grid_mesh(30, 30, bump=0.3)
+    V2, F2, _, rep = C.decimate(V, F, 300)
+    assert _misoriented(F2) == 0
+    assert "1 face turned over by the collapses was turned back to agree with its neighbours" in rep.notes
+    assert not any("disagree in orientation" in n for n in rep.notes)
+
+
 # --------------------------------------------------------------------------- crop
 
 

@@ -166,7 +166,8 @@ def _decimate_checks(C, V, F) -> dict:
     p = C.mesh_problems(V2, F2)
     notes = " | ".join(rep.notes)
     left = p["non_manifold_edges"] + p["non_manifold_vertices"] + p["duplicate_faces"]
-    told = "the result has" in notes  # the note on defects left (others say what was done about them)
+    # the note on non-manifold defects left (others say what was done about them, or speak of orientation)
+    told = any(n.startswith("the result has") and "non-manifold" in n for n in rep.notes)
     truthful = (told == bool(left)) and "preserved vertices" not in notes
     if left:
         truthful = truthful and f"{p['non_manifold_edges']} non-manifold edges" in notes

@@ -8,6 +8,7 @@ import numpy as np
 from facegeom.errors import InputError
 from facegeom.native import quiet_native
 from facegeom.pipelines.cleanup.checks import _check_mesh, mesh_problems
+from facegeom.pipelines.cleanup.topology import misoriented_edges, orient_pieces
 from facegeom.pipelines.cleanup.indexmap import IndexMap
 from facegeom.pipelines.cleanup.meshlab import Progress, _pml, _Run
 from facegeom.pipelines.cleanup.report import Report, StepReport
@@ -97,7 +98,18 @@ def decimate(V, F, vertices: int, *, preserve_boundary: bool = False, preserve_t
         repaired = (f"{before['non_manifold_edges']} non-manifold edges, {before['non_manifold_vertices']} "
                     f"non-manifold vertices and {before['duplicate_faces']} duplicate faces made by the collapses "
                     f"were repaired as `clean --non-manifold split` does (vertices split, duplicates removed)")
+    reoriented = 0
+    if misoriented_edges(F2) and not misoriented_edges(F):
+        # a collapse turned a face over against its neighbours on a coherently oriented input: turn it back
+        # (each piece keeps the orientation most of its faces have)
+        flip, _ = orient_pieces(F2)
+        reoriented = int(flip.sum())
+        F2 = np.where(flip[:, None], F2[:, ::-1], F2)
     rep = run.close(V2, F2, imap)
+    if reoriented:
+        rep.notes.append(f"{reoriented} face{'s' if reoriented > 1 else ''} turned over by the collapses "
+                         f"{'were' if reoriented > 1 else 'was'} turned back to agree with "
+                         f"{'their' if reoriented > 1 else 'its'} neighbours")
     if retried:
         rep.notes.append("decimated with preserve_topology: without it the edge collapses made non-manifold edges")
     if repaired:
@@ -200,6 +212,13 @@ def _add_notes(rep: Report, V2: np.ndarray, F2: np.ndarray, target: int, F_in: n
                 cause += " (collapse too aggressive around preserved vertices)"
             cause += ": ask for more vertices, add --preserve-topology, or run `facegeom clean` on the result"
         rep.notes.append(f"{what}; {cause}")
+    wrong = misoriented_edges(F2)
+    if wrong:
+        had = misoriented_edges(F_in)
+        rep.notes.append(f"the result has {wrong} edges whose two faces disagree in orientation; "
+                         + (f"the input already had {had}: run `facegeom clean` first (it orients the faces)" if had
+                            else "the collapses made them and they could not be turned back (a piece that cannot "
+                                 "be oriented)"))
     if split_from and V2.shape[0] > target >= split_from:
         rep.notes.append(f"ended with {V2.shape[0]:,} vertices (asked {target:,}): the collapses reached "
                          f"{split_from:,}, the repair's split copies added {V2.shape[0] - split_from:,}")

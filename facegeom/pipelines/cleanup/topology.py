@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["edge_face_counts", "split_corners", "orient_pieces"]
+__all__ = ["edge_face_counts", "misoriented_edges", "split_corners", "orient_pieces"]
 
 
 def _half_edges(F: np.ndarray):
@@ -34,6 +34,25 @@ def edge_face_counts(F) -> tuple[int, int]:
         return 0, 0
     _, _, cnt = _half_edges(F)
     return int((cnt > 2).sum()), int(cnt.size)
+
+
+def misoriented_edges(F) -> int:
+    """How many edges with two faces are run the same way by both (the faces disagree in orientation there).
+
+    Parameters
+    ----------
+    F : (m, 3) int
+        Triangles.
+
+    Returns
+    -------
+    int
+    """
+    F = np.asarray(F, dtype=np.int64)
+    if F.size == 0:
+        return 0
+    H, a, b = _manifold_pairs(F)
+    return int((H[a, 0] == H[b, 0]).sum())
 
 
 def _manifold_pairs(F: np.ndarray):
