@@ -920,6 +920,71 @@ def test_mutated_obj_folder_rig_loads_or_raises_input_error(tmp_path):
     campaign(run, data=st.data())
 
 
+#: What an entry of a fuzzed rig folder is (:func:`test_fuzzed_obj_folder_structure_loads_or_raises_input_error`).
+FOLDER_ENTRIES = ("shape", "neutral copy", "link inside", "link outside", "link to a system file", "dangling link",
+                  "link loop", "fifo", "folder", "empty", "hard link outside")
+
+
+def test_fuzzed_obj_folder_structure_loads_or_raises_input_error(tmp_path):
+    """A rig folder of drawn entries: shapes, copies of the neutral, links inside and out of the folder, dangling and
+    looping links, FIFOs, folders and empty files named ``*.obj`` in any case. The load gives a consistent rig or
+    one line naming a file, never hangs (a FIFO is not opened), and never uses a file outside the folder."""
+    seed = _obj_folder_seed()
+    shapes = sorted(n for n in seed if n != "neutral.obj")
+    outside = tmp_path / "elsewhere.obj"
+    outside.write_bytes(seed[shapes[0]])
+    names = st.sampled_from(["a", "b", "c", "Jaw Open", "m\u00fcnd", "x.y", "neutral_2", "-", "NEUTRAL", "z" * 60])
+    suffix = st.sampled_from([".obj", ".OBJ", ".Obj", ".obj.bak", ""])
+    count = [0]
+
+    def run(data):
+        count[0] += 1
+        folder = tmp_path / f"rig{count[0]}"
+        folder.mkdir()
+        (folder / "neutral.obj").write_bytes(seed["neutral.obj"])
+        made = {}
+        for _ in range(data.draw(st.integers(0, 6))):
+            kind = data.draw(st.sampled_from(FOLDER_ENTRIES))
+            p = folder / (data.draw(names) + data.draw(suffix))
+            if p.name in ("neutral.obj",) or os.path.lexists(p):
+                continue
+            if kind == "shape":
+                p.write_bytes(seed[data.draw(st.sampled_from(shapes))])
+            elif kind == "neutral copy":
+                p.write_bytes(seed["neutral.obj"])
+            elif kind == "link inside":
+                p.symlink_to(data.draw(st.sampled_from(["neutral.obj", *sorted(q.name for q in made)] or ["x"])))
+            elif kind == "link outside":
+                p.symlink_to(outside)
+            elif kind == "link to a system file":
+                p.symlink_to("/etc/hostname" if os.path.exists("/etc/hostname") else "/etc/passwd")
+            elif kind == "dangling link":
+                p.symlink_to(folder / "missing.obj")
+            elif kind == "link loop":
+                p.symlink_to(p.name)
+            elif kind == "fifo":
+                if not hasattr(os, "mkfifo"):
+                    continue
+                os.mkfifo(p)
+            elif kind == "folder":
+                p.mkdir()
+            elif kind == "empty":
+                p.write_bytes(b"")
+            else:  # a hard link is the file itself: it cannot be told from one copied in
+                try:
+                    os.link(outside, p)
+                except OSError:
+                    continue
+            made[p] = kind
+        rig = load_rig_file(folder)
+        if rig is not None:
+            out = {p for p, k in made.items() if k in ("link outside", "link to a system file")
+                   and p.suffix.lower() == ".obj"}
+            assert not out, f"a link out of the rig folder was used: {sorted(q.name for q in out)}"
+
+    campaign(run, data=st.data())
+
+
 # ----------------------------------------------------------------------------- CSV files and photos
 # Each seed is written by facegeom's own writer where it has one; the check says what a read file holds.
 
