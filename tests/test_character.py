@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from facegeom.errors import InputError
 from tests.conftest import validate
 
 CHARACTER = Path(__file__).parent / "data" / "heads" / "makehuman_arkit.npz"
@@ -299,6 +300,14 @@ def test_marker_route_onto_a_bare_head_with_edited_key_labels(face_model, real_t
     dY = route.relabel(labels).markers - route.markers
     np.testing.assert_allclose(dY[20, m], [0.0, 0.3, 0.0], atol=1e-6)
     assert np.abs(dY[[0, 40, 59]]).max() < 1e-6
+    # edited labels (the viewer's) meet the head as a file's do: squashed to a point or a plane, or far off, refused
+    for change, words in ((lambda L: L.__setitem__(1, route.labels[1].mean(axis=0)), "one point"),
+                          (lambda L: L.__setitem__(1, route.labels[1] * [1.0, 1.0, 0.0]), "one plane"),
+                          (lambda L: L[1, m].__setitem__(slice(None), 1e6), "outside the head")):
+        bad = np.full_like(route.labels, np.nan)
+        change(bad)
+        with pytest.raises(InputError, match=f"key frame 20: .*{words}"):
+            route.relabel(bad)
     for args, words in ((["-o", str(tmp_path / "m.csv")], "animated .glb"),
                         (["--rig", str(CHARACTER), "-o", str(tmp_path / "x.glb")], "--rig"),
                         (["--keys", "12,90", "-o", str(tmp_path / "x.glb")], "outside the window"),

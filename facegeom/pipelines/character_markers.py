@@ -87,6 +87,7 @@ class MarkerRoute:
         Only the retargeter is fitted again (the registration and the deformer are kept): what an edit of a
         label costs (tens of milliseconds for a thousand frames).
         """
+        from facegeom.io.key_labels import check_labels_on_head
         from facegeom.registry import parse_method
 
         L = np.asarray(labels, dtype=np.float64)
@@ -94,6 +95,8 @@ class MarkerRoute:
             raise InputError(f"labels must be {self.proposed.shape} for the key frames, got {L.shape}")
         if np.isinf(L).any():
             raise InputError("labels contain inf")
+        # edited labels meet the head as a file's do: not far outside it, not squashed to a point, line or plane
+        check_labels_on_head(L, self.key_frames, self.character.vertices, self.proposed)
         L = np.where(np.isnan(L), self.proposed, L)
         t0 = time.perf_counter()
         rt = (retargeter or parse_method("tangent").build("retargeters")).fit(self.actor, self.key_frames, L)
