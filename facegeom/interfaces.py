@@ -384,10 +384,21 @@ def batched_targets(fitter: Fitter) -> frozenset[str]:
 # --------------------------------------------------------------------------- checks
 
 
+#: The largest coordinate a method takes (a light year is 1e19 mm; squares of 1e154 overflow double precision, and
+#: sums of squares of 1e308 are inf): beyond it a value is no geometry, and the methods' distances overflow.
+MAX_COORDINATE = 1e12
+
+
 def _finite(a: np.ndarray, name: str, path=None) -> None:
+    """Refuse NaN, inf and coordinates beyond :data:`MAX_COORDINATE` in ``a``, naming the first."""
     if not np.all(np.isfinite(a)):
         bad = np.argwhere(~np.isfinite(a))[0]
         raise InputError(f"{name} contains NaN or inf (first at index {tuple(int(i) for i in bad)})", path)
+    big = np.abs(a) > MAX_COORDINATE
+    if big.any():
+        bad = tuple(int(i) for i in np.argwhere(big)[0])
+        raise InputError(f"{name} has a coordinate of {float(a[bad]):.3g} at index {bad}: beyond {MAX_COORDINATE:g}, "
+                         f"which no real geometry reaches in any unit", path)
 
 
 def as_vertices(vertices, name: str = "vertices", path=None) -> np.ndarray:

@@ -198,3 +198,27 @@ def test_cli_shows_the_flag_for_the_same_error(tmp_path, face_model):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2
     assert "facegeom: error:" in r.stderr and "the camera: --focal, --cx and --cy (pixels)" in r.stderr
+
+
+@pytest.mark.parametrize("name", sorted(registry.available("retargeters")))
+@pytest.mark.parametrize("where", ["source", "labels"])
+def test_a_retargeter_refuses_coordinates_no_geometry_reaches(name, where):
+    """1e308 is finite, but its square is not: one line naming the argument, not an overflow deep inside."""
+    rng = np.random.default_rng(0)
+    S = rng.normal(size=(50, 10, 3))
+    lab = np.array([0, 10, 25, 49])
+    Y = 1.1 * S[lab]
+    (S if where == "source" else Y)[1, 2, 0] = 1e308
+    with pytest.raises(InputError, match=r"coordinate of 1e\+308 .*beyond 1e\+12"):
+        _create("retargeters", name).fit(S, lab, Y)
+
+
+@pytest.mark.parametrize("name", sorted(registry.available("deformers")))
+def test_a_deformer_refuses_coordinates_no_geometry_reaches(name):
+    V, F = grid_mesh(8, 8, bump=0.3)
+    handles = np.array([0, 7, 27, 56, 63])
+    P = V[handles].copy()
+    P[1, 0] = -1e200
+    deformer = _create("deformers", name).fit(V, F, handles)
+    with pytest.raises(InputError, match=r"coordinate of -1e\+200 .*beyond 1e\+12"):
+        deformer.deform(P)

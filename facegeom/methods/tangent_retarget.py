@@ -67,6 +67,7 @@ def check_retarget_inputs(source, labelled_frames, target_labels):
     bad = ~np.isfinite(Yh).all(axis=(1, 2))
     if bad.any():
         raise InputError(f"target label frame {int(np.flatnonzero(bad)[0])} contains NaN or inf")
+    as_sequence(Yh, "target_labels")  # coordinates no geometry reaches
     return S, lab, np.ascontiguousarray(Yh)
 
 
