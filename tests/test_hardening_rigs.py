@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import socket
+import stat
 import threading
 import tracemalloc
 import zipfile
@@ -143,9 +144,9 @@ def test_a_rig_folder_given_through_a_link_is_its_own_inside(tmp_path):
     assert _from_folder(tmp_path / "alias").names == ("jawOpen",)
 
 
-@pytest.mark.parametrize("kind", ["fifo", "socket"])
+@pytest.mark.parametrize("kind", ["fifo", "socket", "device"])
 @pytest.mark.parametrize("which", ["shape", "neutral"])
-def test_a_fifo_or_socket_in_a_rig_folder_is_refused_without_opening_it(tmp_path, kind, which):
+def test_a_fifo_socket_or_device_in_a_rig_folder_is_refused_without_opening_it(tmp_path, kind, which):
     rig = _folder(tmp_path / "rig")
     path = rig / ("mouthClose.obj" if which == "shape" else "neutral.obj")
     if which == "neutral":
@@ -153,6 +154,12 @@ def test_a_fifo_or_socket_in_a_rig_folder_is_refused_without_opening_it(tmp_path
     if kind == "fifo":
         os.mkfifo(path)
         what = "FIFO"
+    elif kind == "device":  # /dev/zero's numbers: read, it never ends
+        try:
+            os.mknod(path, 0o600 | stat.S_IFCHR, os.makedev(1, 5))
+        except (OSError, AttributeError) as exc:
+            pytest.skip(f"cannot make a device file here (needs the right to, as root has): {exc}")
+        what = "character device"
     else:
         sock = socket.socket(socket.AF_UNIX)
         try:

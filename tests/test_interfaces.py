@@ -222,3 +222,19 @@ def test_a_deformer_refuses_coordinates_no_geometry_reaches(name):
     deformer = _create("deformers", name).fit(V, F, handles)
     with pytest.raises(InputError, match=r"coordinate of -1e\+200 .*beyond 1e\+12"):
         deformer.deform(P)
+
+
+@pytest.mark.parametrize("name", sorted(registry.available("fitters")))
+@pytest.mark.parametrize("kind", ["mesh", "cloud", "markers", "landmarks"])
+def test_a_fitters_target_refuses_coordinates_no_geometry_reaches(name, kind):
+    from facegeom.model import LandmarkTarget, MarkerTarget
+
+    rig = tiny_rig()
+    V = rig.neutral.copy()
+    V[3, 1] = 1e308
+    ids = np.arange(0, 30, 3)
+    make = {"mesh": lambda: MeshTarget(V), "cloud": lambda: PointCloudTarget(V),
+            "markers": lambda: MarkerTarget(V[ids], ids),
+            "landmarks": lambda: LandmarkTarget(V[ids, :2] + [320.0, 240.0], ids, look_at_camera(rig.neutral))}[kind]
+    with pytest.raises(InputError, match=r"coordinate of 1e\+308.*beyond 1e\+12"):
+        _create("fitters", name).fit(rig, make())

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.interfaces import as_handles, as_vertices
+from facegeom.interfaces import MAX_COORDINATE, as_handles, as_vertices
 from facegeom.model._checks import _as_ids, _first_nonfinite, _readonly
 from facegeom.model.camera import PinholeCamera
 from facegeom.model.rig import BlendshapeRig
@@ -32,6 +32,16 @@ __all__ = ['MeshTarget', 'LandmarkTarget', 'PointCloudTarget', 'MarkerTarget', '
 MIN_FACE_PX = 1.0
 #: Landmarks whose second principal spread is below this fraction of the first lie on one line: no pose to estimate.
 MIN_LANDMARK_FLATNESS = 1e-3
+
+
+def _refuse_far(p: np.ndarray, what: str) -> None:
+    """Refuse a coordinate beyond :data:`~facegeom.interfaces.MAX_COORDINATE` (NaN, a lost marker, is let by)."""
+    with np.errstate(invalid="ignore"):
+        far = np.abs(p) > MAX_COORDINATE
+    if far.any():
+        i = int(np.argwhere(far)[0, 0])
+        raise InputError(f"{what} {i} has a coordinate of {float(p[far][0]):.3g}: beyond {MAX_COORDINATE:g}, which no "
+                         f"real geometry reaches in any unit")
 
 
 class MeshTarget:
@@ -105,6 +115,7 @@ class LandmarkTarget:
         bad = _first_nonfinite(p)
         if bad is not None:
             raise InputError(f"landmark {bad[0]} is NaN or inf")
+        _refuse_far(p, "landmark")
         ids = _as_ids(vertex_ids, "landmark vertex_ids")
         if ids.size != p.shape[0]:
             raise InputError(f"{p.shape[0]} landmark points for {ids.size} vertex ids")
@@ -213,6 +224,7 @@ class PointCloudTarget:
         bad = _first_nonfinite(p)
         if bad is not None:
             raise InputError(f"point cloud point {bad[0]} is NaN or inf")
+        _refuse_far(p, "point cloud point")
         if normals is not None:
             nr = np.asarray(normals, dtype=np.float64)
             if nr.shape != p.shape:
@@ -265,6 +277,7 @@ class MarkerTarget:
             raise InputError("no marker: positions is empty")
         if np.isinf(p).any():
             raise InputError(f"marker {int(np.argwhere(np.isinf(p))[0, 0])} has an infinite coordinate")
+        _refuse_far(p, "marker")
         ids = _as_ids(vertex_ids, "marker vertex_ids")
         if ids.size != p.shape[0]:
             raise InputError(f"{p.shape[0]} marker positions for {ids.size} vertex ids")
