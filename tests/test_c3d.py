@@ -1,4 +1,5 @@
 """C3D in and out: files written by ezc3d itself with known content, round trips, hostile files, the CLI."""
+import os
 import subprocess
 import sys
 
@@ -159,6 +160,32 @@ def test_a_crash_or_hang_of_the_parser_is_an_input_error(tmp_path, monkeypatch):
     monkeypatch.setattr(c3d_module, "_TIMEOUT_S", 1.0)
     with pytest.raises(InputError, match="timed out"):
         read_c3d(f)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="the memory limit is set with setrlimit (POSIX)")
+def test_the_parser_runs_under_a_memory_limit_and_a_time_limit_that_grows_with_the_file(tmp_path, monkeypatch):
+    """A parser that asks for more memory than the limit (2 GiB plus 100 bytes a file byte) fails in one line, not
+    the machine; the time limit given to the child is 10 s plus 1 s per MB of the file."""
+    f = write_c3d(tmp_path / "g.c3d", motion(4, 2), ["a", "b"], 30.0)
+    size = f.stat().st_size
+    # the child allocates 1 GB more than its limit: refused by the address-space limit, a MemoryError, exit 1
+    grab = c3d_module._MEMORY + 100 * size + (1 << 30)
+    monkeypatch.setattr(c3d_module, "_CHILD", f"b = bytearray({grab})")
+    with pytest.raises(InputError, match=r"crashed \(exit status 1\)") as e:  # (without the limit: exit status 0)
+        read_c3d(f)
+    assert str(f) in str(e.value) and "\n" not in str(e.value)
+    seen = {}
+    real_run = c3d_module.subprocess.run
+
+    def run(cmd, **kw):
+        seen["timeout"] = kw["timeout"]
+        return real_run(cmd, **kw)
+
+    monkeypatch.setattr(c3d_module.subprocess, "run", run)
+    monkeypatch.setattr(c3d_module, "_CHILD", "pass")
+    with pytest.raises(InputError):  # the child writes nothing
+        read_c3d(f)
+    assert seen["timeout"] == pytest.approx(10.0 + size / 1e6)
 
 
 def test_cli_retarget_reads_a_c3d_source(tmp_path):

@@ -487,3 +487,18 @@ def test_the_size_limit_comes_before_any_decode_also_when_turned(tmp_path, no_de
     with pytest.raises(InputError) as e:
         read_image(path, max_pixels=1_000)
     one_line(e.value, path, "over the limit")
+
+
+@pytest.mark.parametrize("reader", ["read_gltf_rig", "read_glb_animation"])
+def test_a_rig_larger_than_its_file_can_hold_is_refused_before_allocating(tmp_path, reader):
+    """Under the 4,096-target cap and within the machine's memory, but 2,000 targets of 20,000 vertices (120 M
+    numbers) named by a 1 MB file: more than the 4 M + 64 numbers a byte the file may ask for."""
+    from facegeom.io.gltf import _BASE_VALUES, _VALUES_PER_BYTE
+
+    path = _shared_targets(tmp_path / "wide.glb", 20_001, 2_000, 1 << 20)
+    assert 3 * 20_001 * 2_001 > _BASE_VALUES + _VALUES_PER_BYTE * path.stat().st_size
+    r = child(READ_UNDER_LIMIT.format(budget=None, reader=reader, path=str(path)), timeout=120, memory=LIMIT)
+    out = r.stdout.strip().splitlines()
+    assert r.returncode == 0 and out and out[0].startswith("ERROR"), (r.stdout, r.stderr[-2000:])
+    one_line(out[0], path, "bytes of glTF data can hold")
+    assert float(out[1]) < 5.0, out
