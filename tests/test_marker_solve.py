@@ -223,3 +223,56 @@ def test_fuzz_marker_map_only_input_errors(rig, tmp_path_factory, text):
     except InputError:
         return
     assert ids.shape == (3,) and (ids >= 0).all() and (ids < rig.n_vertices).all()
+
+
+def _joint_pose_dense(sub, X0, W, R, t, iterations):
+    """The joint pose step written out: per frame the dense Jacobian [D | -[y]x | I] and its weighted normal
+    equations (damped on the weights), as ``_joint_pose`` solves them through their Schur complement."""
+    from facegeom.methods.marker_solve import DAMPING, _rodrigues
+
+    K, p = W.shape
+    B = sub.n_shapes
+    D = sub.deltas.transpose(1, 2, 0).reshape(3 * p, B)
+    N = sub.neutral.reshape(-1)
+    mu = DAMPING * float(np.mean((D * D).sum(axis=0))) or DAMPING
+    w_prev = np.zeros((K, B))
+    for _ in range(iterations):
+        Y = np.einsum("kji,kpj->kpi", R, X0 - t[:, None])
+        z = np.empty((K, B + 6))
+        for k in range(K):
+            S = np.zeros((3 * p, 3))
+            for j in range(p):
+                y = Y[k, j]
+                S[3 * j:3 * j + 3] = -np.array([[0, -y[2], y[1]], [y[2], 0, -y[0]], [-y[1], y[0], 0]])
+            J = np.c_[D, S, np.tile(np.eye(3), (p, 1))]
+            w3 = np.repeat(W[k], 3)
+            A = J.T @ (J * w3[:, None]) + np.diag(np.r_[np.full(B, mu), np.zeros(6)])
+            rhs = J.T @ (w3 * (Y[k].ravel() - N))
+            rhs[:B] += mu * w_prev[k]
+            z[k] = np.linalg.solve(A, rhs)
+        w_prev = z[:, :B]
+        t = t + np.einsum("kij,kj->ki", R, z[:, B + 3:])
+        R = np.matmul(R, _rodrigues(z[:, B:B + 3]))
+    return R, t, w_prev
+
+
+@pytest.mark.parametrize("weights", ["ones", "lost", "confidence"])
+def test_joint_pose_equals_its_dense_normal_equations(rig, ids, weights):
+    """The Schur complement with per-frame weight blocks (markers lost or weighted) is the dense solve."""
+    from facegeom.methods.marker_solve import _joint_pose, marker_rig
+
+    rng = np.random.default_rng(5)
+    T = 6
+    X, R0, t0 = capture(rig, ids, sparse_weights(rig, rng, T), rng, angle=0.05, shift=0.5)
+    W = np.ones((T, ids.size))
+    if weights == "lost":
+        W[rng.random(W.shape) < 0.2] = 0.0
+    elif weights == "confidence":
+        W = rng.uniform(0.1, 2.0, W.shape)
+    X0 = np.where(W[..., None] > 0, X, 0.0)
+    sub = marker_rig(rig, ids)
+    start = (np.broadcast_to(np.eye(3), (T, 3, 3)).copy(), np.zeros((T, 3)))
+    got = _joint_pose(sub, X0, W, *start, iterations=3)
+    want = _joint_pose_dense(sub, X0, W, *start, iterations=3)
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-7, atol=1e-8)

@@ -175,56 +175,56 @@ def _joint_pose(sub: BlendshapeRig, X0, W, R, t, iterations: int = GN_ITERATIONS
     B = sub.n_shapes
     D = sub.deltas.transpose(1, 2, 0).reshape(3 * p, B)  # rows (marker, axis)
     N = sub.neutral.reshape(-1)
-    w3 = np.repeat(W, 3, axis=1)  # (K, 3p)
     # shapes that move none of the markers (every shape of a rig of tongue shapes, or of one shape equal to the
     # neutral) leave D^T D zero: any positive damping then keeps their weights at 0 and the solve regular
     mu = DAMPING * float(np.mean(np.einsum("rb,rb->b", D, D))) or DAMPING
-    reg = np.zeros(B + 6)
-    reg[:B] = mu
     uniform = bool(np.all(W == 1.0))
-    J = None if uniform else np.empty((K, 3 * p, B + 6))
-    if not uniform:
-        J[:, :, :B] = D[None]
     eps = np.zeros((3, 3, 3))  # Levi-Civita: S_j[a, c] = eps[a, c, d] y_j[d]
     eps[0, 1, 2] = eps[1, 2, 0] = eps[2, 0, 1] = 1.0
     eps[0, 2, 1] = eps[2, 1, 0] = eps[1, 0, 2] = -1.0
     M = np.einsum("jab,acd->jdbc", D.reshape(p, 3, B), eps).reshape(3 * p, B * 3)
-    Dc = D.reshape(p, 3, B).sum(axis=0).T  # (B, 3): D^T of the translation columns
-    Aww_inv = np.linalg.inv(D.T @ D + mu * np.eye(B))
+    # Schur complement on the 6 pose unknowns. The weights' block D^T W D + mu I depends on the frame's marker
+    # weights only (not on the pose): one matrix for every frame when all weights are 1, else one per frame,
+    # each inverted once (a lost marker has weight 0).
+    if uniform:
+        Aww_inv = np.linalg.inv(D.T @ D + mu * np.eye(B))[None]
+        Dc = np.broadcast_to(D.reshape(p, 3, B).sum(axis=0).T, (K, B, 3))  # D^T of the translation columns
+        Wm = None
+    else:
+        Dj = D.reshape(p, 3, B)
+        outer = np.einsum("jab,jac->jbc", Dj, Dj).reshape(p, B * B)  # D_j^T D_j per marker
+        Aww = (W @ outer).reshape(K, B, B) + mu * np.eye(B)[None]
+        Aww_inv = np.linalg.inv(Aww)
+        del Aww
+        Dc = (W @ Dj.transpose(0, 2, 1).reshape(p, B * 3)).reshape(K, B, 3)
+        Wm = W[..., None]  # (K, p, 1)
+        w3 = np.repeat(W, 3, axis=1)  # (K, 3p)
+    wsum = np.full(K, float(p)) if uniform else W.sum(axis=1)
     w_prev = np.zeros((K, B))
-    if not uniform:
-        J[:, :, B + 3:] = np.tile(np.eye(3), (p, 1))[None]
     for _ in range(iterations):
         Y = np.einsum("kji,kpj->kpi", R, X0 - t[:, None])
         r = Y.reshape(K, -1) - N[None]
-        if not uniform:  # -[y]x per marker, rows (marker, axis)
-            J[:, :, B:B + 3] = np.einsum("acd,kpd->kpac", eps, Y).reshape(K, 3 * p, 3)
-        if uniform:  # Schur complement on the 6 pose unknowns; the weights' block is one constant matrix
-            # the pose columns are S_j = -[y_j]x and I per marker: every product is a sum over markers
-            Awp = np.empty((K, B, 6))
-            Awp[:, :, :3] = (Y.reshape(K, -1) @ M).reshape(K, B, 3)
-            Awp[:, :, 3:] = Dc[None]
-            ys = Y.sum(axis=1)
-            App = np.empty((K, 6, 6))
-            App[:, :3, :3] = (np.einsum("kpi,kpi->k", Y, Y)[:, None, None] * np.eye(3)[None]
-                              - np.einsum("kpi,kpj->kij", Y, Y))
-            App[:, :3, 3:] = _cross_matrix(ys)
-            App[:, 3:, :3] = -App[:, :3, 3:]
-            App[:, 3:, 3:] = p * np.eye(3)[None]
-            r3 = r.reshape(K, p, 3)
-            bp = np.concatenate([np.cross(Y, r3).sum(axis=1), r3.sum(axis=1)], axis=1)
-            bw = r @ D + mu * w_prev
-            S = App - np.matmul(Awp.transpose(0, 2, 1), Aww_inv @ Awp)
-            z = np.linalg.solve(S, (bp - np.einsum("kbi,kb->ki", Awp, bw @ Aww_inv))[..., None])[..., 0]
-            w_prev = (bw - np.einsum("kbi,ki->kb", Awp, z)) @ Aww_inv
-            z = np.concatenate([w_prev, z], axis=1)
-        else:
-            JW = J * w3[..., None]
-            A = np.matmul(JW.transpose(0, 2, 1), J) + np.diag(reg)[None]
-            rhs = np.einsum("kri,kr->ki", JW, r)
-            rhs[:, :B] += mu * w_prev
-            z = np.linalg.solve(A, rhs[..., None])[..., 0]
-            w_prev = z[:, :B]
+        r3 = r.reshape(K, p, 3)
+        Yw = Y if uniform else Y * Wm  # the weighted markers (a lost one at 0)
+        # the pose columns are S_j = -[y_j]x and I per marker: every product is a (weighted) sum over markers
+        Awp = np.empty((K, B, 6))
+        Awp[:, :, :3] = (Yw.reshape(K, -1) @ M).reshape(K, B, 3)
+        Awp[:, :, 3:] = Dc
+        ys = Yw.sum(axis=1)
+        App = np.empty((K, 6, 6))
+        App[:, :3, :3] = (np.einsum("kpi,kpi->k", Yw, Y)[:, None, None] * np.eye(3)[None]
+                          - np.einsum("kpi,kpj->kij", Yw, Y))
+        App[:, :3, 3:] = _cross_matrix(ys)
+        App[:, 3:, :3] = -App[:, :3, 3:]
+        App[:, 3:, 3:] = wsum[:, None, None] * np.eye(3)[None]
+        bp = np.concatenate([np.cross(Yw, r3).sum(axis=1), (r3 if uniform else r3 * Wm).sum(axis=1)], axis=1)
+        bw = (r if uniform else r * w3) @ D + mu * w_prev
+        AiAwp = Aww_inv @ Awp  # (K, B, 6)
+        S = App - np.matmul(Awp.transpose(0, 2, 1), AiAwp)
+        Aib = np.einsum("kab,kb->ka", Aww_inv, bw) if not uniform else bw @ Aww_inv[0]
+        z = np.linalg.solve(S, (bp - np.einsum("kbi,kb->ki", Awp, Aib))[..., None])[..., 0]
+        w_prev = Aib - np.einsum("kbi,ki->kb", AiAwp, z)
+        z = np.concatenate([w_prev, z], axis=1)
         dth, dt = z[:, B:B + 3], z[:, B + 3:]
         t = t + np.einsum("kij,kj->ki", R, dt)
         R = np.matmul(R, _rodrigues(dth))

@@ -62,6 +62,7 @@ from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, check_range
+from facegeom.linalg import box_lsq
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights, population_prior
 from facegeom.methods.marker_solve import split_markers
@@ -373,7 +374,7 @@ def _bounded_gram_lsq(Gs, cs, upper):
     R = cholesky(Gs + 1e-12 * max(np.trace(Gs) / n, _TINY) * np.eye(n))
     y = solve_triangular(R, cs, trans="T")
     x = nnls(R, y)[0]  # the upper bound is rarely reached: try without it first (much faster)
-    return x if x.max(initial=0.0) <= upper else lsq_linear(R, y, bounds=(0.0, upper)).x
+    return x if x.max(initial=0.0) <= upper else box_lsq(R, y, upper, x0=x)
 
 
 def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = True, upper: float | None = None):
