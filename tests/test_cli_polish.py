@@ -29,9 +29,11 @@ def one_line(text: str) -> str:
 
 
 def _commands(cmd, path=()):
+    """Every (sub)command under ``cmd``, loading the lazily imported ones."""
     if isinstance(cmd, click.Group):
-        for name, sub in cmd.commands.items():
-            yield from _commands(sub, (*path, name))
+        ctx = click.Context(cmd)
+        for name in cmd.list_commands(ctx):
+            yield from _commands(cmd.get_command(ctx, name), (*path, name))
     if path:
         yield " ".join(path), cmd
 

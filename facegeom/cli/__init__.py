@@ -1,6 +1,8 @@
 """The ``facegeom`` command line (also ``python -m facegeom``): one module per command group.
 
-- ``main``: the ``facegeom`` group, ``info``, ``methods`` and the entry point ``main`` (errors as one line).
+- ``main``: the ``facegeom`` group, ``info``, ``methods`` and the entry point ``main`` (errors as one line);
+  the table of the other commands, each imported only when it is used.
+- ``lazy``: the group class that lists commands from that table and imports a command on first use.
 - ``context``: the group's context object (``--data``, the face model) and shared option parsing.
 - ``single``: ``drive``, ``retarget``, ``fit`` and ``animate``, one method run on one input.
 - ``bench``: the ``bench`` group, the benchmarks that reproduce the papers' experiments.

@@ -14,7 +14,6 @@ import tempfile
 from pathlib import Path
 
 import click
-import numpy as np
 
 from facegeom.cli.context import Context, parse_params
 
@@ -174,6 +173,8 @@ def identity_cmd(obj: Context, targets, output, kind, focal, cx, cy, image, scal
 
     Then fit expressions on it with `facegeom fit TARGET --rig RIG`.
     """
+    import numpy as np
+
     from facegeom.errors import InputError
     from facegeom.io import check_outputs
     from facegeom.methods.identity import IdentityFitter

@@ -1,40 +1,95 @@
 """The ``facegeom`` command line (also ``python -m facegeom``): the group, ``info``, ``methods`` and ``main``.
 
-Every other command is defined in its own module and added here.
+Every other command is defined in its own module, listed in :data:`COMMANDS` and imported only when it is
+used, so that ``facegeom --help`` and ``facegeom CMD --help`` load neither numpy nor the other commands.
 User mistakes (bad files, bad arguments, missing data) print one line on
 stderr, ``facegeom: error: ...``, and exit with status 2; no traceback.
 """
 from __future__ import annotations
 
-import platform
 import sys
-from importlib.metadata import PackageNotFoundError, version
 
 import click
 
-from facegeom.cli.batch import batch_cmd
-from facegeom.cli.bench import bench
-from facegeom.cli.cleanup import clean_cmd, crop_cmd, decimate_cmd
 from facegeom.cli.context import Context
-from facegeom.cli.data import data
-from facegeom.cli.demo import demo
-from facegeom.cli.detect import detect_cmd
 from facegeom.cli.flags import as_flags
-from facegeom.cli.identity import identity_cmd
-from facegeom.cli.live import live_cmd
-from facegeom.cli.single import animate, drive, fit, retarget
-from facegeom.cli.solve import solve_cmd
-from facegeom.cli.track import track_cmd
-from facegeom.cli.transfer import transfer_cmd
-from facegeom.cli.view import view
+from facegeom.cli.lazy import LazyCommand, LazyGroup
 from facegeom.errors import FacegeomError
-from facegeom.version import __version__
 
 DEPENDENCIES = ("numpy", "scipy", "libigl", "pymeshlab", "polyscope", "click", "tqdm", "matplotlib", "cholespy")
 
+COMMANDS: dict[str, LazyCommand] = {
+    "animate": LazyCommand("facegeom.cli.single", "animate",
+                           "Performance-driven animation: a take on an actor -> 80 markers -> retargeted -> "
+                           "character mesh per frame."),
+    "batch": LazyCommand("facegeom.cli.batch", "batch_cmd",
+                         "Run the job in JOB.toml: an operation (fit, drive, retarget, animate, clean) over every "
+                         "input, one result file per input and a summary CSV (batch-summary.csv) in the output "
+                         "folder."),
+    "bench": LazyCommand("facegeom.cli.bench", "bench",
+                         "Benchmarks that reproduce the papers' experiments (seeded; CSV + plot + table)."),
+    "clean": LazyCommand("facegeom.cli.cleanup", "clean_cmd",
+                         "Repair IN into OUT: triangulate, merge duplicate vertices, remove unreferenced vertices, "
+                         "duplicate and zero-area faces, repair non-manifold edges and vertices, orient faces "
+                         "(pymeshlab filters)."),
+    "crop": LazyCommand("facegeom.cli.cleanup", "crop_cmd",
+                        "Keep the face region of IN into OUT: the vertices within a geodesic radius of landmark "
+                        "vertices, or an id range; faces with a vertex outside are removed."),
+    "data": LazyCommand("facegeom.cli.data", "data",
+                        "The face data: download the ICT-FaceKit model (verified), build the bundle, show where it "
+                        "is."),
+    "decimate": LazyCommand("facegeom.cli.cleanup", "decimate_cmd",
+                            "Quadric edge-collapse decimation of IN (pymeshlab) to about --vertices vertices, into "
+                            "OUT."),
+    "demo": LazyCommand("facegeom.cli.demo", "demo",
+                        "The main job: face driving, expression retargeting and blendshape fitting compared on a "
+                        "few real faces."),
+    "detect": LazyCommand("facegeom.cli.detect", "detect_cmd",
+                          "Find the faces of a photo (or of every photo in a FOLDER): 68 landmarks as an iBUG .pts "
+                          "file."),
+    "drive": LazyCommand("facegeom.cli.single", "drive",
+                         "Deform MESH so that the vertices of MARKERS (CSV vertex_id,x,y,z) reach their positions."),
+    "fit": LazyCommand("facegeom.cli.single", "fit",
+                       "Fit the rig's blendshape coefficients to TARGET (a photo, landmarks with a camera, a mesh "
+                       "or a point cloud)."),
+    "identity": LazyCommand("facegeom.cli.identity", "identity_cmd",
+                            "Fit one identity to TARGETS (neutral frames of one person) and write the "
+                            "user-specific rig."),
+    "live": LazyCommand("facegeom.cli.live", "live_cmd",
+                        "Receive a Live Link Face stream (or replay one) and pass it on live."),
+    "retarget": LazyCommand("facegeom.cli.single", "retarget",
+                            "Retarget the actor's markers SOURCE onto a character known at the frames of LABELS."),
+    "solve": LazyCommand("facegeom.cli.solve", "solve_cmd",
+                         "Solve the markers of CAPTURE (a marker sequence) to weight curves of the rig, head "
+                         "motion removed."),
+    "track": LazyCommand("facegeom.cli.track", "track_cmd",
+                         "Track the face in VIDEO: its blendshape weights, head pose and gaze per frame, no "
+                         "markers."),
+    "transfer": LazyCommand("facegeom.cli.transfer", "transfer_cmd",
+                            "Give the head HEAD (any topology, units, orientation) the 53 ICT expressions as a "
+                            "rig."),
+    "view": LazyCommand("facegeom.cli.view", "view",
+                        "Look before believing a table: every method's result side by side (polyscope)."),
+}
+"""The commands defined outside this module: name -> where it is defined and its one-line help (the first
+sentence of its docstring, which ``facegeom --help`` shows without importing the command; a test keeps the two
+the same)."""
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
-@click.version_option(__version__, prog_name="facegeom")
+
+def _show_version(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    """``--version``: print the installed version and exit (the metadata is read only then)."""
+    if not value or ctx.resilient_parsing:
+        return
+    from facegeom.version import __version__
+
+    click.echo(f"facegeom, version {__version__}", color=ctx.color)
+    ctx.exit()
+
+
+@click.group(cls=LazyGroup, lazy_commands=COMMANDS,
+             context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True, callback=_show_version,
+              help="Show the version and exit.")
 @click.option("--data", "data", type=click.Path(), default=None, envvar=None,
               help="Face data bundle (folder or .npz). Default: $FACEGEOM_DATA, "
                    "else ../shared/data/ict-face-light next to the repository, else the user cache "
@@ -46,6 +101,8 @@ def cli(ctx, data):
 
 
 def _pkg_version(name: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version(name)
     except PackageNotFoundError:
@@ -56,7 +113,10 @@ def _pkg_version(name: str) -> str:
 @click.pass_obj
 def info(obj: Context):
     """Versions, where the face data was found and what it holds."""
+    import platform
+
     from facegeom.model import locate_data
+    from facegeom.version import __version__
 
     path = locate_data(obj.data)
     model = obj.face_model()
@@ -129,22 +189,3 @@ def main(argv=None):
         click.echo("facegeom: interrupted", err=True)
         sys.exit(130)
 
-
-cli.add_command(drive)
-cli.add_command(retarget)
-cli.add_command(fit)
-cli.add_command(detect_cmd)
-cli.add_command(animate)
-cli.add_command(bench)
-cli.add_command(demo)
-cli.add_command(clean_cmd)
-cli.add_command(decimate_cmd)
-cli.add_command(crop_cmd)
-cli.add_command(view)
-cli.add_command(batch_cmd)
-cli.add_command(data)
-cli.add_command(identity_cmd)
-cli.add_command(solve_cmd)
-cli.add_command(transfer_cmd)
-cli.add_command(track_cmd)
-cli.add_command(live_cmd)
