@@ -262,8 +262,15 @@ class TangentSolver:
         else:
             self.free = None
             A = B + sp.csr_matrix((np.full(labelled.size, beta), (labelled, labelled)), shape=(N, N))
+        # the factor is checked on the labels' own right-hand sides (a long take's labels far apart leave the
+        # system regular but too ill-conditioned for an arbitrary one)
+        if beta is None:
+            probe = self._coupling[:, :64].toarray()
+        else:
+            probe = np.zeros((N, min(labelled.size, 64)))
+            probe[labelled[:probe.shape[1]], np.arange(probe.shape[1])] = beta
         try:
-            self.solver: SPDSolver = factorize_spd(A)
+            self.solver: SPDSolver = factorize_spd(A, probe=probe if np.any(probe) else None)
         except SolveError as exc:
             raise SolveError(
                 f"the tangent-framework system cannot be solved with these {labelled.size} labels "

@@ -179,11 +179,13 @@ def loo_label_weight(B, labelled, residual, grid=BETA_GRID,
         beta = g * scale
         A = B + sp.csr_matrix((np.full(M, beta), (labelled, labelled)), shape=(N, N))
         if C == M and rhs.shape[1] == M:
-            S = beta * factorize_spd(A).solve(rhs)[labelled]  # (M, M)
+            # (checked on these right-hand sides: labels far apart in a long take leave the system regular but
+            # too ill-conditioned for an arbitrary one)
+            S = beta * factorize_spd(A, probe=rhs).solve(rhs)[labelled]  # (M, M)
             Sr, Sdiag = S @ r, np.diag(S)
         else:
             rhs[labelled, :D] = beta * r
-            X = factorize_spd(A).solve(rhs)
+            X = factorize_spd(A, probe=rhs).solve(rhs)
             Sr = X[labelled, :D]  # (S r) = beta A^-1[lab, lab] r
             Sdiag = beta * X[labelled, D + colour]
         denom = np.maximum(1.0 - Sdiag, 1e-9)
