@@ -2,6 +2,7 @@
 datagrams counted and dropped, the newest frame wins under a burst, calibration and smoothing, the command line."""
 from __future__ import annotations
 
+import re
 import socket
 import struct
 import subprocess
@@ -506,10 +507,20 @@ def test_a_marker_capture_replays_as_the_phone_would_stream_it(face_model, tmp_p
     out = tmp_path / "back.csv"
     r = run("live", "--replay", str(cap), "--record", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
-    assert "replaying cap.c3d at 60 fps" in r.stdout and f"wrote {out} ({T} frames)" in r.stdout
+    assert "replaying cap.c3d at 60 fps" in r.stdout
+    # streamed in real time: on a loaded machine a frame whose time has passed is superseded, as the phone's are
+    counts = re.search(r"(\d+) frames in, (\d+) out; dropped: \d+ malformed, (\d+) superseded", r.stdout)
+    assert counts, r.stdout
+    got_in, got_out, superseded = (int(g) for g in counts.groups())
+    assert got_in == T and got_out + superseded == T and got_out >= T - 5, r.stdout
+    assert f"wrote {out} ({got_out} frames)" in r.stdout
     take = read_take(out)
-    col = {n: k for k, n in enumerate(take.names)}
-    assert np.abs(take.weights[:, col["JawOpen"]] - W[:, jaw]).max() < 0.05
-    assert np.abs(take.weights[:, col["MouthSmileLeft"]] - W[:, smile]).max() < 0.05
+    assert take.n_frames == got_out
+    col = {n: j for j, n in enumerate(take.names)}
+    # recorded frame i is capture frame i + s for some s <= superseded (frames are only ever left out)
+    rec = take.weights[:, [col["JawOpen"], col["MouthSmileLeft"]]]
+    for i in range(got_out):
+        err = np.abs(rec[i] - W[i:i + superseded + 1][:, [jaw, smile]]).max(axis=1)
+        assert err.min() < 0.05, (i, rec[i], err)
     assert np.abs(take.weights[:, col["MouthSmileRight"]]).max() < 0.05
     assert np.abs(take.rotations[:, :3]).max() < np.radians(1.0)
