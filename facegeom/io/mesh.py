@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import igl
 import numpy as np
 
 from facegeom.errors import InputError
@@ -114,6 +113,8 @@ def write_mesh(path: str | os.PathLike, V, F) -> Path:
         raise InputError(f"unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_FORMATS)}", path)
     V = as_vertices(V)
     F = as_faces(F, V.shape[0])
+    import igl  # (here: reading a mesh, which most commands do, needs no libigl)
+
     with atomic_path(path) as tmp:
         with quiet_native((2,)):
             if path.suffix.lower() == ".ply":  # binary doubles: libigl's ascii PLY keeps 6 digits only

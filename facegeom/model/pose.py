@@ -17,7 +17,6 @@ batch of one (:func:`estimate_pose`), so single and batched fits agree.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from facegeom.errors import InputError
 from facegeom.model.camera import PinholeCamera
@@ -100,6 +99,8 @@ def estimate_poses(points3d, points2d, focal, cx, cy, R0=None, t0=None, iteratio
     the closed-form scaled-orthographic one). Levenberg-Marquardt stops per
     target when a step (taken or rejected) changes the cost by less than ``1e-12`` relative.
     """
+    from scipy.spatial.transform import Rotation  # (here: scipy.spatial takes 0.3 s to import)
+
     P = np.asarray(points3d, dtype=np.float64)
     q = np.asarray(points2d, dtype=np.float64)
     if P.ndim != 3 or P.shape[2] != 3 or q.shape != P.shape[:2] + (2,):
