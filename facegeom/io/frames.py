@@ -8,19 +8,40 @@ driving them, a file read in pieces, an array sliced). Writers that accept one
 (:func:`facegeom.io.gltf.write_sequence_glb`) read it in chunks of
 :attr:`~FrameSource.chunk_frames` frames and may ask for the same frames more
 than once: a source must return the same values every time.
+
+A source may also know its frames' linear structure (:class:`LinearFrames`:
+every frame ``(C[t] @ basis).T`` for a fixed ``(q, n)`` basis, e.g. a deformer
+driving the mesh through a fixed marker-to-vertex map); the writer then
+encodes from the ``(T, 3, q)`` coefficients and the basis instead of driving
+every frame at full resolution (:attr:`FrameSource.linear`).
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
 from facegeom.errors import InputError
 
-__all__ = ["FrameSource", "CHUNK_BYTES"]
+__all__ = ["FrameSource", "LinearFrames", "CHUNK_BYTES"]
 
 #: A chunk of frames holds at most this many bytes of float64 vertices (at least one frame).
 CHUNK_BYTES = 64 * 2 ** 20
+
+
+class LinearFrames(NamedTuple):
+    """Frames that are one fixed basis combined: frame ``t`` is ``(coefficients[t] @ basis).T``, ``(n, 3)``.
+
+    Attributes
+    ----------
+    coefficients : (T, 3, q) float64
+        Row ``i`` of frame ``t``: the weights of the basis rows in coordinate ``i`` (x, y, z).
+    basis : (q, n) float64
+        ``q`` vertex fields (e.g. a marker-to-vertex map's rows, the rest shape's coordinates, a row of ones).
+    """
+
+    coefficients: np.ndarray
+    basis: np.ndarray
 
 
 class FrameSource:
@@ -38,6 +59,10 @@ class FrameSource:
         the same values.
     chunk_frames : int, optional
         Frames per chunk; by default as many as fit in :data:`CHUNK_BYTES`.
+    linear : LinearFrames or callable, optional
+        The frames' linear structure (or a function computing it when first asked): the frames ``fn`` gives
+        must equal ``(coefficients[t] @ basis).T`` up to float64 rounding. Writers may use it instead of
+        ``fn`` (:func:`facegeom.io.gltf.write_sequence_glb`), and check a few frames against ``fn``.
 
     Attributes
     ----------
@@ -56,7 +81,8 @@ class FrameSource:
     ((10, 4, 3), [2.0, 3.0])
     """
 
-    def __init__(self, T: int, n: int, fn: Callable[[int, int], np.ndarray], chunk_frames: int | None = None):
+    def __init__(self, T: int, n: int, fn: Callable[[int, int], np.ndarray], chunk_frames: int | None = None,
+                 linear=None):
         T, n = int(T), int(n)
         if T < 1 or n < 1:
             raise InputError(f"a frame source needs at least one frame of at least one vertex, got T={T}, n={n}")
@@ -66,6 +92,35 @@ class FrameSource:
         self._fn = fn
         step = CHUNK_BYTES // (24 * n) if chunk_frames is None else int(chunk_frames)
         self.chunk_frames = max(1, min(T, step))
+        self._linear = linear
+
+    @property
+    def linear(self) -> LinearFrames | None:
+        """The frames' :class:`LinearFrames` (computed on first access when given as a function), or None.
+
+        Raises
+        ------
+        InputError
+            Coefficients or basis of the wrong shape, or not finite.
+        """
+        lin = self._linear
+        if lin is None:
+            return None
+        if callable(lin) and not isinstance(lin, tuple):
+            lin = lin()
+            if lin is None:
+                self._linear = None
+                return None
+        C = np.asarray(lin[0], dtype=np.float64)
+        B = np.asarray(lin[1], dtype=np.float64)
+        T, n = self.shape[:2]
+        if C.ndim != 3 or C.shape[:2] != (T, 3) or B.shape != (C.shape[2], n):
+            raise InputError(f"a frame source's linear structure must be coefficients (T={T}, 3, q) and a basis "
+                             f"(q, n={n}), got {C.shape} and {B.shape}")
+        if not (np.isfinite(C).all() and np.isfinite(B).all()):
+            raise InputError("a frame source's linear structure holds NaN or inf")
+        self._linear = LinearFrames(C, B)
+        return self._linear
 
     @classmethod
     def from_array(cls, frames, chunk_frames: int | None = None) -> FrameSource:

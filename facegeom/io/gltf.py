@@ -173,61 +173,163 @@ def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 class _Blob:
-    """A growing binary buffer of 4-byte-aligned buffer views and their accessors."""
+    """A growing binary buffer of 4-byte-aligned buffer views and their accessors.
+
+    The views' data is kept as the arrays given (:meth:`add`) or made when the file is written
+    (:meth:`add_later`), and :meth:`write` writes it straight to the file: the buffer is never held as one
+    ``bytes`` (nor copied by pygltflib)."""
 
     def __init__(self, pygltflib):
         self.g = pygltflib
-        self.parts: list[bytes] = []
+        self.parts: list = []  # (array, or a callable giving the arrays in order, padding)
         self.size = 0
         self.views: list = []
         self.accessors: list = []
 
     def add(self, array: np.ndarray, kind: str, component: int, target: int | None = None,
             bounds: bool = False) -> int:
-        data = np.ascontiguousarray(array).tobytes()
-        self.views.append(self.g.BufferView(buffer=0, byteOffset=self.size, byteLength=len(data), target=target))
-        pad = -len(data) % 4
-        self.parts.append(data + b"\0" * pad)
-        self.size += len(data) + pad
+        data = np.ascontiguousarray(array)
+        return self._view(data, data.nbytes, int(array.shape[0]), kind, component, target,
+                          _bounds(array) if bounds else None)
+
+    def add_later(self, make, nbytes: int, count: int, kind: str, component: int, target: int | None = None,
+                  bounds: tuple[list, list] | None = None) -> int:
+        """A view of ``nbytes`` whose data ``make()`` gives when the file is written: an iterable of arrays
+        (the views are made in their order, each once)."""
+        return self._view(make, int(nbytes), count, kind, component, target, bounds)
+
+    def _view(self, data, nbytes: int, count: int, kind: str, component: int, target, bounds) -> int:
+        self.views.append(self.g.BufferView(buffer=0, byteOffset=self.size, byteLength=nbytes, target=target))
+        pad = -nbytes % 4
+        self.parts.append((data, nbytes, pad))
+        self.size += nbytes + pad
         acc = self.g.Accessor(bufferView=len(self.views) - 1, byteOffset=0, componentType=component,
-                              count=int(array.shape[0]), type=kind)
-        if bounds:
-            flat = array.reshape(array.shape[0], -1)
-            acc.min = [float(x) for x in flat.min(axis=0)]
-            acc.max = [float(x) for x in flat.max(axis=0)]
+                              count=count, type=kind)
+        if bounds is not None:
+            acc.min, acc.max = bounds
         self.accessors.append(acc)
         return len(self.accessors) - 1
 
-    def bytes(self) -> bytes:
-        return b"".join(self.parts)
+    def write(self, fh) -> None:
+        """The buffer's bytes to the binary file ``fh``."""
+        for data, nbytes, pad in self.parts:
+            written = 0
+            for a in ((data,) if isinstance(data, np.ndarray) else data()):
+                a = np.ascontiguousarray(a)
+                fh.write(memoryview(a).cast("B") if a.nbytes else b"")
+                written += a.nbytes
+            if written != nbytes:  # pragma: no cover - the views' sizes are stated before the data is made
+                raise RuntimeError(f"a glTF buffer view has {written} bytes where {nbytes} were stated")
+            fh.write(b"\0" * pad)
 
 
-def _many_vertex_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """:func:`_vertex_normals` of many poses ``X (m, n, 3)`` of one mesh at once -> ``(m, n, 3)`` float32: each
-    vertex's triangles' normals weighted by their areas (as libigl's area weighting), summed by one sparse
-    product; +z where that sum vanishes."""
+def _bounds(array: np.ndarray) -> tuple[list, list]:
+    """An accessor's ``min`` and ``max``: per component, as Python floats (a component's values side by side:
+    ``min(axis=0)`` of ``(n, 3)`` goes a row of 3 at a time, 15 times slower)."""
+    cols = np.ascontiguousarray(array.reshape(array.shape[0], -1).T)
+    return [float(x) for x in cols.min(axis=1)], [float(x) for x in cols.max(axis=1)]
+
+
+def _save_glb(doc, blob: _Blob, fh) -> None:
+    """Write ``doc`` with ``blob`` as its binary chunk to ``fh``: the bytes ``doc.save_to_bytes()`` gives (its JSON,
+    padding and header), the binary chunk written a view at a time."""
+    import pygltflib as g
+
+    text = doc.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text += b" " * (-(12 + len(text)) % doc.required_alignment())
+    fh.write(g.MAGIC + struct.pack("<II", g.GLTF_VERSION, 12 + 8 + len(text) + 8 + blob.size))
+    fh.write(struct.pack("<I", len(text)) + g.JSON.encode("utf-8") + text)
+    fh.write(struct.pack("<I", blob.size) + g.BIN.encode("utf-8"))
+    blob.write(fh)
+
+
+#: Poses whose normals :func:`_many_vertex_normals` computes at a time: its working memory is about
+#: ``80 * POSES * triangles`` bytes (50 MB for 4 poses of a 150,000-triangle head); more are no faster.
+_NORMAL_POSES = 4
+#: Triangles whose cross products are made at a time (the temporaries of a block stay in the cache).
+_FACE_BLOCK = 4096
+
+
+def _face_sums(F: np.ndarray, n: int):
+    """The ``(n, triangles)`` sparse matrix of ones that sums each vertex's triangles (duplicates summed)."""
     from scipy.sparse import csr_matrix
 
+    return csr_matrix((np.ones(F.size), (F.reshape(-1), np.repeat(np.arange(F.shape[0]), 3))), shape=(n, F.shape[0]))
+
+
+def _many_vertex_normals(X: np.ndarray, F: np.ndarray, A=None) -> np.ndarray:
+    """:func:`_vertex_normals` of many poses ``X (m, n, 3)`` of one mesh at once -> ``(m, n, 3)`` float32: each
+    vertex's triangles' normals weighted by their areas (as libigl's area weighting: the cross product of the
+    triangle's edges ``(v1 - v0) x (v2 - v0)``), summed by one sparse product (``A``: :func:`_face_sums`, made
+    when not given); +z where that sum vanishes.
+
+    :data:`_NORMAL_POSES` poses at a time, coordinates apart (every vertex's poses side by side: one gather per
+    corner and coordinate); the same operations in the same order as ``np.cross`` and ``np.linalg.norm``, so the
+    float32 results are those of the straightforward ``(m, triangles, 3)`` computation, bit for bit."""
     m, n = X.shape[:2]
     F = np.asarray(F, dtype=np.int64)
-    A = csr_matrix((np.ones(F.size), (F.reshape(-1), np.repeat(np.arange(F.shape[0]), 3))), shape=(n, F.shape[0]))
+    if A is None:
+        A = _face_sums(F, n)
     out = np.empty((m, n, 3), dtype=np.float32)
-    for a in range(0, m, 16):  # 16 poses at a time: memory stays a few arrays of (16, triangles, 3)
-        P = X[a:a + 16]
-        c = np.cross(P[:, F[:, 1]] - P[:, F[:, 0]], P[:, F[:, 2]] - P[:, F[:, 0]])  # twice the area, as normal
-        N = (A @ c.transpose(1, 0, 2).reshape(F.shape[0], -1)).reshape(n, -1, 3).transpose(1, 0, 2)
-        length = np.linalg.norm(N, axis=2, keepdims=True)
-        ok = length[..., 0] > 1e-300
-        N = np.where(ok[..., None], N / np.where(length > 0, length, 1.0), (0.0, 0.0, 1.0))
-        out[a:a + 16] = N
+    for a in range(0, m, _NORMAL_POSES):
+        out[a:a + _NORMAL_POSES] = _unit_normals(np.asarray(X[a:a + _NORMAL_POSES], dtype=np.float64), F, A)
     return out
+
+
+def _unit_normals(P: np.ndarray, F: np.ndarray, A) -> np.ndarray:
+    """Area-weighted unit vertex normals of the poses ``P (c, n, 3)`` -> ``(c, n, 3)`` float64 view."""
+    c = P.shape[0]
+    S = np.ascontiguousarray(P.transpose(2, 1, 0))  # (3, n, c): a vertex's poses side by side
+    C = np.empty((3, F.shape[0], c))  # twice each triangle's area along its normal: e1 x e2, as np.cross
+    for a in range(0, F.shape[0], _FACE_BLOCK):  # the temporaries of a block of triangles stay in the cache
+        f = F[a:a + _FACE_BLOCK]
+        P0 = np.take(S, f[:, 0], axis=1)  # (3, triangles, c)
+        E1 = np.take(S, f[:, 1], axis=1)
+        E1 -= P0
+        E2 = np.take(S, f[:, 2], axis=1)
+        E2 -= P0
+        tmp = P0[0]
+        for i, (j, k) in enumerate(((1, 2), (2, 0), (0, 1))):
+            Ci = C[i, a:a + _FACE_BLOCK]
+            np.multiply(E1[j], E2[k], out=Ci)
+            np.multiply(E1[k], E2[j], out=tmp)
+            Ci -= tmp
+    N = np.empty((3, A.shape[0], c))
+    for i in range(3):  # each vertex's triangles summed in one order, whatever the columns
+        N[i] = A @ C[i]
+    del C
+    x, y, z = N
+    length = np.sqrt((x * x + y * y) + z * z)  # np.linalg.norm's order
+    ok = length > 1e-300
+    N /= np.where(length > 0, length, 1.0)
+    if not ok.all():
+        bad = ~ok
+        x[bad], y[bad], z[bad] = 0.0, 0.0, 1.0
+    return N.transpose(2, 1, 0)
+
+
+def _normal_delta_chunks(V: np.ndarray, F: np.ndarray, deltas: np.ndarray, scale: float = 1.0):
+    """``(a, b, normals(V + scale * deltas[a:b]) - normals(V))`` float32 for consecutive shapes
+    (:data:`_NORMAL_POSES` at a time): the working memory of a few shapes, whatever their number."""
+    F = np.asarray(F, dtype=np.int64)
+    A = _face_sums(F, V.shape[0])
+    N0 = _many_vertex_normals(V[None], F, A)[0]
+    K = deltas.shape[0]
+    for a in range(0, K, _NORMAL_POSES):
+        b = min(K, a + _NORMAL_POSES)
+        D = np.asarray(deltas[a:b], dtype=np.float64)
+        N = _many_vertex_normals(V[None] + (D if scale == 1.0 else D * scale), F, A)
+        N -= N0
+        yield a, b, N
 
 
 def shape_normal_deltas(V: np.ndarray, F: np.ndarray, deltas: np.ndarray) -> np.ndarray:
     """Each shape's normal offsets: ``normals(V + deltas[k]) - normals(V)``, ``(K, n, 3)`` float32 (a morph
     target's ``NORMAL``: at weight 1 alone the client shades the shape with its own normals)."""
-    N0 = _many_vertex_normals(V[None], F)[0]
-    return _many_vertex_normals(V[None] + deltas, F) - N0
+    out = np.empty(np.shape(deltas), dtype=np.float32)
+    for a, b, N in _normal_delta_chunks(np.asarray(V, dtype=np.float64), F, deltas):
+        out[a:b] = N
+    return out
 
 
 def fitted_normal_deltas(rest: np.ndarray, F: np.ndarray, frames, weights: np.ndarray) -> np.ndarray:
@@ -256,11 +358,16 @@ def fitted_normal_deltas(rest: np.ndarray, F: np.ndarray, frames, weights: np.nd
 
 def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, names, weights: np.ndarray,
                fps: float, generator: str, motion=None, normals_of=None, rest_weights=None,
-               normal_deltas=None) -> Path:
+               normal_deltas=None, scale: float = 1.0) -> Path:
     """Build and write the document (arrays already checked); ``motion``: ``(quaternions (T, 4) xyzw,
     translations (T, 3))`` animating the node, or None; ``normals_of``: the vertices whose normals are
     stored (default ``V``); ``rest_weights``: the mesh's weights when nothing plays (default zeros);
-    ``normal_deltas``: ``(K, n, 3)`` the targets' ``NORMAL`` offsets (default: none stored)."""
+    ``normal_deltas``: ``(K, n, 3)`` the targets' ``NORMAL`` offsets, or a callable giving target ``k``'s
+    (asked for in order, when the file is written) (default: none stored); ``scale``: the factor of the
+    deltas as stored (``V`` and ``motion`` are given as stored).
+
+    The targets' data is made a target at a time as the file is written, and the weights a block of frames at a
+    time: memory holds no float32 copy of all the targets or weights."""
     try:
         import pygltflib as g
     except ImportError:  # pragma: no cover - a declared dependency
@@ -273,18 +380,28 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
     i_pos = blob.add(V32, "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True)
     i_nrm = blob.add(_vertex_normals(V if normals_of is None else np.asarray(normals_of, dtype=np.float64),
                                      F.astype(np.int64)), "VEC3", _FLOAT, _ARRAY_BUFFER)
-    D32 = deltas.astype(np.float32)
+
+    def target(k: int) -> np.ndarray:  # a target's float32 offsets, as stored
+        return (deltas[k] if scale == 1.0 else deltas[k] * scale).astype(np.float32)
+
+    n = deltas.shape[1]
     targets = []
     for k in range(K):
-        a = g.Attributes(POSITION=blob.add(D32[k], "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True))
-        if normal_deltas is not None:
+        a = g.Attributes(POSITION=blob.add_later(lambda k=k: (target(k),), n * 12, n, "VEC3", _FLOAT, _ARRAY_BUFFER,
+                                                 bounds=_bounds(target(k))))
+        if callable(normal_deltas):
+            a.NORMAL = blob.add_later(lambda k=k: (np.asarray(normal_deltas(k), dtype=np.float32),), n * 12, n,
+                                      "VEC3", _FLOAT, _ARRAY_BUFFER)
+        elif normal_deltas is not None:
             a.NORMAL = blob.add(np.asarray(normal_deltas[k], dtype=np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER)
         targets.append(a)
     times = (np.arange(T, dtype=np.float64) / fps).astype(np.float32)
     if T > 1 and not (np.diff(times) > 0).all():
         raise InputError(f"{T} frames at {fps} fps give keyframe times that float32 cannot keep apart", path)
     i_t = blob.add(times, "SCALAR", _FLOAT, bounds=True)
-    i_w = blob.add(weights.astype(np.float32).reshape(-1), "SCALAR", _FLOAT)
+    rows = max(1, (1 << 22) // max(4 * K, 1))  # 4 MB of float32 weights at a time
+    i_w = blob.add_later(lambda: (weights[a:a + rows].astype(np.float32) for a in range(0, T, rows)), T * K * 4,
+                         T * K, "SCALAR", _FLOAT)
     prim = g.Primitive(attributes=g.Attributes(POSITION=i_pos, NORMAL=i_nrm), indices=i_idx, mode=g.TRIANGLES,
                        targets=targets)
     samplers = [g.AnimationSampler(input=i_t, output=i_w, interpolation="LINEAR")]
@@ -308,11 +425,9 @@ def _write_glb(path: Path, V: np.ndarray, F: np.ndarray, deltas: np.ndarray, nam
         bufferViews=blob.views,
         buffers=[g.Buffer(byteLength=blob.size)],
     )
-    doc.set_binary_blob(blob.bytes())
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            for chunk in doc.save_to_bytes():
-                fh.write(chunk)
+            _save_glb(doc, blob, fh)
     return path
 
 
@@ -322,7 +437,7 @@ def _check_suffix(path: Path) -> None:
 
 
 def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, weights, fps: float,
-                  rotations=None, translations=None) -> Path:
+                  rotations=None, translations=None, *, scale: float = 1.0) -> Path:
     """Write a blendshape rig and its weight curves as a glTF 2.0 binary (``.glb``), atomically.
 
     Parameters
@@ -346,6 +461,11 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
         units) of the head per frame: the node is animated with them (a
         quaternion per frame, slerped; the mesh turns about its origin).
         Both or neither.
+    scale : float
+        Factor of the positions, offsets and translations as written (0.01:
+        centimetres to glTF's metres): the file is the one written from
+        ``neutral * scale``, ``deltas * scale`` and ``translations * scale``,
+        without a scaled copy of the offsets in memory.
 
     Returns
     -------
@@ -358,10 +478,27 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
         A suffix other than ``.glb``; shapes that disagree; NaN or inf; a head
         motion that is not ``T`` proper rotations and translations; faces
         outside the vertices; a frame rate that is not positive; names that
-        are not ``K``; an output folder that does not exist.
+        are not ``K``; a scale that is not a positive number; an output folder
+        that does not exist.
+
+    Notes
+    -----
+    The targets' normal offsets (:func:`shape_normal_deltas`) and float32
+    offsets are made a few targets at a time as the file is written, and the
+    file is written a buffer view at a time: besides its inputs, writing holds
+    a few targets' arrays (a 76,000-vertex, 52-shape rig and 100,000 frames of
+    weights: about 80 MB, where the whole file and its copies took 670 MB).
     """
     path = Path(path)
     _check_suffix(path)
+    try:
+        scale = float(scale)
+    except (TypeError, ValueError):
+        raise InputError(f"scale {scale!r} is not a number", path) from None
+    if not (np.isfinite(scale) and scale > 0):
+        raise InputError(f"scale {scale} is not a positive number", path)
+    if scale != 1.0:
+        neutral = np.asarray(neutral, dtype=np.float64) * scale
     V, F = _mesh_arrays(path, neutral, faces)
     n = V.shape[0]
     D = np.asarray(deltas, dtype=np.float64)
@@ -374,7 +511,9 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
     W = np.asarray(weights, dtype=np.float64)
     if W.ndim != 2 or W.shape[1] != K or W.shape[0] == 0:
         raise InputError(f"weights must have shape (T, {K}) with T > 0, got {W.shape}", path)
-    if not (np.isfinite(D).all() and np.isfinite(W).all()):
+    low, high = float(D.min()), float(D.max())  # NaN or inf in D make one of them so (no copy of D)
+    if not (np.isfinite(low) and np.isfinite(high) and np.isfinite(max(-low, high) * scale)  # and D * scale
+            and np.isfinite(W).all()):
         raise InputError("deltas or weights contain NaN or inf", path)
     motion = None
     if (rotations is None) != (translations is None):
@@ -384,17 +523,38 @@ def write_rig_glb(path: str | os.PathLike, neutral, faces, deltas, shape_names, 
 
         R = np.asarray(rotations, dtype=np.float64)
         t = np.asarray(translations, dtype=np.float64)
+        if scale != 1.0:
+            t = t * scale
         T = W.shape[0]
         if R.shape != (T, 3, 3) or t.shape != (T, 3) or not (np.isfinite(R).all() and np.isfinite(t).all()):
             raise InputError(f"the head motion must be {T} finite rotations (T, 3, 3) and translations (T, 3), got "
                              f"{R.shape} and {t.shape}", path)
-        if not (np.abs(np.einsum("tij,tkj->tik", R, R) - np.eye(3)).max() < 1e-6 and (np.linalg.det(R) > 0).all()):
+        # orthonormal (the determinant is then +-1), the rows' triple product (the determinant) positive:
+        # np.linalg.det factors each matrix, 10 times slower
+        if not (np.abs(np.einsum("tij,tkj->tik", R, R) - np.eye(3)).max() < 1e-6
+                and (np.einsum("ti,ti->t", R[:, 0], np.cross(R[:, 1], R[:, 2])) > 0).all()):
             raise InputError("the head rotations are not proper rotations", path)
         q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
         flip = np.r_[1.0, np.sign(np.cumprod(np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]) + 1e-300)))]
         motion = (q * flip[:, None], t)  # consecutive quaternions on the same side: slerp takes the short way
+    normals = _InOrder(_normal_delta_chunks(V, F.astype(np.int64), D, scale))
     return _write_glb(path, V, F, D, names, W, _check_fps(path, fps), "facegeom write_rig_glb", motion,
-                      normal_deltas=shape_normal_deltas(V, F.astype(np.int64), D))
+                      normal_deltas=normals, scale=scale)
+
+
+class _InOrder:
+    """``self(k)``: item ``k`` of chunks ``(a, b, items[a:b])`` made in order by ``chunks`` (asked for in
+    order): only the current chunk is held."""
+
+    def __init__(self, chunks):
+        self.chunks, self.a, self.b, self.items = iter(chunks), 0, 0, None
+
+    def __call__(self, k: int):
+        while not self.a <= k < self.b:
+            if k < self.a:
+                raise IndexError(f"item {k} asked for after item {self.a}")
+            self.a, self.b, self.items = next(self.chunks)
+        return self.items[k - self.a]
 
 
 def _check_rest(path: Path, rest, n: int):
@@ -490,11 +650,46 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
     float32 is driven once (its ``max_error`` then includes a bound on that
     copy's rounding, ``2^-24`` of each offset from the first frame); otherwise
     every pass drives it again. ``K`` can be a little above the array path's.
+
+    A frame source offering its linear structure
+    (:attr:`FrameSource.linear <facegeom.io.frames.FrameSource.linear>`: frame ``t`` is
+    ``(C[t] @ B).T``, ``B (q, n)``, e.g. the tangent deformer's marker-to-vertex map) is encoded from it,
+    without driving every frame:
+
+    1. ``B^T = Qa Ra`` (QR, ``Qa`` orthonormal columns) maps the frames' span isometrically onto
+       ``R^(3q)`` (``z_t[i] = Ra C_t[i]``); the principal axes are the eigenvectors of the ``(3q, 3q)``
+       scatter of the centred ``z`` and every frame's coefficients on every axis are known (``Ct``);
+    2. a first candidate ``K`` by bisection on an evenly spaced sample (and the frames farthest off the axes),
+       within 95% of ``tolerance``, each frame's error computed exactly from its ``z`` residual;
+    3. every frame, target counts ``Ks .. Ks + 7`` at once (the window moves up while none holds). With
+       ``a_kj`` the part of axis ``k`` at vertex ``j`` and ``lam_j`` the largest singular value of vertex
+       ``j``'s part of the axes beyond the window (from the 3 x 3 matrix ``|Qa_j|^2 I - sum a_kj a_kj^T``:
+       the ``3q`` axes are orthonormal and complete), the error of vertex ``j`` in frame ``t`` with
+       ``K >= Ks`` targets is at most ``sum_{Ks <= k < Kt} |c_tk| |a_kj| + lam_j |c_t,Kt..|`` (triangle and
+       Cauchy-Schwarz inequalities; it does not grow with ``K``). The pairs (frame, vertex) whose bound is
+       within the limit need nothing more; for the others the residual is computed exactly (the vertices
+       concerned, every ``K`` of the window by rank-one updates);
+    4. the stored values' float32 rounding adds at most ``|b32_j - (base - sum D32_k / 2)_j| +
+       sum_k (2^-23 |D32_kj| + |D32_kj - D_kj| / 2)`` at vertex ``j`` (weights in [0, 1] round by 2^-24, the
+       targets' and the base's rounding measured), and float64 arithmetic at most ``2^-36 max|C_t| |B|_2``
+       (hundreds of times its few-hundred-ulp error); ``K`` is the smallest of the window whose exact
+       errors, bounds and these two terms stay within ``tolerance``; ``max_error`` is that sum (an upper
+       bound on every vertex of every frame, as the file plays it);
+    5. the first chunk and the worst frames are driven by the source itself and played back from the
+       encoding: if their error differs from the structure's prediction by more than the rounding terms, the
+       structure is not the source's and the frames are streamed as above.
+
+    Memory is a few ``(T, 3q)`` arrays and ``(K, 3n)`` targets.
     """
     path = Path(path)
     _check_suffix(path)
     if isinstance(frames, FrameSource):
         rest = _check_rest(path, rest, frames.shape[1])
+        lin = frames.linear
+        if lin is not None:
+            done = _write_sequence_linear(path, frames, lin, faces, fps, tolerance, progress, rest)
+            if done is not None:
+                return done
         return _write_sequence_stream(path, frames, faces, fps, tolerance, hold_bytes, progress, rest)
     X = np.asarray(frames, dtype=np.float64)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] == 0:
@@ -1007,6 +1202,211 @@ def _write_sequence_stream(path: Path, source: FrameSource, faces, fps, toleranc
                                 W[:, :K], fps, V, rest, lambda a, b: fr.rows(normal_frames[a:b]).reshape(-1, n, 3),
                                 W[normal_frames, :K])
     return path, {"targets": K, "max_error": float(err), "tolerance": tol, "frames": T, "rest": rest is not None}
+
+# ----------------------------------------------------------------------------- sequences with a linear structure
+
+_LINEAR_WINDOW = 8  # target counts verified together in one pass over the frames
+_LINEAR_BLOCK = 32 * 2 ** 20  # bytes of each (frames x vertices) block of the low-rank writer
+_LINEAR_SAMPLE = 256  # frames evenly spaced on which the first candidate is found (plus the worst of each K tried)
+
+
+def _write_sequence_linear(path: Path, source: FrameSource, lin, faces, fps, tolerance, progress,
+                           rest=None) -> tuple[Path, dict] | None:
+    """:func:`write_sequence_glb` for a frame source with a linear structure (see its notes); None when the
+    structure disagrees with the source's own frames (the caller then streams them)."""
+    from scipy.linalg import eigh, qr
+
+    T, n = source.shape[:2]
+    N = 3 * n
+    tol = float(tolerance)
+    if not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"tolerance {tolerance} is not a positive number", path)
+    _mesh_arrays(path, np.zeros((n, 3)), faces)  # faces checked before anything is computed
+    fps = _check_fps(path, fps)
+    say = progress or (lambda line: None)
+    C, B = lin.coefficients, lin.basis
+    q = B.shape[0]
+    r = 3 * q
+
+    # An isometry of the frames' span onto R^(3q): B^T = Qa Ra (Qa orthonormal columns), so coordinate i of frame t
+    # is Qa z_t[i] with z_t[i] = Ra C_t[i]: distances between frames are distances between their z.
+    Qa, Ra = qr(B.T, mode="economic")
+    Z = (C.reshape(3 * T, q) @ Ra.T).reshape(T, r)
+    mu = Z.mean(axis=0)
+    Z -= mu
+    Vz = np.ascontiguousarray(eigh(Z.T @ Z)[1][:, ::-1])  # (r, r) principal axes in z, largest first
+    Ct = Z @ Vz  # (T, r) every frame's coefficients on every axis
+    del Z
+    S = np.sqrt(np.einsum("tk,tk->k", Ct, Ct))
+    # float64 arithmetic (the QR, the rotations, the products) errs by a few hundred ulps of the frames' size at
+    # most: 2^-36 of the largest |C_t| ||B||_2 (which bounds every coordinate of every frame) covers it many times
+    arith = 2.0 ** -36 * float(np.sqrt(np.einsum("tim,tim->t", C, C).max())) * float(np.linalg.norm(Ra, 2))
+
+    def field(Zr: np.ndarray, J=slice(None)) -> np.ndarray:  # (m, r) in z -> (m, 3, nJ) vertex coordinates
+        QJ = Qa[J]
+        return (Zr.reshape(-1, q) @ QJ.T).reshape(Zr.shape[0], 3, QJ.shape[0])
+
+    def interleaved(F3: np.ndarray) -> np.ndarray:  # (m, 3, n) -> (m, 3n) as the file lays vertices out
+        return np.ascontiguousarray(F3.transpose(0, 2, 1)).reshape(F3.shape[0], N)
+
+    base = interleaved(field(mu[None]))[0]
+
+    def exact(K: int, rows: np.ndarray) -> np.ndarray:  # (m,) farthest vertex off the first K axes, per frame
+        out = np.empty(rows.size)
+        step = max(1, _LINEAR_BLOCK // (24 * n))
+        for a in range(0, rows.size, step):
+            R = field(Ct[rows[a:a + step], K:] @ Vz[:, K:].T)
+            out[a:a + step] = np.sqrt(np.einsum("min,min->mn", R, R).max(axis=1))
+        return out
+
+    # (1) The first candidate: the fewest axes keeping an evenly spaced sample, and the frames farthest off the
+    # axes at each count tried, within 95% of the tolerance (bisection).
+    sample = np.unique(np.linspace(0, T - 1, min(T, _LINEAR_SAMPLE)).round().astype(np.int64))
+
+    def sample_ok(K: int) -> bool:
+        tail = np.einsum("tk,tk->t", Ct[:, K:], Ct[:, K:])
+        rows = np.union1d(sample, np.argpartition(-tail, min(32, T) - 1)[:32])
+        return bool(exact(K, rows).max() <= 0.95 * tol - arith)
+
+    lo, hi = 1, r
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sample_ok(mid):
+            hi = mid
+        else:
+            lo = mid + 1
+    say(f"glb: {T:,} frames on a {r}-dimensional basis; candidate {lo} targets from {sample.size} frames")
+
+    # (2) Every frame, every vertex, target counts Ks .. Kt at once (the window moves up while none holds).
+    q2 = np.einsum("nm,nm->n", Qa, Qa)  # ||Qa_j||^2: the energy of all r axes at vertex j, per coordinate
+    Ks = lo
+    while True:
+        Kt = min(r, Ks + _LINEAR_WINDOW - 1)
+        A = field(Vz[:, :Kt].T)  # (Kt, 3, n): the first Kt axes at the vertices
+        # lam_j: the largest singular value of vertex j's part of the axes Kt.. (3 x (r - Kt)), from the 3 x 3
+        # matrix ||Qa_j||^2 I - sum_{k < Kt} a_kj a_kj^T (the axes are orthonormal and complete), plus a margin
+        # covering its rounding
+        H = np.empty((n, 3, 3))
+        for i in range(3):
+            for j in range(i, 3):
+                H[:, i, j] = H[:, j, i] = (i == j) * q2 - np.einsum("kn,kn->n", A[:, i], A[:, j])
+        lam = np.sqrt(np.maximum(np.linalg.eigvalsh(H)[:, -1], 0.0) + 1e-12 * q2)
+        del H
+        AN = np.sqrt(np.einsum("kin,kin->kn", A[Ks:Kt], A[Ks:Kt]))  # (Kt - Ks, n) |a_kj|
+        W, Dk = _targets_from(Ct, S, A, Kt)
+        rho = _rounding_bound(base, Dk, Ct, S, A, Ks, Kt)  # rho[K]: what float32 adds with K targets
+        lim = tol - arith - float(rho[Ks:Kt + 1].max())
+        # A vertex's error with K >= Ks targets is at most sum_{Ks <= k < Kt} |c_tk| |a_kj| + lam_j |c_t,Kt..|:
+        # the pairs (frame, vertex) within lim need nothing more; the others are computed exactly.
+        tail = np.sqrt(np.einsum("tk,tk->t", Ct[:, Kt:], Ct[:, Kt:]))
+        head = np.abs(Ct[:, Ks:Kt])
+        fb = tail * lam.max() + head @ AN.max(axis=1) if Kt > Ks else tail * lam.max()
+        loose = np.flatnonzero(fb > lim)
+        E = np.zeros(Kt - Ks + 1)  # the largest exact error with K = Ks .. Kt targets
+        bound = float(fb[fb <= lim].max()) if loose.size < T else 0.0  # the largest error left to the bound
+        step = max(1, _LINEAR_BLOCK // (8 * n))
+        last = time.monotonic()
+        for a in range(0, loose.size, step):
+            rows = loose[a:a + step]
+            Bt = np.outer(tail[rows], lam)
+            if Kt > Ks:
+                Bt += head[rows] @ AN
+            over = (Bt > lim).any(axis=0)
+            J = np.flatnonzero(over)
+            if J.size < n:
+                bound = max(bound, float(Bt[:, ~over].max()))
+            del Bt
+            if J.size == 0:
+                continue
+            R = field(Ct[rows, Kt:] @ Vz[:, Kt:].T, J)  # (m, 3, |J|) the residuals with Kt targets
+            AJ = A[Ks:Kt][:, :, J]
+            for K in range(Kt, Ks - 1, -1):
+                E[K - Ks] = max(E[K - Ks], float(np.sqrt(np.einsum("min,min->mn", R, R).max())))
+                if K > Ks:
+                    R += Ct[rows, K - 1][:, None, None] * AJ[K - 1 - Ks][None]
+            del R, AJ
+            now = time.monotonic()
+            if now - last >= 0.5:
+                say(f"glb: check {Ks}..{Kt} targets, {a + rows.size:,}/{loose.size:,} frames off the bound")
+                last = now
+        total = np.maximum(E, bound) + rho[Ks:Kt + 1] + arith
+        fits = np.flatnonzero(total <= tol)
+        if fits.size:
+            K = Ks + int(fits[0])
+            err = float(total[fits[0]])
+            break
+        if Kt >= r:  # every axis and still above: float32 rounding of the positions themselves
+            raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives "
+                             f"{float(total[-1]):.3g}); use a larger tolerance", path)
+        Ks = Kt + 1
+    W, Dk = W[:, :K], Dk[:K]
+    say(f"glb: {K} targets, every vertex of every frame within {err:.3g} ({loose.size:,} frames computed, "
+        f"{T - loose.size:,} within the bound)")
+
+    # (3) The source's own frames (the first chunk and the frames farthest off) played back from the file: they
+    # must agree with the structure's prediction, else the structure is not the source's and the frames are
+    # streamed instead.
+    W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
+    spot = np.arange(min(T, source.chunk_frames))
+    if loose.size:
+        spot = np.union1d(spot, loose[:8])
+    fr = _Frames(source, path, False, None)
+    X = fr.rows(spot)
+    played = _playback_error(base, W64[spot], D64, X, n)
+    expect = float(exact(K, spot).max())
+    if abs(played - expect) > float(rho[K]) + arith + 1e-6 * tol:
+        say(f"glb: the frames' linear structure does not give the frames ({played:.3g} vs {expect:.3g}): streamed")
+        return None
+    del X
+    V, F = _mesh_arrays(path, base.reshape(n, 3), faces)
+    normal_frames = _normal_sample(T, K)
+
+    def normal_rows(a: int, b: int) -> np.ndarray:
+        return (base[None] + interleaved(field(Ct[normal_frames[a:b]] @ Vz.T))).reshape(-1, n, 3)
+
+    err += _write_sequence_file(path, _played_base(base, Dk).reshape(n, 3), F, Dk.reshape(K, n, 3), W, fps, V,
+                                rest, normal_rows, W[normal_frames])
+    return path, {"targets": K, "max_error": float(err), "tolerance": tol, "frames": T, "rest": rest is not None}
+
+
+def _targets_from(Ct: np.ndarray, S: np.ndarray, A: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """float32 weights ``(T, K)`` and targets ``(K, 3n)`` of the first ``K`` axes ``A (>= K, 3, n)`` with
+    coefficients ``Ct (T, >= K)`` (:func:`_scaled_targets`)."""
+    U = Ct[:, :K] / np.where(S[:K] > 0, S[:K], 1.0)
+    axes = np.ascontiguousarray(A[:K].transpose(0, 2, 1)).reshape(K, -1)
+    return _scaled_targets(U, S[:K], axes)
+
+
+def _rounding_bound(base: np.ndarray, Dk: np.ndarray, Ct: np.ndarray, S: np.ndarray, A: np.ndarray,
+                    Ks: int, Kt: int) -> np.ndarray:
+    """``(Kt + 1,)``: for each ``K`` in ``Ks .. Kt``, a bound on what float32 storage adds to any vertex of any
+    frame with ``K`` targets (inf below ``Ks``).
+
+    The file plays ``b32 + sum_k W32_tk D32_k`` for ``base + sum_k (W_tk - 1/2) D_k`` (``W``, ``D`` before
+    rounding, ``b32`` the stored base): the difference at vertex ``j`` is at most
+    ``|b32_j - (base - sum D32_k / 2)_j| + sum_k (2^-23 |D32_kj| + |D32_kj - D_kj| / 2)`` (weights in [0, 1]
+    round by at most 2^-24).
+    """
+    n = base.size // 3
+    U = Ct[:, :Kt] / np.where(S[:Kt] > 0, S[:Kt], 1.0)
+    scale = np.abs(U).max(axis=0)
+    scale[scale == 0] = 1.0
+    del U
+    out = np.full(Kt + 1, np.inf)
+    acc = np.zeros(n)
+    for k in range(Kt + 1):
+        if k >= Ks:  # the base as the file stores it (_played_base) against the base it stands for
+            D64 = Dk[:k].astype(np.float64)
+            beta = _played_base(base, D64) - (base - 0.5 * D64.sum(axis=0))
+            out[k] = float((np.sqrt(_squared_lengths(beta[None]))[0] + acc).max())
+            del D64, beta
+        if k == Kt:
+            break
+        d32 = Dk[k].astype(np.float64)
+        d64 = (2.0 * S[k] * scale[k]) * np.ascontiguousarray(A[k].T).reshape(-1)
+        acc += 2.0 ** -23 * np.sqrt(_squared_lengths(d32[None]))[0] + 0.5 * np.sqrt(
+            _squared_lengths((d32 - d64)[None]))[0]
+    return out
 
 
 # ----------------------------------------------------------------------------- reading

@@ -67,10 +67,13 @@ timecodes), so that a solve or a fit drives anything that reads these takes.
 """
 from __future__ import annotations
 
+import codecs
 import csv
+import io
 import math
 import operator
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -175,9 +178,12 @@ class Take:
 def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     """Read a Live Link Face CSV take.
 
-    The file is read a chunk of rows at a time (:data:`CHUNK_ROWS`): only the
-    numbers are kept, never the rows' text, so memory follows ``T x 61``
-    float64 values (about 0.5 kB a frame) whatever the take's length.
+    The file is read a block of lines at a time (:data:`BLOCK_BYTES`): only
+    the numbers are kept, never the rows' text, so memory follows ``T x 61``
+    float64 values (about 0.5 kB a frame) whatever the take's length. The
+    rows of a block that share one layout (the app's: the same cells, digits
+    and decimal points, minus signs aside) are converted together with numpy;
+    any other row is read on its own, as the :mod:`csv` module splits it.
 
     Parameters
     ----------
@@ -210,9 +216,8 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     if not p.is_file():
         raise InputError("not a file (expected a Live Link Face .csv take)", path)
     try:
-        bound = _row_bound(p)
-        with open(p, newline="", encoding="utf-8-sig") as fh:
-            read = _scan(fh, path, bound)
+        with open(p, "rb") as fh:
+            read = _scan(fh, path, os.fstat(fh.fileno()).st_size)
     except OSError as exc:
         raise InputError(f"cannot read the take: {exc.strerror or exc}", path) from None
     except UnicodeDecodeError:
@@ -256,31 +261,21 @@ def read_take(path: str | os.PathLike, policy: str = "interpolate") -> Take:
     )
 
 
-#: Rows converted to numbers at a time while a take is read: only one chunk's text is held (Python
-#: strings: about 4 kB a row, 8 times its numbers), so memory does not grow with the take's text.
+#: Rows read on their own (not in a block of one layout) converted to numbers at a time: only their cells' text
+#: is held (Python strings: about 4 kB a row, 8 times its numbers).
 CHUNK_ROWS = 1024
-
-
-def _row_bound(p: Path) -> tuple[int, int]:
-    """``(line breaks + 1, bytes)`` of the file (``\\r\\n``, ``\\r`` and ``\\n`` each one break): no more rows than
-    that, what the arrays are sized for (they grow if the file grew meanwhile)."""
-    breaks = size = 0
-    last = b""
-    with open(p, "rb") as fh:
-        while block := fh.read(1 << 20):
-            breaks += block.count(b"\n") + block.count(b"\r") - block.count(b"\r\n")
-            if last == b"\r" and block[:1] == b"\n":
-                breaks -= 1  # a \r\n cut between two blocks
-            last = block[-1:]
-            size += len(block)
-    return breaks + 1, size
+#: Bytes of the file read at a time (whole lines: a line longer than this is read whole). A block's text, its
+#: signless copy and a few byte-sized arrays of it are what reading holds besides the numbers.
+BLOCK_BYTES = 1 << 20
+_BOM = b"\xef\xbb\xbf"
 
 
 class _Column:
     """A growing ``(rows, *shape)`` array filled in order; :meth:`array` gives the rows filled.
 
-    Sized for the most rows the file can hold (memory is only used as rows are filled: the pages of the rest
-    are never touched); when that cannot be reserved, it starts at :data:`CHUNK_ROWS` rows and grows.
+    Sized for the rows the file is expected to hold (memory is only used as rows are filled: the pages of the
+    rest are never touched); when that cannot be reserved, it starts at :data:`CHUNK_ROWS` rows; it grows by
+    half when full.
     """
 
     def __init__(self, capacity: int, shape: tuple[int, ...] = (), dtype=np.float64):
@@ -309,13 +304,16 @@ class _Column:
 class _Scanned:
     """The rows of a take as :func:`_scan` reads them: the numbers of the good rows, the timecodes of all rows in
     file order, and the first bad cell and bad timecode found (raised by :func:`read_take` after the checks that
-    come first)."""
+    come first).
 
-    def __init__(self, bound: tuple[int, int], columns: list[int], header: list[str], path):
+    Rows arrive one at a time (:meth:`row`: held as text, converted :data:`CHUNK_ROWS` at a time) or as runs of
+    good rows already converted (:meth:`run`), always in file order.
+    """
+
+    def __init__(self, rows: int, columns: list[int], header: list[str], path, size: int):
         K = len(ARKIT_NAMES)
         self.columns, self.header, self.path = columns, header, path
-        breaks, size = bound
-        rows = min(breaks, size // 4 + 1)  # a row has 4 bytes at least ("t,0" and its line break)
+        rows = min(rows, size // 4 + 1)  # a row has 4 bytes at least ("t,0" and its line break)
         good = min(rows, size // len(header) + 1)  # a good row has a comma between its cells and a line break
         self.weights = _Column(good, (K,))
         self.rotations = _Column(good, (len(columns) - K,)) if len(columns) > K else None
@@ -355,6 +353,29 @@ class _Scanned:
         if len(self._good) >= CHUNK_ROWS:
             self.flush()
 
+    def run(self, line: int, secs: np.ndarray, frames: np.ndarray, in_range: np.ndarray, numbers: np.ndarray,
+            timecode) -> None:
+        """Good rows on lines ``line, line + 1, ...``, converted: their timecodes (``in_range``: minutes and
+        seconds within range; ``timecode(i)`` the text of row ``i``'s) and ``numbers (n, columns)``."""
+        if self._good:
+            self.flush()  # the rows held come first
+        n = secs.size
+        if self.timecode_error is None and not in_range.all():
+            i = int(np.argmin(in_range))
+            try:
+                _parse_timecode(timecode(i), line + i, self.path)
+            except InputError as exc:
+                self.timecode_error = exc
+        self.secs.reserve(n)[:] = secs
+        self.frames.reserve(n)[:] = frames
+        self.good.reserve(n)[:] = True
+        self.n_good += n
+        if self.number_error is None:
+            K = len(ARKIT_NAMES)
+            self.weights.reserve(n)[:] = numbers[:, :K]
+            if self.rotations is not None:
+                self.rotations.reserve(n)[:] = numbers[:, K:]
+
     def flush(self) -> None:
         """Store the rows held as numbers (the first bad cell is kept, and no cell converted after it)."""
         n = len(self._good)
@@ -384,20 +405,11 @@ class _Scanned:
         return self.weights.array(), None if self.rotations is None else self.rotations.array()
 
 
-def _scan(fh, path, bound: tuple[int, int] = (CHUNK_ROWS, 1 << 30)) -> _Scanned:
-    """Read the header, then the rows, a chunk at a time (``bound``: the file's line breaks and bytes, from
-    :func:`_row_bound`, which size the arrays)."""
-    reader = csv.reader(fh)
-    header = None
-    for raw in reader:
-        if any(c.strip() for c in raw):
-            header = [c.strip() for c in raw]
-            break
-    if header is None:
-        raise InputError("the take file is empty", path)
+def _columns(header: list[str], path) -> tuple[list[str], int, list[int]]:
+    """The header's checks -> ``(header without trailing empty cells, index of Timecode, picked columns)``: the 52
+    ARKit weights in :data:`ARKIT_NAMES` order, then the 9 rotations when all are there."""
     while header and header[-1] == "":  # tolerate a trailing comma
         header.pop()
-    width = len(header)
     if "Timecode" not in header:
         raise InputError(
             "not a Live Link Face take: the header has no 'Timecode' column "
@@ -409,34 +421,370 @@ def _scan(fh, path, bound: tuple[int, int] = (CHUNK_ROWS, 1 << 30)) -> _Scanned:
     dup = sorted({n for n in header if n and header.count(n) > 1})
     if dup:
         raise InputError(f"the header repeats column(s): {', '.join(dup)}", path)
-    tc_col = header.index("Timecode")
     columns = [header.index(n) for n in ARKIT_NAMES]
     if all(n in header for n in ROTATION_NAMES):  # the head and eyes, kept beside the weights
         columns += [header.index(n) for n in ROTATION_NAMES]
-    pick = operator.itemgetter(*columns)
+    return header, header.index("Timecode"), columns
 
-    out = _Scanned(bound, columns, header, path)
-    for raw in reader:
-        line = reader.line_num
-        n = len(raw)
-        while n > width and raw[n - 1].strip() == "":  # trailing commas
-            n -= 1
-        if n == width:
-            out.row(line, raw[tc_col], pick(raw))
-            continue
-        if n == 0 or not any(c.strip() for c in raw):
-            continue  # blank line
-        core = [c.strip() for c in raw[:n]]
-        while core and core[-1] == "":
-            core.pop()
-        if len(core) == 2 and tc_col == 0 and _is_zero(core[1]):
-            out.row(line, core[0], None)
-            continue
-        raise InputError(
-            f"row {line} has {n} columns where the header has {width}, "
-            "and it is not a lost-tracking row ('timecode,0')", path)
+
+def _one_row(out: _Scanned, line: int, raw: list[str], width: int, tc_col: int, pick, path) -> None:
+    """One line's cells, as the :mod:`csv` module splits them: a good row, a lost-tracking row, a blank line
+    (skipped) or an error."""
+    n = len(raw)
+    while n > width and raw[n - 1].strip() == "":  # trailing commas
+        n -= 1
+    if n == width:
+        out.row(line, raw[tc_col], pick(raw))
+        return
+    if n == 0 or not any(c.strip() for c in raw):
+        return  # blank line
+    core = [c.strip() for c in raw[:n]]
+    while core and core[-1] == "":
+        core.pop()
+    if len(core) == 2 and tc_col == 0 and _is_zero(core[1]):
+        out.row(line, core[0], None)
+        return
+    raise InputError(
+        f"row {line} has {n} columns where the header has {width}, "
+        "and it is not a lost-tracking row ('timecode,0')", path)
+
+
+def _scan(fh, path, size: int) -> _Scanned:
+    """Read the header, then the rows, a block at a time, from the binary file ``fh`` of ``size`` bytes.
+
+    Blocks of plain text (ASCII, ``\\n`` or ``\\r\\n`` line breaks, no quotes, no NUL: the app's files) are read
+    here; from the first block that is not, the :mod:`csv` module reads the rest (:func:`_scan_text`), and the
+    whole file when the header is in it -- so every file reads as the :mod:`csv` module reads it."""
+    limit = csv.field_size_limit()
+    line = 0  # lines before the block
+    offset = 0  # the block's place in the file
+    out = header = None
+    state = None
+    bom = False
+    for blk in _blocks(fh):
+        start, raw_blk = offset, blk
+        offset += len(blk)
+        if start == 0 and blk.startswith(_BOM):
+            blk, bom = blk[len(_BOM):], True
+        if not _plain(blk):
+            if out is None:
+                return _scan_text(fh, path, size)
+            _rest_text(fh, start, bom, line, out, state, path)
+            out.flush()
+            return out
+        if b"\r" in blk:
+            blk = blk.replace(b"\r\n", b"\n")
+        if not blk.endswith(b"\n"):
+            blk += b"\n"  # the file's last line
+        skipped = 0  # lines of the block before the rows (the header and blank lines above it)
+        try:
+            if out is None:  # the header: the first line that is not blank
+                lines = blk.split(b"\n")
+                for i, text in enumerate(lines[:-1]):
+                    skipped = i
+                    raw = text.decode("ascii").split(",")
+                    if len(text) > limit and any(len(c) > limit for c in raw):
+                        raise csv.Error(f"field larger than field limit ({limit})")
+                    if any(c.strip() for c in raw):
+                        header, tc_col, columns = _columns([c.strip() for c in raw], path)
+                        rows = (size - start) * (len(lines) - 2 - i) // max(len(blk), 1) + CHUNK_ROWS
+                        out = _Scanned(rows, columns, header, path, size)
+                        state = _BlockState(len(header), tc_col, columns, limit)
+                        line += i + 1
+                        skipped = i + 1
+                        blk = blk[sum(len(t) + 1 for t in lines[:i + 1]):]
+                        break
+                else:
+                    line += len(lines) - 1
+                    continue
+            line += _block(out, blk, line, state, path)
+        except (InputError, csv.Error) as exc:
+            # the csv module meets a byte that is not UTF-8 first when it is in the 8 kB it decodes with the line
+            _decodes_to(fh, start, raw_blk, skipped + getattr(exc, "block_line", 0))
+            raise
+    if out is None:
+        raise InputError("the take file is empty", path)
     out.flush()
     return out
+
+
+def _blocks(fh):
+    """The file's bytes as blocks of whole lines (about :data:`BLOCK_BYTES`; the last may lack its line break)."""
+    carry = b""
+    while True:
+        chunk = fh.read(BLOCK_BYTES)
+        if not chunk:
+            if carry:
+                yield carry
+            return
+        data = carry + chunk if carry else chunk
+        cut = data.rfind(b"\n") + 1
+        if cut == 0:
+            carry = data  # no line break yet: a long line is read whole
+            continue
+        carry = data[cut:]
+        yield data[:cut] if carry else data
+
+
+def _plain(blk: bytes) -> bool:
+    """ASCII without quotes or NUL, lines broken by ``\\n`` or ``\\r\\n``: split on commas as the csv module would."""
+    if not blk.isascii() or b'"' in blk or b"\0" in blk:
+        return False
+    return b"\r" not in blk or blk.count(b"\r") == blk.count(b"\r\n")
+
+
+def _scan_text(fh, path, size: int) -> _Scanned:
+    """The whole file through the :mod:`csv` module (UTF-8 with or without its BOM), opened afresh: decoded in
+    the chunks the reader before blocks decoded (``fh``'s buffer would shift them)."""
+    with open(fh.name, "rb") as fresh:
+        text = io.TextIOWrapper(fresh, encoding="utf-8-sig", newline="")
+        try:
+            reader = csv.reader(text)
+            header = None
+            for raw in reader:
+                if any(c.strip() for c in raw):
+                    header = [c.strip() for c in raw]
+                    break
+            if header is None:
+                raise InputError("the take file is empty", path)
+            header, tc_col, columns = _columns(header, path)
+            out = _Scanned(size // 256 + CHUNK_ROWS, columns, header, path, size)
+            pick = operator.itemgetter(*columns)
+            for raw in reader:
+                _one_row(out, reader.line_num, raw, len(header), tc_col, pick, path)
+        finally:
+            text.detach()
+    out.flush()
+    return out
+
+
+#: What ``io.TextIOWrapper`` decodes at a time: its chunks start at multiples of this from the file's start.
+_TEXT_CHUNK = 8192
+
+
+def _rest_text(fh, offset: int, bom: bool, line: int, out: _Scanned, state: _BlockState, path) -> None:
+    """The rows from byte ``offset`` on (after ``line`` lines) through the :mod:`csv` module, decoded in the
+    chunks of the whole file's decoding (the plain text before ``offset`` skipped): a byte that is not UTF-8 is
+    met where reading the file whole meets it."""
+    at = offset // _TEXT_CHUNK * _TEXT_CHUNK
+    with open(fh.name, "rb") as fresh:  # fh's buffer would shift the chunks
+        fresh.seek(at)
+        text = io.TextIOWrapper(fresh, encoding="utf-8-sig" if at == 0 else "utf-8", newline="")
+        try:
+            text.read(offset - at - (len(_BOM) if at == 0 and bom else 0))  # plain text: a character a byte
+            reader = csv.reader(text)
+            for raw in reader:
+                _one_row(out, line + reader.line_num, raw, state.width, state.tc_col, state.pick, path)
+        finally:
+            text.detach()
+
+
+def _decodes_to(fh, start: int, blk: bytes, i: int) -> None:
+    """Raise the :class:`UnicodeDecodeError` that reading the file as text meets before line ``i`` of the block
+    ``blk`` (as read, from byte ``start``) is whole: the 8 kB chunk holding its line break (the file's end for
+    a last line without one) decoded (the text before it is plain)."""
+    end = -1
+    for _ in range(i + 1):
+        end = blk.find(b"\n", end + 1)
+        if end < 0:
+            break
+    last = end < 0
+    end = start + (len(blk) if last else end)
+    fh.seek(end // _TEXT_CHUNK * _TEXT_CHUNK)
+    codecs.getincrementaldecoder("utf-8")().decode(fh.read(_TEXT_CHUNK), last)
+
+
+class _BlockState:
+    """What the blocks of one file share: the header's width, the Timecode and picked columns, the layout of the
+    last block's rows."""
+
+    def __init__(self, width: int, tc_col: int, columns: list[int], limit: int):
+        self.width, self.tc_col, self.columns, self.limit = width, tc_col, columns, limit
+        self.pick = operator.itemgetter(*columns)
+        self.layout: _Layout | None = None
+
+
+def _block(out: _Scanned, blk: bytes, line: int, state: _BlockState, path) -> int:
+    """The rows of ``blk`` (plain text, whole lines ending in ``\\n``) after ``line`` lines of the file -> its
+    number of lines."""
+    if not blk:
+        return 0
+    signs = np.flatnonzero(np.frombuffer(blk, dtype=np.uint8) == 45)  # the minus signs
+    lay = state.layout
+    if lay is None or (len(blk) - signs.size) % lay.length:
+        lay = state.layout = _Layout.find(blk, state) or lay
+    if lay is not None:
+        got = lay.rows(blk, signs)
+        if got is not None:
+            out.run(line + 1, *got)
+            return got[0].size
+    # mixed: runs of lines of the layout's length (read together) and the other lines (read on their own)
+    lines = blk.split(b"\n")
+    R = len(lines) - 1
+    size = -1 if lay is None else lay.length - 1
+    a = 0
+    while a < R:
+        b = a
+        while b < R and len(lines[b]) - lines[b].count(b"-") == size:
+            b += 1
+        if b - a >= _RUN_MIN:
+            run = b"\n".join(lines[a:b]) + b"\n"
+            got = lay.rows(run, np.flatnonzero(np.frombuffer(run, dtype=np.uint8) == 45))
+            if got is not None:
+                out.run(line + a + 1, *got)
+                a = b
+                continue
+        for i in range(a, max(b, a + 1)):  # a short run, a run not of the layout after all, or another line
+            text = lines[i].decode("ascii")
+            raw = text.split(",") if text else []
+            try:
+                if len(text) > state.limit and any(len(c) > state.limit for c in raw):
+                    raise csv.Error(f"field larger than field limit ({state.limit})")
+                _one_row(out, line + i + 1, raw, state.width, state.tc_col, state.pick, path)
+            except (InputError, csv.Error) as exc:
+                exc.block_line = i  # for _scan: which line of the block
+                raise
+        a = max(b, a + 1)
+    return R
+
+
+#: Fewer lines of one layout than this between other lines are read on their own.
+_RUN_MIN = 4
+_TIMECODE = re.compile(r"[0-9]{2}:[0-9]{2}:[0-9]{2}:[0-9]{2}\.[0-9]{3}")
+_DECIMAL = re.compile(r"[0-9]+\.?[0-9]*|\.[0-9]+")
+#: Digits of a number read by :class:`_Layout`: up to 15 make an integer float64 holds exactly, which divided by a
+#: power of ten is the correctly rounded number (as ``float()`` reads it).
+_MAX_DIGITS = 15
+
+
+class _Layout:
+    """The byte layout that the good rows of a block share once their minus signs are taken out: the cells at the
+    same places, the timecode ``HH:MM:SS:FF.fff``, and each weight's digits and decimal point (at most
+    :data:`_MAX_DIGITS` digits).
+
+    Such rows are checked and converted all at once (:meth:`rows`): every cell's bytes against the layout,
+    every minus sign at the start of a number, the commas; a number is its digits read as one integer
+    (exact) over a power of ten: the float ``float()`` gives.
+    """
+
+    def __init__(self, row: str, state: _BlockState):
+        cells = row.split(",")
+        if len(cells) != state.width or len(row) + 1 > state.limit or not _TIMECODE.fullmatch(cells[state.tc_col]):
+            raise ValueError
+        starts = np.cumsum([0] + [len(c) + 1 for c in cells[:-1]])
+        self.length = len(row) + 1  # with its line break
+        self.width = state.width
+        self.tc = int(starts[state.tc_col])
+        picked = sorted(set(state.columns))
+        kind = {}
+        for c in picked:
+            cell = cells[c]
+            digits = len(cell) - cell.count(".")
+            if not _DECIMAL.fullmatch(cell) or digits > _MAX_DIGITS:
+                raise ValueError
+            kind[c] = (len(cell), cell.find("."))
+        self.runs = []  # (byte offset, cells, cell width, point or -1, first index among the picked)
+        for j, c in enumerate(picked):
+            if self.runs and picked[j - 1] == c - 1 and kind[picked[j - 1]] == kind[c]:
+                self.runs[-1][1] += 1
+            else:
+                self.runs.append([int(starts[c]), 1, *kind[c], j])
+        last = state.width - 1
+        # the other cells (not read): their bytes hold no comma or line break, a comma follows each (a line break
+        # the last one, checked with every row's)
+        others = [c for c in range(state.width) if c not in kind and c != state.tc_col]
+        self.others = [(int(starts[c]), int(starts[c]) + len(cells[c])) for c in others]
+        self.commas = [int(starts[c + 1]) - 1 for c in others if c < last]
+        self.number_at = np.full(self.length, -1, dtype=np.int64)  # byte offset -> index among the picked
+        self.number_at[starts[picked]] = np.arange(len(picked))
+        self.count = len(picked)
+        self.order = np.searchsorted(picked, state.columns)  # picked (file order) -> the take's columns
+        self.checks = []
+        for o, m, w, point, j in self.runs:
+            base = np.full((m, w + 1), 48, dtype=np.uint8)
+            top = np.full((m, w + 1), 9, dtype=np.uint8)
+            weight = np.zeros(w + 1)
+            frac = 0 if point < 0 else w - point - 1
+            for i in range(w):
+                if i == point:
+                    base[:, i], top[:, i] = 46, 0
+                else:
+                    weight[i] = 10.0 ** ((w - 1 - i) - (1 if point >= 0 and i < point else 0))
+            base[:, w], top[:, w] = 44, 0
+            if o + m * (w + 1) == self.length:
+                base[-1, w] = 10  # the row's last cell: its line break
+            self.checks.append((base, top, weight, 48.0 * weight.sum(), 10.0 ** frac))
+        tc_base = np.frombuffer(b"00:00:00:00.000,", dtype=np.uint8).copy()
+        tc_top = np.where(tc_base == 48, 9, 0).astype(np.uint8)
+        if self.tc + 16 == self.length:
+            tc_base[15] = 10
+        self.tc_base, self.tc_top = tc_base, tc_top
+
+    @classmethod
+    def find(cls, blk: bytes, state: _BlockState) -> _Layout | None:
+        """The layout of the first line of ``blk`` with the header's number of cells that has one, else None."""
+        at = 0
+        for _ in range(8):
+            end = blk.find(b"\n", at)
+            if end < 0:
+                return None
+            text = blk[at:end]
+            at = end + 1
+            if text.count(b",") != state.width - 1:
+                continue
+            try:
+                return cls(text.replace(b"-", b"").decode("ascii"), state)
+            except ValueError:
+                continue
+        return None
+
+    def rows(self, blk: bytes, signs: np.ndarray):
+        """``blk``'s lines (whole, ending in ``\\n``), all of this layout once the minus signs at ``signs`` (byte
+        offsets) are taken out -> the arguments of :meth:`_Scanned.run` after the first line number, or None when
+        a line is not of it."""
+        plain = blk.replace(b"-", b"") if signs.size else blk
+        L = self.length
+        R, extra = divmod(len(plain), L)
+        if extra or not R:
+            return None
+        G = np.frombuffer(plain, dtype=np.uint8).reshape(R, L)
+        if not (G[:, L - 1] == 10).all():  # every row's line break where the layout has it
+            return None
+        for at in self.commas:
+            if not (G[:, at] == 44).all():
+                return None
+        for a, b in self.others:
+            cell = G[:, a:b]
+            if ((cell == 44) | (cell == 10)).any():
+                return None
+        tc = G[:, self.tc:self.tc + 16]
+        if ((tc - self.tc_base).max(axis=0) > self.tc_top).any():
+            return None
+        numbers = np.empty((R, self.count))
+        for (o, m, w, point, j), (base, top, weight, offset, scale) in zip(self.runs, self.checks):
+            X = G[:, o:o + m * (w + 1)].reshape(R, m, w + 1)
+            if ((X - base).max(axis=0) > top).any():  # digits, the point and the comma where the layout has them
+                return None
+            M = np.einsum("rmk,k->rm", X, weight)  # exact: integers below 2 ** 53
+            M -= offset
+            M /= scale
+            numbers[:, j:j + m] = M
+        if signs.size:  # each minus sign starts a number, at most one a number
+            at = signs - np.arange(signs.size)  # where it stood in the signless text
+            row, col = np.divmod(at, L)
+            k = self.number_at[col]
+            if (k < 0).any():
+                return None
+            flat = row * self.count + k  # increasing (the signs in file order), unless two start one number
+            if (np.diff(flat) <= 0).any():
+                return None
+            numbers.reshape(-1)[flat] *= -1.0
+        d = tc.astype(np.int64) - 48
+        minutes, seconds = d[:, 3] * 10 + d[:, 4], d[:, 6] * 10 + d[:, 7]
+        secs = ((d[:, 0] * 10 + d[:, 1]) * 3600 + minutes * 60 + seconds).astype(np.float64)
+        frames = ((d[:, 9] * 10 + d[:, 10]) * 1000 + d[:, 12] * 100 + d[:, 13] * 10 + d[:, 14]) / 1000.0
+        in_range = (minutes < 60) & (seconds < 61)
+        return secs, frames, in_range, numbers[:, self.order], lambda i: bytes(tc[i, :15]).decode("ascii")
 
 
 def _is_zero(cell: str) -> bool:

@@ -902,6 +902,46 @@ class TangentDeformer(Params):
         (F, n, 3) float64
             The deformed vertices per frame (a transposed view of a ``(F, 3, n)`` array).
         """
+        lin = self.linear_many(handle_positions)
+        if lin is not None:  # the dense map: one product of the frames' (3, k + 4) rows with it
+            C, basis = lin
+            T, q = C.shape[0], basis.shape[0]
+            return (C.reshape(3 * T, q) @ basis).reshape(T, 3, basis.shape[1]).transpose(0, 2, 1)
+        return self._deform_many(handle_positions)
+
+    def linear_many(self, handle_positions):
+        """The frames of :meth:`deform_many` as coefficients on one fixed basis, or None without a dense map.
+
+        Whatever the alignment and the soft labels' choice do per frame (robust rigid motion, GCV weight,
+        amplitude prior: all in marker space), every frame's vertices are ``(C[t] @ basis).T``: the rows of the
+        marker-to-vertex map, the rest shape's coordinates and a row of ones, combined by the frame's rotated
+        labels, rotation and translation. :meth:`deform_many` is exactly that product.
+
+        Parameters
+        ----------
+        handle_positions : (T, k, 3) float64
+            Marker positions per frame.
+
+        Returns
+        -------
+        (C, basis) or None
+            ``C (T, 3, k + 4)`` float64 (row ``i``: coordinate ``i`` of the frame) and ``basis (k + 4, n)``
+            float64 (read it, do not change it); None when the solver keeps no dense map (the frames are then
+            solves, not one product).
+        """
+        check_fitted(self, "solver_")
+        P = np.asarray(handle_positions, dtype=np.float64)
+        k = self.handles_.size
+        if P.ndim != 3 or P.shape[1:] != (k, 3):
+            raise InputError(f"handle_positions must have shape (T, {k}, 3), got {P.shape}")
+        if not np.all(np.isfinite(P)):
+            raise InputError("handle_positions contain NaN or inf")
+        if self.solver_.map_ is None:
+            return None
+        return self._deform_many(P, rows=True)
+
+    def _deform_many(self, handle_positions, rows: bool = False):
+        """:meth:`deform_many`; with ``rows`` (dense map only) :meth:`linear_many`'s ``(C, basis)`` instead."""
         check_fitted(self, "solver_")
         P = np.asarray(handle_positions, dtype=np.float64)
         k = self.handles_.size
@@ -945,5 +985,7 @@ class TangentDeformer(Params):
                 rest = X.T if self.field == "displacement" else np.zeros_like(X.T)
                 self._map_aug = np.ascontiguousarray(np.vstack([M, rest, np.ones((1, X.shape[0]))]))
             C = np.concatenate([np.matmul(Rm, Zt), Rm, t[:, :, None]], axis=2)  # (T, 3, k + 4)
+            if rows:
+                return C, self._map_aug
             Y = (C.reshape(3 * T, k + 4) @ self._map_aug).reshape(T, 3, X.shape[0])
         return Y.transpose(0, 2, 1)  # a view: the caller's copy (e.g. into a float32 cache) is the only pass

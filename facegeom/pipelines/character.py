@@ -110,8 +110,6 @@ def take_onto_character(take, character, start: int = 0, frames: int | None = No
     rotations (when the file has them) become the head's motion. Frames
     ``start .. start + frames - 1`` (all from ``start`` when ``frames`` is None).
     """
-    from scipy.spatial.transform import Rotation
-
     from facegeom.io.takes import read_take
 
     tk = read_take(take) if isinstance(take, (str, Path)) else take
@@ -128,7 +126,7 @@ def take_onto_character(take, character, start: int = 0, frames: int | None = No
                          "names=MAP.csv")
     T = W.shape[0]
     if tk.rotations is not None:  # yaw about Y, pitch about X, roll about Z (intrinsic), radians
-        R = Rotation.from_euler("YXZ", tk.rotations[start:stop, :3]).as_matrix()
+        R = _yxz_matrices(tk.rotations[start:stop, :3])
     else:
         R = np.repeat(np.eye(3)[None], T, axis=0)
     Wc = m.apply(W)
@@ -145,6 +143,42 @@ def take_onto_character(take, character, start: int = 0, frames: int | None = No
     start_s = getattr(tk, "start_s", 0.0) + float(tk.times[start]) if tk.times.size else None
     return SolvedCapture(solve, seq, np.zeros(0, dtype=np.int64), "take", fps, True, character, notes,
                          start_s=start_s)
+
+
+def _yxz_matrices(angles) -> np.ndarray:
+    """Intrinsic Y, X, Z rotations -> ``(T, 3, 3)`` matrices: ``Rotation.from_euler("YXZ", angles).as_matrix()``.
+
+    The same operations as scipy's (each angle's half-angle quaternion, composed in order, then the matrix of
+    the quaternion), with numpy on all frames at once: scipy 1.17 takes 2 us a rotation (0.2 s for a
+    100,000-frame take), this 0.3 to 0.5 us. Identical to scipy's where numpy's sine and cosine are the C
+    library's (bit for bit on 100,000 random frames on the machine this was written on); within 1e-15 anywhere.
+    """
+    a = np.asarray(angles, dtype=np.float64).reshape(-1, 3)
+    c, s = np.cos(a / 2), np.sin(a / 2)
+    zero = np.zeros(a.shape[0])
+
+    def compose(p, q):  # quaternions (x, y, z, w): p * q, as scipy's _compose_quat
+        px, py, pz, pw = p
+        qx, qy, qz, qw = q
+        cx, cy, cz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
+        return (pw * qx + qw * px + cx, pw * qy + qw * py + cy, pw * qz + qw * pz + cz,
+                pw * qw - (px * qx + py * qy + pz * qz))
+
+    x, y, z, w = compose(compose((zero, s[:, 0], zero, c[:, 0]), (s[:, 1], zero, zero, c[:, 1])),
+                         (zero, zero, s[:, 2], c[:, 2]))
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    R = np.empty((a.shape[0], 3, 3))
+    R[:, 0, 0] = x2 - y2 - z2 + w2
+    R[:, 1, 0] = 2 * (xy + zw)
+    R[:, 2, 0] = 2 * (xz - yw)
+    R[:, 0, 1] = 2 * (xy - zw)
+    R[:, 1, 1] = - x2 + y2 - z2 + w2
+    R[:, 2, 1] = 2 * (yz + xw)
+    R[:, 0, 2] = 2 * (xz + yw)
+    R[:, 1, 2] = 2 * (yz - xw)
+    R[:, 2, 2] = - x2 - y2 + z2 + w2
+    return R
 
 
 def stored_registration(model, path, V, F):

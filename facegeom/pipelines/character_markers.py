@@ -38,6 +38,7 @@ __all__ = ["MarkerRoute", "key_frames", "propose_labels", "character_markers", "
            "take_markers", "resolve_keys", "key_labels_comment", "CHUNK_BYTES"]
 
 CHUNK_BYTES = 48 << 20  # vertices driven at once (float64): larger blocks are slower (page faults, cache)
+LINEAR_FRAMES = 4096  # frames whose coefficients on the deformer's basis are computed at once (MarkerRoute.linear)
 
 
 @dataclass
@@ -135,7 +136,36 @@ class MarkerRoute:
                 X *= scale
             return X
 
-        return FrameSource(self.markers.shape[0], self.n_vertices, frames, chunk_frames=self.chunk_frames())
+        return FrameSource(self.markers.shape[0], self.n_vertices, frames, chunk_frames=self.chunk_frames(),
+                           linear=lambda: self.linear(scale))
+
+    def linear(self, scale: float = 1.0):
+        """The frames' linear structure times ``scale`` (:class:`~facegeom.io.frames.LinearFrames`: every frame is
+        ``(C[t] @ basis).T``), or None when the deformer has no ``linear_many`` or gives none (no dense map).
+
+        The tangent deformer's frames are its marker-to-vertex map's rows (and the rest shape's coordinates and a
+        row of ones) combined by per-frame coefficients: whatever is not linear in the markers (the robust rigid
+        alignment, the soft labels' weight chosen per frame) is in the coefficients, so ``(T, 3, q)`` of them and
+        the ``(q, n)`` basis hold the whole sequence. Computed :data:`LINEAR_FRAMES` frames at a time.
+        """
+        from facegeom.io.frames import LinearFrames
+
+        many = getattr(self.deformer, "linear_many", None)
+        if many is None:
+            return None
+        T = self.markers.shape[0]
+        C, basis = None, None
+        for a in range(0, T, LINEAR_FRAMES):
+            got = many(self.markers[a:a + LINEAR_FRAMES])
+            if got is None:
+                return None
+            if C is None:
+                basis = got[1]
+                C = np.empty((T, 3, basis.shape[0]))
+            C[a:a + LINEAR_FRAMES] = got[0]
+        if scale != 1.0:
+            C *= scale
+        return LinearFrames(C, basis)
 
     @property
     def frames(self) -> np.ndarray:

@@ -279,16 +279,23 @@ def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
 
 def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
     """The rig (in metres) with its blendshapes as named morph targets (or USD blend shapes, by the suffix:
-    :func:`facegeom.io.delivery.write_rig_animation`) and the weights as its animation."""
+    :func:`facegeom.io.delivery.write_rig_animation`) and the weights as its animation. A ``.glb`` is scaled to
+    metres as it is written (``write_rig_glb(..., scale=GLB_SCALE)``: the same file, without a scaled copy of the
+    rig's offsets)."""
     from facegeom.io.delivery import write_rig_animation
 
     rig = solved.rig
     if rig is None:
         raise InputError(f"a {path.suffix} needs the rig's mesh, and this solve carries no rig", path)
     s = solved.solve
-    motion = {}
-    if isinstance(s.info, dict) and s.info.get("head_motion"):  # a performance on a character: the head moves too
-        motion = {"rotations": s.rotations, "translations": s.translations * GLB_SCALE}
+    head = isinstance(s.info, dict) and s.info.get("head_motion")  # a performance on a character: the head moves
+    if path.suffix.lower() == ".glb":  # scaled as written: no scaled copy of the rig's offsets (K x n x 3)
+        from facegeom.io.gltf import write_rig_glb
+
+        motion = {"rotations": s.rotations, "translations": s.translations} if head else {}
+        return write_rig_glb(path, rig.neutral, rig.triangles, rig.deltas, s.names, s.weights, solved.fps,
+                             scale=GLB_SCALE, **motion)
+    motion = {"rotations": s.rotations, "translations": s.translations * GLB_SCALE} if head else {}
     return write_rig_animation(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
                                s.names, s.weights, solved.fps, **motion)
 
