@@ -331,3 +331,43 @@ def test_key_frames_cover_the_performance():
     assert k.size == 4 and np.all(np.diff(k) > 0)
     assert np.any(k >= 180)  # the late pose is a key
     assert np.abs(X[k[0]] - np.median(X, axis=0)).max() < 0.1  # the first key is the rest pose
+
+
+def test_marker_route_onto_a_head_in_pieces(real_takes, tmp_path, capsys):
+    """The MakeHuman head has eyes, teeth and a tongue as parts, no marker on them: the skin is driven, the lower
+    teeth and tongue follow the jaw rigidly, the eyes and upper teeth the skull (this stopped with '5 connected
+    part(s) of the data have no label')."""
+    from facegeom.cli.main import main
+    from facegeom.io import ict_weights
+    from facegeom.io.gltf import read_glb_animation
+    from facegeom.io.takes import read_take
+    from facegeom.methods.pieces import split_pieces
+    from facegeom.model import load_face_model
+    from facegeom.pipelines.character import read_head
+    from facegeom.registration import kabsch
+
+    take = real_takes[0]
+    names = list(load_face_model(None).expression_names)
+    jaw_open = ict_weights(read_take(take), names)[:, names.index("jawOpen")]
+    start = int(np.clip(np.argmax(jaw_open) - 60, 0, jaw_open.size - 120))  # a window where the jaw opens
+    jaw_open = jaw_open[start:start + 120]
+    main(["animate", "--take", str(take), "--character", str(CHARACTER), "--route", "markers", "--frames", "120",
+          "--start", str(start), "-o", str(tmp_path / "m.glb")])
+    out = capsys.readouterr().out
+    assert "teeth_lower: jaw" in out and "eye_L: eye" in out and "every vertex within" in out
+    anim = read_glb_animation(tmp_path / "m.glb")
+    K, n = anim.deltas.shape[:2]
+    X = anim.neutral[None] + (anim.weights @ anim.deltas.reshape(K, -1)).reshape(-1, n, 3)  # metres
+    V, F, parts = read_head(CHARACTER)
+    assert X.shape == (120, V.shape[0], 3)
+    np.testing.assert_allclose(anim.neutral, V / 100.0, atol=1e-6)  # cm -> m, at rest
+    pieces = {p.name: p for p in split_pieces(V, F, parts)}
+    for name in ("teeth_upper", "teeth_lower", "tongue", "eye_L", "eye_R"):
+        ids = pieces[name].vertices
+        for t in range(0, 120, 10):  # rigid, within the .glb's 0.1 mm encoding bound
+            R, tt = kabsch(V[ids] / 100.0, X[t, ids])
+            assert np.abs(V[ids] / 100.0 @ R.T + tt - X[t, ids]).max() < 2e-4, (name, t)
+    drop = -(X[:, pieces["teeth_lower"].vertices, 1] - V[pieces["teeth_lower"].vertices, 1] / 100.0).mean(axis=1)
+    assert np.corrcoef(drop, jaw_open)[0, 1] > 0.8  # the lower teeth come down as the jaw opens
+    upper = np.linalg.norm(X[:, pieces["teeth_upper"].vertices] - V[pieces["teeth_upper"].vertices] / 100.0, axis=2)
+    assert upper.max() < 0.5 * np.abs(drop).max() + 1e-4  # the upper teeth stay with the skull

@@ -21,8 +21,13 @@ mesh is driven through its markers every frame.
    ``registry`` name ``tangent``) fitted on the actor's sequence and the labels
    gives the character's markers every frame.
 5. **Drive**: a deformer (default ``tangent``) fitted once on the character's
-   mesh with its markers as handles, ``deform_many`` in chunks of
-   :data:`CHUNK_BYTES`, when the frames are read (:class:`MarkerRoute`).
+   skin with its markers as handles, ``deform_many`` in chunks of
+   :data:`CHUNK_BYTES`, when the frames are read (:class:`MarkerRoute`). A
+   head in pieces (eyes, teeth, tongue, lashes: no marker lies on them) has
+   them follow the driven skin by their role
+   (:class:`~facegeom.methods.pieces.PieceMotion`): lashes copy the skin
+   beneath, the lower teeth and tongue the chin's rigid motion, the eyes and
+   upper teeth the skull's.
 """
 from __future__ import annotations
 
@@ -64,11 +69,13 @@ class MarkerRoute:
     character : Character or None
         The registered head (:func:`~facegeom.methods.transfer.register_character`).
     deformer : Deformer
-        Fitted on the character with its markers as handles.
+        Fitted on the character's skin with its markers as handles (skin-local ids when ``motion`` is given).
     actor : (T, p, 3) float64
         The actor's markers retargeted (model frame, cm).
     proposed : (L, p, 3) float64
         The labels proposed at the key frames (what :attr:`labels` holds where nothing was given).
+    motion : PieceMotion or None
+        How the head's other pieces follow the driven skin (None: the skin is the whole head).
     """
 
     markers: np.ndarray
@@ -80,6 +87,7 @@ class MarkerRoute:
     deformer: object = None
     actor: np.ndarray | None = None
     proposed: np.ndarray | None = None
+    motion: object = None
     _frames: np.ndarray | None = field(default=None, repr=False)
 
     def relabel(self, labels, retargeter=None) -> "MarkerRoute":
@@ -104,7 +112,7 @@ class MarkerRoute:
         Y = rt.transform()
         times = {**{k: v for k, v in self.times.items() if k != "drive"}, "retarget": time.perf_counter() - t0}
         return MarkerRoute(Y, self.marker_vertices, self.key_frames, L, times, self.character, self.deformer,
-                           self.actor, self.proposed)
+                           self.actor, self.proposed, self.motion)
 
     @property
     def n_vertices(self) -> int:
@@ -119,7 +127,8 @@ class MarkerRoute:
         """The character's vertices with its markers at ``Y (m, p, 3)`` (head units) -> ``(m, n, 3)``."""
         Y = np.asarray(Y, dtype=np.float64)
         many = getattr(self.deformer, "deform_many", None)
-        return many(Y) if many else np.stack([self.deformer.deform(y) for y in Y])
+        S = many(Y) if many else np.stack([self.deformer.deform(y) for y in Y])
+        return S if self.motion is None else self.motion.frames(S, self.character.vertices)
 
     def drive(self, a: int, b: int) -> np.ndarray:
         """The character's vertices at frames ``a .. b - 1`` of the window -> ``(b - a, n, 3)``."""
@@ -159,6 +168,8 @@ class MarkerRoute:
             got = many(self.markers[a:a + LINEAR_FRAMES])
             if got is None:
                 return None
+            if self.motion is not None:
+                got = self.motion.linear(got[0], got[1], self.character.vertices)
             if C is None:
                 basis = got[1]
                 C = np.empty((T, 3, basis.shape[0]))
@@ -328,6 +339,7 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     to a point, a line, a plane or a fraction of the face, before the retargeting), naming ``labels_path`` (their
     file) and the key frame plus ``first_frame`` (the window's first take frame)."""
     from facegeom.io.key_labels import check_labels_on_head
+    from facegeom.methods.pieces import PieceMotion
     from facegeom.methods.transfer import register_character
     from facegeom.registry import parse_method
 
@@ -363,7 +375,12 @@ def markers_onto_character(model, actor_markers, actor_neutral_markers, marker_i
     Y = rt.transform()
     times["retarget"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    de = (deformer or parse_method("tangent").build("deformers")).fit(ch.vertices, ch.faces, mv)
+    motion = PieceMotion.build(model, reg, ch.vertices, ch.faces, ch.pieces)
+    de = deformer or parse_method("tangent").build("deformers")
+    if motion is None:
+        de.fit(ch.vertices, ch.faces, mv)
+    else:  # the markers lie on the skin: it is driven, the other pieces follow it
+        de.fit(motion.rest, motion.skin_faces, motion.local(mv))
     times["deformer_fit"] = time.perf_counter() - t0
     say(f"retarget {times['retarget']:.2f} s, deformer fit {times['deformer_fit']:.2f} s")
-    return MarkerRoute(Y, mv, keys, labels, times, ch, de, X, proposed)
+    return MarkerRoute(Y, mv, keys, labels, times, ch, de, X, proposed, motion)
