@@ -339,6 +339,8 @@ NOISE_FLOOR = 0.5  # estimate_noise: the landmark sigma re-estimated is at least
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
 CLOUD_ALIGN_MM = 5.0  # point clouds: a median closest-point distance of the mean face above this is off the frame
 CLOUD_BAND_CM = 1.0  # point clouds: the face area's vertices within this of its edge (model units, cm) form the band
+GRAM_INCREMENTAL = 0.25  # clouds: the Gram is updated (not recomputed) while at most this share of weights changed
+GRAM_REFRESH = 16  # clouds: updates of the Gram at most between two full products (bounds the rounding's growth)
 CLOUD_BEYOND = 0.08  # point clouds: above this fraction of outlying points at the edge band, the scan reaches past it
 CLOUD_SIGMA_DECAY = 0.9  # point clouds: sigma's factor per round, from CLOUD_SIGMA0_MM down to noise_mm
 
@@ -812,6 +814,25 @@ class IdentityFitter(Params):
                            state.R.copy(), state.t.copy(), info, model)
 
 
+def _updated_gram(A, G, before, wts):
+    """``A^T diag(w) A`` for the weights ``wts (m,)`` from ``G``, the same for the weights ``before``: only the
+    vertices whose weight changed are touched (``A (3m, C)``, three rows a vertex).
+
+    Between two closest-point rounds of a cloud fit 2-5 % of the weights change (median 2 %, 90th percentile
+    9 % registering the MakeHuman head: 303 rounds), so the update is ~20x less work than :func:`_weighted_gram`
+    (the largest cost of a round). Each update rounds at the level of ``eps ||G||``; :data:`GRAM_REFRESH`
+    updates at most before a full product, so the difference stays ~1e-14 of ``||G||``.
+    """
+    changed = np.flatnonzero(wts != before)
+    if changed.size == 0:
+        return G
+    rows = (3 * changed[:, None] + np.arange(3)).ravel()
+    Ac = A[rows]
+    U = Ac.T @ (Ac * np.repeat(wts[changed] - before[changed], 3)[:, None])
+    G = G + U
+    return 0.5 * (G + G.T)
+
+
 def _weighted_gram(A, wts):
     """``A^T diag(w) A`` for per-vertex weights ``wts (m,)`` (``A (3m, C)``), by BLAS ``syrk``.
 
@@ -870,6 +891,7 @@ class _State:
         self.beyond = [False] * K  # clouds: the scan reaches past the face area (its edge pairs are not used)
         self.prev: list = [None] * K
         self.trees: list = [None] * K
+        self.gram_age = [0] * K  # updates of target k's Gram since its last full product (_match)
         self.samples: list = [None] * K
         self.spread: list = [0.0] * K  # clouds: residual std per coordinate at the last matching (model units)
         self.changed = True
@@ -1035,8 +1057,13 @@ class _State:
                                 / np.maximum(wts, 1e-300)[:, None], F)
         D = F - self.corr[k]
         self.spread[k] = float(np.sqrt(wts @ (D * D).sum(axis=1) / max(3.0 * float(wts.sum()), 1e-300)))
-        A = self.sub[k][1]
-        self.sub[k] = (self.sub[k][0], A, _weighted_gram(A, wts), wts)
+        ids, A, G, before = self.sub[k]
+        if before is not None and self.gram_age[k] < GRAM_REFRESH \
+                and np.count_nonzero(wts != before) <= GRAM_INCREMENTAL * wts.size:
+            G, self.gram_age[k] = _updated_gram(A, G, before, wts), self.gram_age[k] + 1
+        else:
+            G, self.gram_age[k] = _weighted_gram(A, wts), 0
+        self.sub[k] = (ids, A, G, wts)
 
     def apply_pose_steps(self, p):
         """Apply the Gauss-Newton pose steps ``p (6 P,)`` (rotation vector, translation) of the free poses."""
