@@ -476,6 +476,36 @@ def bench_retarget_scaling(frames, markers, labels, seed, methods, timeout, mem_
     rsc.main(specs, lengths, Path(out), markers, labels, seed, not in_process, timeout, mem_gb, echo=click.echo)
 
 
+@bench.command("production")
+@click.option("--cases", "cases", default="all", show_default=True,
+              help="'all' or comma-separated cases: help, solve-gaps, solve-cli, rig-route, marker-route.")
+@click.option("--repeat", default=3, show_default=True, type=click.IntRange(1, 100),
+              help="Runs of each command (median CPU and wall, largest peak memory).")
+@click.option("--head", "head", type=click.Path(dir_okay=False), default=None,
+              help="Rig .npz subdivided into the large character (default: the MakeHuman ARKit rig of a source "
+                   "checkout, tests/data/heads/makehuman_arkit.npz).")
+@click.option("--timeout", default=1800.0, show_default=True, type=click.FloatRange(1),
+              help="Seconds before a command is stopped (its check then fails).")
+@click.option("--frames-rig", default=100_000, type=click.IntRange(2, 10_000_000), hidden=True)
+@click.option("--frames-markers", default=1000, type=click.IntRange(10, 1_000_000), hidden=True)
+@click.option("--subdivide", default=2, type=click.IntRange(0, 3), hidden=True)
+@click.option("--out", type=click.Path(file_okay=False), default="bench-out/production", show_default=True,
+              help="Folder for production.csv, production.json, production-summary.md, the cached set-up (setup/) "
+                   "and the commands' output (logs/).")
+@click.pass_obj
+def bench_production(obj: Context, cases, repeat, head, timeout, frames_rig, frames_markers, subdivide, out):
+    """The daily paths at production scale, each a child process as a user runs it: CPU, wall, peak memory, checks."""
+    from facegeom.bench import production as bp
+    from facegeom.errors import InputError
+
+    names = bp.parse_cases(cases)
+    if frames_markers > frames_rig:
+        raise InputError(f"--frames-markers {frames_markers} exceeds --frames-rig {frames_rig} (the take's frames)")
+    sizes = bp.Sizes(frames_rig=frames_rig, frames_markers=frames_markers, subdivide=subdivide, timeout=timeout)
+    bp.main(obj.face_model(), names, Path(out), sizes, repeat, Path(head) if head else bp.HEAD, obj.data,
+            echo=click.echo)
+
+
 @bench.command("batch")
 @click.option("--fits", default=10000, show_default=True, type=int, help="Landmark files fitted by SEM.")
 @click.option("--frames", default=2000, show_default=True, type=int, help="Marker frames driven.")
