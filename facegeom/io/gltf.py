@@ -609,7 +609,8 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
         ``path`` and ``{"targets": K, "max_error": e, "tolerance": tolerance,
         "frames": T, "rest": bool}`` with ``K`` the smallest number of targets meeting the
         bound (found by bisection on K; the per-frame residual never grows
-        with K) and ``e`` the largest vertex error of the written file.
+        with K) and ``e`` an upper bound on the largest vertex error of the written file (for a frame
+        source the error plus bounds on float32 rounding: see the notes).
 
     Raises
     ------
@@ -660,21 +661,23 @@ def write_sequence_glb(path: str | os.PathLike, frames, faces, fps: float,
        ``R^(3q)`` (``z_t[i] = Ra C_t[i]``); the principal axes are the eigenvectors of the ``(3q, 3q)``
        scatter of the centred ``z`` and every frame's coefficients on every axis are known (``Ct``);
     2. a first candidate ``K`` by bisection on an evenly spaced sample (and the frames farthest off the axes),
-       within 95% of ``tolerance``, each frame's error computed exactly from its ``z`` residual;
-    3. every frame, target counts ``Ks .. Ks + 7`` at once (the window moves up while none holds). With
-       ``a_kj`` the part of axis ``k`` at vertex ``j`` and ``lam_j`` the largest singular value of vertex
-       ``j``'s part of the axes beyond the window (from the 3 x 3 matrix ``|Qa_j|^2 I - sum a_kj a_kj^T``:
-       the ``3q`` axes are orthonormal and complete), the error of vertex ``j`` in frame ``t`` with
-       ``K >= Ks`` targets is at most ``sum_{Ks <= k < Kt} |c_tk| |a_kj| + lam_j |c_t,Kt..|`` (triangle and
-       Cauchy-Schwarz inequalities; it does not grow with ``K``). The pairs (frame, vertex) whose bound is
-       within the limit need nothing more; for the others the residual is computed exactly (the vertices
-       concerned, every ``K`` of the window by rank-one updates);
+       within 95% of ``tolerance``, each frame's largest error decided exactly as in (3);
+    3. every frame, every vertex, ``K = Ks, Ks + 1, ...`` until one holds. Coordinate ``i`` of frame ``t``'s
+       residual at vertex ``j`` is ``Qa_j . r_t[i]`` (``r_t`` its ``z`` residual, of norm ``|c_t,K..|``), so the
+       vertex is at most ``|Qa_j| |c_t,K..|`` off (Cauchy-Schwarz). The pairs (frame, vertex) whose bound is
+       within the limit need nothing more (on a face most vertices are far from every marker and most frames
+       near the mean); the others are computed exactly (``2 * 3q`` flops each), the most exposed vertices and
+       the worst frames first, so a count that does not hold is refuted at its first vertex over. When the
+       largest bound left is above the largest exact error, the pairs whose bound is above that error (or half
+       the bound) are computed too, so the error reported is the exact largest one whenever it is at least
+       half of the bound;
     4. the stored values' float32 rounding adds at most ``|b32_j - (base - sum D32_k / 2)_j| +
        sum_k (2^-23 |D32_kj| + |D32_kj - D_kj| / 2)`` at vertex ``j`` (weights in [0, 1] round by 2^-24, the
        targets' and the base's rounding measured), and float64 arithmetic at most ``2^-36 max|C_t| |B|_2``
-       (hundreds of times its few-hundred-ulp error); ``K`` is the smallest of the window whose exact
-       errors, bounds and these two terms stay within ``tolerance``; ``max_error`` is that sum (an upper
-       bound on every vertex of every frame, as the file plays it);
+       (hundreds of times its few-hundred-ulp error); ``K`` is the first whose errors, bounds and these two
+       terms stay within ``tolerance``; ``max_error`` is that sum: an upper bound on every vertex of every
+       frame as the file plays it (the largest exact error, or the largest bound of the pairs not computed when
+       that is larger, plus the two rounding terms);
     5. the first chunk and the worst frames are driven by the source itself and played back from the
        encoding: if their error differs from the structure's prediction by more than the rounding terms, the
        structure is not the source's and the frames are streamed as above.
@@ -1259,6 +1262,57 @@ def _write_sequence_linear(path: Path, source: FrameSource, lin, faces, fps, tol
             out[a:a + step] = np.sqrt(np.einsum("min,min->mn", R, R).max(axis=1))
         return out
 
+    # Coordinate i of frame t's residual at vertex j is Qa_j . (its z residual)[i], so (Cauchy-Schwarz, coordinate
+    # by coordinate) vertex j is at most ||Qa_j|| |c_t,K..| off: on a face most vertices are far from every marker
+    # (small ||Qa_j||) and most frames near the mean (small tails), so most pairs (frame, vertex) are settled by
+    # that bound and only the others are computed, exactly (2 r flops each). The margin covers the norms' rounding.
+    reach = np.sqrt(np.einsum("nm,nm->n", Qa, Qa)) * (1.0 + 1e-12)
+    order = np.argsort(-reach, kind="stable")  # the most exposed vertices first
+    reach_sorted = reach[order]
+    computed = [0]  # pairs computed exactly, for the progress line
+
+    def worst(K: int, rows: np.ndarray, screen: float, fail: float = np.inf, label: str = "") -> tuple[float, float]:
+        """``(e, b)`` for frames ``rows`` with ``K`` targets: ``e`` the largest exact error of the pairs whose bound
+        exceeds ``screen`` (and of some others), ``b`` the largest bound of the pairs not computed (at most
+        ``screen``); ``(inf, inf)`` as soon as an exact error exceeds ``fail``."""
+        tail = np.empty(rows.size)
+        for a in range(0, rows.size, 4096):
+            Ck = Ct[rows[a:a + 4096], K:]
+            tail[a:a + 4096] = np.sqrt(np.einsum("tk,tk->t", Ck, Ck))
+        o = np.argsort(-tail, kind="stable")  # the worst frames first: a count that does not hold fails early
+        tail = tail[o]
+        m = int(np.count_nonzero(tail * reach_sorted[0] > screen))  # the frames with some pair to compute
+        Zr = np.empty((m, r))  # their residuals in z
+        for a in range(0, m, 4096):
+            Zr[a:a + 4096] = Ct[rows[o[a:min(m, a + 4096)]], K:] @ Vz[:, K:].T
+        err = bnd = 0.0
+        a, last = 0, time.monotonic()
+        while a < n:
+            # vertices order[a:a + nb]: the frames whose bound there may exceed screen are the first c
+            c = int(np.count_nonzero(tail[:m] * reach_sorted[a] > screen))
+            if c < tail.size:
+                bnd = max(bnd, float(tail[c] * reach_sorted[a]))
+            if c == 0:  # and so for every vertex after (less exposed)
+                break
+            # the block ends about where half of these frames are settled (at most about twice the pairs needed)
+            half = int(np.searchsorted(-reach_sorted, -screen / tail[c // 2]))
+            nb = min(n - a, max(256, half - a), max(256, _LINEAR_BLOCK // (24 * c)))
+            QJ = Qa[order[a:a + nb]].T
+            step = max(1, _LINEAR_BLOCK // (24 * nb))
+            for f in range(0, c, step):
+                g = min(c, f + step)
+                R = (Zr[f:g].reshape(-1, q) @ QJ).reshape(g - f, 3, nb)
+                e = float(np.sqrt(np.einsum("min,min->mn", R, R).max()))
+                if e > fail:
+                    return np.inf, np.inf
+                err = max(err, e)
+            computed[0] += c * nb
+            a += nb
+            if label and time.monotonic() - last >= 0.5:
+                say(f"glb: {label}, {a:,}/{n:,} vertices")
+                last = time.monotonic()
+        return err, bnd
+
     # (1) The first candidate: the fewest axes keeping an evenly spaced sample, and the frames farthest off the
     # axes at each count tried, within 95% of the tolerance (bisection).
     sample = np.unique(np.linspace(0, T - 1, min(T, _LINEAR_SAMPLE)).round().astype(np.int64))
@@ -1266,7 +1320,8 @@ def _write_sequence_linear(path: Path, source: FrameSource, lin, faces, fps, tol
     def sample_ok(K: int) -> bool:
         tail = np.einsum("tk,tk->t", Ct[:, K:], Ct[:, K:])
         rows = np.union1d(sample, np.argpartition(-tail, min(32, T) - 1)[:32])
-        return bool(exact(K, rows).max() <= 0.95 * tol - arith)
+        lim = 0.95 * tol - arith
+        return lim > 0 and worst(K, rows, lim, lim)[0] <= lim
 
     lo, hi = 1, r
     while lo < hi:
@@ -1277,79 +1332,44 @@ def _write_sequence_linear(path: Path, source: FrameSource, lin, faces, fps, tol
             lo = mid + 1
     say(f"glb: {T:,} frames on a {r}-dimensional basis; candidate {lo} targets from {sample.size} frames")
 
-    # (2) Every frame, every vertex, target counts Ks .. Kt at once (the window moves up while none holds).
-    q2 = np.einsum("nm,nm->n", Qa, Qa)  # ||Qa_j||^2: the energy of all r axes at vertex j, per coordinate
+    # (2) Every frame, every vertex: K = Ks, Ks + 1, ... (targets and rounding bounds a window at a time) until
+    # the exact errors, the bounds and the rounding stay within the tolerance.
+    every = np.arange(T)
     Ks = lo
-    while True:
+    K = err = None
+    while K is None:
         Kt = min(r, Ks + _LINEAR_WINDOW - 1)
         A = field(Vz[:, :Kt].T)  # (Kt, 3, n): the first Kt axes at the vertices
-        # lam_j: the largest singular value of vertex j's part of the axes Kt.. (3 x (r - Kt)), from the 3 x 3
-        # matrix ||Qa_j||^2 I - sum_{k < Kt} a_kj a_kj^T (the axes are orthonormal and complete), plus a margin
-        # covering its rounding
-        H = np.empty((n, 3, 3))
-        for i in range(3):
-            for j in range(i, 3):
-                H[:, i, j] = H[:, j, i] = (i == j) * q2 - np.einsum("kn,kn->n", A[:, i], A[:, j])
-        lam = np.sqrt(np.maximum(np.linalg.eigvalsh(H)[:, -1], 0.0) + 1e-12 * q2)
-        del H
-        AN = np.sqrt(np.einsum("kin,kin->kn", A[Ks:Kt], A[Ks:Kt]))  # (Kt - Ks, n) |a_kj|
         W, Dk = _targets_from(Ct, S, A, Kt)
         rho = _rounding_bound(base, Dk, Ct, S, A, Ks, Kt)  # rho[K]: what float32 adds with K targets
-        lim = tol - arith - float(rho[Ks:Kt + 1].max())
-        # A vertex's error with K >= Ks targets is at most sum_{Ks <= k < Kt} |c_tk| |a_kj| + lam_j |c_t,Kt..|:
-        # the pairs (frame, vertex) within lim need nothing more; the others are computed exactly.
-        tail = np.sqrt(np.einsum("tk,tk->t", Ct[:, Kt:], Ct[:, Kt:]))
-        head = np.abs(Ct[:, Ks:Kt])
-        fb = tail * lam.max() + head @ AN.max(axis=1) if Kt > Ks else tail * lam.max()
-        loose = np.flatnonzero(fb > lim)
-        E = np.zeros(Kt - Ks + 1)  # the largest exact error with K = Ks .. Kt targets
-        bound = float(fb[fb <= lim].max()) if loose.size < T else 0.0  # the largest error left to the bound
-        step = max(1, _LINEAR_BLOCK // (8 * n))
-        last = time.monotonic()
-        for a in range(0, loose.size, step):
-            rows = loose[a:a + step]
-            Bt = np.outer(tail[rows], lam)
-            if Kt > Ks:
-                Bt += head[rows] @ AN
-            over = (Bt > lim).any(axis=0)
-            J = np.flatnonzero(over)
-            if J.size < n:
-                bound = max(bound, float(Bt[:, ~over].max()))
-            del Bt
-            if J.size == 0:
+        del A
+        for k in range(Ks, Kt + 1):
+            lim = tol - arith - float(rho[k])
+            if lim < 0:  # the rounding alone is over
                 continue
-            R = field(Ct[rows, Kt:] @ Vz[:, Kt:].T, J)  # (m, 3, |J|) the residuals with Kt targets
-            AJ = A[Ks:Kt][:, :, J]
-            for K in range(Kt, Ks - 1, -1):
-                E[K - Ks] = max(E[K - Ks], float(np.sqrt(np.einsum("min,min->mn", R, R).max())))
-                if K > Ks:
-                    R += Ct[rows, K - 1][:, None, None] * AJ[K - 1 - Ks][None]
-            del R, AJ
-            now = time.monotonic()
-            if now - last >= 0.5:
-                say(f"glb: check {Ks}..{Kt} targets, {a + rows.size:,}/{loose.size:,} frames off the bound")
-                last = now
-        total = np.maximum(E, bound) + rho[Ks:Kt + 1] + arith
-        fits = np.flatnonzero(total <= tol)
-        if fits.size:
-            K = Ks + int(fits[0])
-            err = float(total[fits[0]])
-            break
-        if Kt >= r:  # every axis and still above: float32 rounding of the positions themselves
-            raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives "
-                             f"{float(total[-1]):.3g}); use a larger tolerance", path)
-        Ks = Kt + 1
+            ex, bd = worst(k, every, lim, lim, f"check {k} targets")
+            if ex <= lim:
+                if bd > ex:  # the bound is not reached: compute the pairs whose bound is above ex or half of it
+                    more = worst(k, every, max(ex, bd / 2))  # too (the exact largest error when ex is the larger)
+                    ex = max(ex, *more)
+                K, err = k, ex + float(rho[k]) + arith
+                break
+        else:
+            if Kt >= r:  # every axis and still above: float32 rounding of the positions themselves
+                raise InputError(f"the sequence cannot be stored within {tol} (float32 rounding alone gives "
+                                 f"{float(rho[r]) + arith:.3g}); use a larger tolerance", path)
+            Ks = Kt + 1
     W, Dk = W[:, :K], Dk[:K]
-    say(f"glb: {K} targets, every vertex of every frame within {err:.3g} ({loose.size:,} frames computed, "
-        f"{T - loose.size:,} within the bound)")
+    say(f"glb: {K} targets, every vertex of every frame within {err:.3g} ({computed[0]:,} frame-vertex pairs "
+        f"computed for {T * n:,} checked)")
 
     # (3) The source's own frames (the first chunk and the frames farthest off) played back from the file: they
     # must agree with the structure's prediction, else the structure is not the source's and the frames are
     # streamed instead.
     W64, D64 = W.astype(np.float64), Dk.astype(np.float64)
     spot = np.arange(min(T, source.chunk_frames))
-    if loose.size:
-        spot = np.union1d(spot, loose[:8])
+    tail = np.einsum("tk,tk->t", Ct[:, K:], Ct[:, K:])
+    spot = np.union1d(spot, np.argsort(-tail, kind="stable")[:8])
     fr = _Frames(source, path, False, None)
     X = fr.rows(spot)
     played = _playback_error(base, W64[spot], D64, X, n)
@@ -1394,15 +1414,19 @@ def _rounding_bound(base: np.ndarray, Dk: np.ndarray, Ct: np.ndarray, S: np.ndar
     del U
     out = np.full(Kt + 1, np.inf)
     acc = np.zeros(n)
+    total = np.zeros(base.size)  # sum_{k < K} D32_k in float64, a target at a time
     for k in range(Kt + 1):
         if k >= Ks:  # the base as the file stores it (_played_base) against the base it stands for
-            D64 = Dk[:k].astype(np.float64)
-            beta = _played_base(base, D64) - (base - 0.5 * D64.sum(axis=0))
+            # the running sum is _played_base's own sum: numpy reduces the first axis of a row-major array row
+            # after row, in order (tests/test_gltf_linear_bound.py checks the two agree bit for bit)
+            exact = base - 0.5 * total
+            beta = exact.astype(np.float32).astype(np.float64) - exact
             out[k] = float((np.sqrt(_squared_lengths(beta[None]))[0] + acc).max())
-            del D64, beta
+            del exact, beta
         if k == Kt:
             break
         d32 = Dk[k].astype(np.float64)
+        total += d32
         d64 = (2.0 * S[k] * scale[k]) * np.ascontiguousarray(A[k].T).reshape(-1)
         acc += 2.0 ** -23 * np.sqrt(_squared_lengths(d32[None]))[0] + 0.5 * np.sqrt(
             _squared_lengths((d32 - d64)[None]))[0]
