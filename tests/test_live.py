@@ -173,6 +173,15 @@ def run(*args, timeout=60):
     return subprocess.run([sys.executable, "-m", "facegeom", *args], capture_output=True, text=True, timeout=timeout)
 
 
+def counts(r) -> tuple[int, int, int]:
+    """``(frames in, frames out, superseded)`` from the last status line a ``facegeom live`` run printed."""
+    import re
+
+    found = re.findall(r"(\d+) frames in, (\d+) out; dropped: \d+ malformed, (\d+) superseded", r.stdout + r.stderr)
+    assert found, f"no status line in:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+    return tuple(int(x) for x in found[-1])
+
+
 def test_cli_listens_records_and_relays(tmp_path, dao):
     probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     probe.bind(("127.0.0.1", 0))
@@ -212,7 +221,11 @@ def test_cli_replays_a_recording_into_a_take(tmp_path):
 
     take = read_take(tmp_path / "t.csv")
     k = [n.lower() for n in take.names].index("jawleft")
-    assert take.n_frames == 66 and take.weights[:, k].max() == pytest.approx(1.0)
+    # every packet of the recording arrives; on a loaded machine a frame may be superseded by the next before it is
+    # passed on (as the phone's are), and the status line counts it: none is lost silently
+    frames_in, frames_out, superseded = counts(r)
+    assert frames_in == 66 and frames_out + superseded == 66 and frames_out >= 60
+    assert take.n_frames == frames_out and take.weights[:, k].max() == pytest.approx(1.0)
     assert take.weights[:, k].min() == 0.0  # the sweep's negative half clamped
     assert np.abs(np.delete(take.weights, k, axis=1)).max() == 0.0
 
@@ -350,7 +363,9 @@ def test_osc_bundles_are_what_an_independent_osc_library_reads(dao):
     assert r.returncode == 0, r.stderr
     got = drain(rx)
     rx.close()
-    assert len(got) == 66
+    frames_in, frames_out, superseded = counts(r)  # a frame superseded on a loaded machine is counted, not lost
+    assert frames_in == 66 and frames_out + superseded == 66 and frames_out >= 60
+    assert len(got) == frames_out
     jaw = [dict(m.params for m in OscBundle(g) if m.params)["JawLeft"] for g in got]
     assert max(jaw) == pytest.approx(1.0) and min(jaw) == 0.0
 
