@@ -33,10 +33,12 @@ class _Progress:
         self.bar = None
 
     def __call__(self, done: int, total: int) -> None:
+        if total < 2000:  # no bar (nor tqdm imported) for a short capture
+            return
         from tqdm import tqdm
 
         if self.bar is None:
-            self.bar = tqdm(total=total, unit="frame", desc="solve", disable=total < 2000, leave=False)
+            self.bar = tqdm(total=total, unit="frame", desc="solve", leave=False)
         self.bar.update(done - self.bar.n)
 
     def close(self) -> None:

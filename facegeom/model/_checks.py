@@ -17,6 +17,9 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def _first_nonfinite(a: np.ndarray) -> tuple[int, ...] | None:
+    with np.errstate(over="ignore", invalid="ignore"):  # (a sum may overflow, or add inf to -inf: no warning)
+        if np.isfinite(np.sum(a)):  # a finite sum has no NaN or inf in it (a cheap first look, no mask allocated)
+            return None
     bad = ~np.isfinite(a)
     if bad.any():
         return tuple(int(i) for i in np.argwhere(bad)[0])

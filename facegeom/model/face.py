@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from facegeom.errors import DataNotFoundError, InputError, TakesNotFoundError
-from facegeom.io.formats.common import read_file_bytes
-from facegeom.io.formats.obj import read_obj
 
 __all__ = [
     "ENV_VAR",
@@ -191,6 +189,12 @@ def load_bundle(path: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
         Unreadable file, missing keys, wrong shapes, indices out of range or
         NaN / inf in the positions.
     """
+    return _read_bundle(path)
+
+
+def _read_bundle(path, deferred: tuple[str, ...] = ()) -> dict:
+    """:func:`load_bundle`, the members ``deferred`` checked by their shapes only: each is a
+    :class:`_BundleMember`, which reads, checks (NaN / inf) and returns the array when called."""
     f = locate_data(path)
     try:
         with open(f, "rb") as fh:
@@ -201,29 +205,74 @@ def load_bundle(path: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
         raise InputError(f"not a face data bundle: expected the {BUNDLE_NAME} archive (or the folder holding it)", f)
     try:
         with np.load(f, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+            arrays = {k: z[k] for k in z.files if k not in deferred}
+            shapes = {k: _member_shape(z, k) for k in deferred if k in z.files}
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
         raise InputError(f"cannot read the face data bundle ({exc.__class__.__name__}: {exc})", f) from None
-    missing = [k for k in REQUIRED_KEYS if k not in arrays]
+    missing = [k for k in REQUIRED_KEYS if k not in arrays and k not in shapes]
     if missing:
         raise InputError(f"face data bundle lacks the keys {', '.join(missing)}", f)
-    _validate_bundle(arrays, f)
+    _validate_bundle(arrays, f, shapes)
+    for key, shape in shapes.items():
+        arrays[key] = _BundleMember(f, key, shape)
     arrays["_path"] = np.array(str(f))
     return arrays
 
 
-def _validate_bundle(a: Mapping[str, np.ndarray], f) -> None:
+def _member_shape(z, key: str) -> tuple[int, ...]:
+    """The shape an ``.npz`` member's header declares, its data not read (a header of another version: read)."""
+    fmt = np.lib.format
+    with z.zip.open(key if key in z.zip.namelist() else f"{key}.npy") as fh:  # numpy's choice of the two
+        version = fmt.read_magic(fh)
+        if version == (1, 0):
+            return fmt.read_array_header_1_0(fh)[0]
+        if version == (2, 0):
+            return fmt.read_array_header_2_0(fh)[0]
+    return z[key].shape
+
+
+@dataclass(frozen=True)
+class _BundleMember:
+    """Called: the bundle ``file``'s member ``key`` (declared ``shape``), read and checked as :func:`load_bundle`
+    does (a plain object, so that a model holding one still pickles)."""
+
+    file: Path
+    key: str
+    shape: tuple[int, ...]
+    dtype: type | None = None
+
+    def __call__(self) -> np.ndarray:
+        f = self.file
+        try:
+            with np.load(f, allow_pickle=False) as z:
+                a = z[self.key]
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
+            raise InputError(f"cannot read the face data bundle ({exc.__class__.__name__}: {exc})", f) from None
+        if a.shape != self.shape:
+            raise InputError(f"the face data bundle changed while in use: {self.key} is {a.shape}, was "
+                             f"{self.shape}", f)
+        _check_finite(a, self.key, f)
+        return a if self.dtype is None else np.asarray(a, dtype=self.dtype)
+
+
+def _check_finite(a: np.ndarray, key: str, f) -> None:
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"malformed face data bundle: {key} contains NaN or inf", f)
+
+
+def _validate_bundle(a: Mapping[str, np.ndarray], f, shapes: Mapping[str, tuple[int, ...]] | None = None) -> None:
+    shape = {k: v.shape for k, v in a.items()} | dict(shapes or {})
     n = a["neutral"].shape[0] if a["neutral"].ndim == 2 else -1
     checks = [
         (a["neutral"].ndim == 2 and a["neutral"].shape[1] == 3, f"neutral must be (n, 3), is {a['neutral'].shape}"),
         (a["triangles"].ndim == 2 and a["triangles"].shape[1] == 3, f"triangles must be (m, 3), is {a['triangles'].shape}"),
         (a["quads"].ndim == 2 and a["quads"].shape[1] == 4, f"quads must be (q, 4), is {a['quads'].shape}"),
-        (a["expression_deltas"].shape[1:] == (n, 3), f"expression_deltas must be (B, {n}, 3), is {a['expression_deltas'].shape}"),
-        (a["expression_names"].shape == a["expression_deltas"].shape[:1],
-         f"expression_names {a['expression_names'].shape} does not match expression_deltas {a['expression_deltas'].shape}"),
-        (a["identity_modes"].shape[1:] == (n, 3), f"identity_modes must be (I, {n}, 3), is {a['identity_modes'].shape}"),
-        (a["identity_names"].shape == a["identity_modes"].shape[:1],
-         f"identity_names {a['identity_names'].shape} does not match identity_modes {a['identity_modes'].shape}"),
+        (shape["expression_deltas"][1:] == (n, 3), f"expression_deltas must be (B, {n}, 3), is {shape['expression_deltas']}"),
+        (shape["expression_names"] == shape["expression_deltas"][:1],
+         f"expression_names {shape['expression_names']} does not match expression_deltas {shape['expression_deltas']}"),
+        (shape["identity_modes"][1:] == (n, 3), f"identity_modes must be (I, {n}, 3), is {shape['identity_modes']}"),
+        (shape["identity_names"] == shape["identity_modes"][:1],
+         f"identity_names {shape['identity_names']} does not match identity_modes {shape['identity_modes']}"),
         (a["landmarks_multipie68"].shape == (68,), f"landmarks_multipie68 must be (68,), is {a['landmarks_multipie68'].shape}"),
     ]
     for ok, msg in checks:
@@ -239,8 +288,28 @@ def _validate_bundle(a: Mapping[str, np.ndarray], f) -> None:
         if v.size and (v.min() < 0 or v.max() >= n):
             raise InputError(f"malformed face data bundle: {key} index past the {n} vertices", f)
     for key in ("neutral", "expression_deltas", "identity_modes"):
-        if not np.all(np.isfinite(a[key])):
-            raise InputError(f"malformed face data bundle: {key} contains NaN or inf", f)
+        if key in a:  # (a deferred member is checked when it is read)
+            _check_finite(a[key], key, f)
+
+
+class _ReadOnFirstUse:
+    """A :class:`FaceModel` field that may be given as a function (no arguments): called when the field is first
+    read, its array kept (the identity modes, which a rig of the expressions never reads)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            raise AttributeError(self.name)  # no default: the dataclass field stays required
+        value = obj.__dict__[self.name]
+        if callable(value):
+            value = value()
+            obj.__dict__[self.name] = value
+        return value
+
+    def __set__(self, obj, value) -> None:  # (the frozen dataclass's __init__ only)
+        obj.__dict__[self.name] = value
 
 
 @dataclass(frozen=True)
@@ -265,7 +334,7 @@ class FaceModel:
         Expression blendshapes as offsets from the neutral (kept compact).
     identity_names : tuple of I str
     identity_modes : (I, n, 3) float32
-        Identity modes as offsets from the neutral.
+        Identity modes as offsets from the neutral (from a bundle: read when first used).
     landmarks : (68,) int64
         Vertex id of each Multi-PIE landmark.
     source : str
@@ -280,7 +349,7 @@ class FaceModel:
     expression_names: tuple[str, ...]
     expression_deltas: np.ndarray  # (B, n, 3) float32 (kept compact)
     identity_names: tuple[str, ...]
-    identity_modes: np.ndarray  # (I, n, 3) float32
+    identity_modes: np.ndarray = _ReadOnFirstUse()  # (I, n, 3) float32
     landmarks: np.ndarray  # (68,) int64 vertex ids (Multi-PIE order)
     source: str = ""
     path: str = ""
@@ -292,7 +361,8 @@ class FaceModel:
         The arrays are converted, not validated again (:func:`load_bundle`
         validates them): positions to float64, triangles, quads and landmark
         ids to int64, deltas and identity modes to float32, names to tuples of
-        str.
+        str. ``identity_modes`` may be a member of the bundle not read yet (:func:`load_face_model`'s):
+        read when the model's identity modes are first used.
 
         Parameters
         ----------
@@ -311,7 +381,7 @@ class FaceModel:
             expression_names=tuple(str(s) for s in arrays["expression_names"]),
             expression_deltas=np.asarray(arrays["expression_deltas"], dtype=np.float32),
             identity_names=tuple(str(s) for s in arrays["identity_names"]),
-            identity_modes=np.asarray(arrays["identity_modes"], dtype=np.float32),
+            identity_modes=_as_float32(arrays["identity_modes"]),
             landmarks=np.asarray(arrays["landmarks_multipie68"], dtype=np.int64),
             source=str(arrays.get("source", "")),
             path=str(arrays.get("_path", "")),
@@ -434,9 +504,20 @@ class FaceModel:
         }
 
 
+def _as_float32(a):
+    """An array as float32; a bundle member not read yet: one that reads it as float32."""
+    if isinstance(a, _BundleMember):
+        return replace(a, dtype=np.float32)
+    return np.asarray(a, dtype=np.float32)
+
+
 def load_face_model(path: str | os.PathLike | None = None) -> FaceModel:
-    """Locate, load and validate the bundle, as a :class:`FaceModel`."""
-    return FaceModel.from_bundle(load_bundle(path))
+    """Locate, load and validate the bundle, as a :class:`FaceModel`.
+
+    The identity modes (the bundle's largest member) are read and checked when first used: a rig of the
+    expressions (:meth:`~facegeom.model.rig.BlendshapeRig.from_face_model`) does not read them.
+    """
+    return FaceModel.from_bundle(_read_bundle(path, deferred=("identity_modes",)))
 
 
 # --------------------------------------------------------------------------- ICT folder importer
@@ -460,6 +541,9 @@ def read_obj_positions(path: str | os.PathLike) -> np.ndarray:
         Missing or unreadable file, malformed ``v`` line, NaN/inf, no vertex.
     """
     path = Path(path)
+    from facegeom.io.formats.common import read_file_bytes
+    from facegeom.io.formats.obj import read_obj
+
     V = read_obj(path, read_file_bytes(path), faces=False).vertices
     if V.shape[0] == 0:
         raise InputError("no vertex ('v') lines: not an OBJ mesh", path)
@@ -475,6 +559,9 @@ def read_obj_polygons(path: str | os.PathLike) -> list[list[int]]:
         As :func:`read_obj_positions`, and faces with fewer than 3 corners or indices out of range.
     """
     path = Path(path)
+    from facegeom.io.formats.common import read_file_bytes
+    from facegeom.io.formats.obj import read_obj
+
     return [q.tolist() for q in read_obj(path, read_file_bytes(path)).polygons()]
 
 

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 
 from facegeom.errors import InputError
-from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
 from facegeom.model.landmarks import SIDE_CONTOUR, to_model_convention
 
 __all__ = ['face_template', 'load_rig', 'photo_camera', 'pts_vertex_ids', 'read_fit_target', 'rig_note', 'scan_scale']
@@ -216,6 +215,7 @@ def read_fit_target(path: str | os.PathLike, rig, kind: str = "auto", focal=None
     appended to ``notes`` (a list) when the factor is not 1.
     """
     from facegeom.io import MESH_FORMATS, read_mesh
+    from facegeom.io.fitfiles import TARGET_KINDS, read_landmarks, read_point_cloud, read_pts
     from facegeom.model.camera import PinholeCamera
     from facegeom.model.targets import LandmarkTarget, MeshTarget, PointCloudTarget
 

@@ -19,18 +19,23 @@ narrow face area.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from facegeom.constants import FACE_AREA
 from facegeom.errors import InputError
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 __all__ = ["farthest_points", "ict80", "random_layout", "layout"]
 
 
 
 def _edge_graph(V: np.ndarray, F: np.ndarray, keep: np.ndarray) -> sp.csr_matrix:
+    import scipy.sparse as sp  # here, not at the top: only the farthest-point layouts need the graph
+
     E = np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]
     E = E[keep[E[:, 0]] & keep[E[:, 1]]]
     w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
@@ -60,6 +65,8 @@ def farthest_points(V, F, start: np.ndarray, count: int, region: np.ndarray | No
     F = np.asarray(F, np.int64)
     n = V.shape[0]
     region = np.ones(n, bool) if region is None else np.asarray(region, bool)
+    from scipy.sparse import csgraph
+
     G = _edge_graph(V, F, region)
     chosen = list(np.asarray(start, np.int64))
     if not chosen:

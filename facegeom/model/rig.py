@@ -313,7 +313,9 @@ class BlendshapeRig:
                  "_D", "_G", "_index")
 
     def __init__(self, neutral, deltas, names: Sequence[str], triangles, landmark_ids=None, *, parts=None,
-                 name_map: NameMapping | None = None, frame=None, population=None):
+                 name_map: NameMapping | None = None, frame=None, population=None, _own_deltas: bool = False):
+        # _own_deltas (private): ``deltas`` was made for this rig alone (read from a file, converted into
+        # facegeom's frame) and nobody else holds it; a float64 C-ordered one is kept, not copied
         neutral = as_vertices(neutral, "neutral")
         n = neutral.shape[0]
         d = np.asarray(deltas, dtype=np.float64)
@@ -349,7 +351,8 @@ class BlendshapeRig:
             landmark_ids = as_handles(landmark_ids, n, "landmark_ids")
             landmark_ids = _readonly(landmark_ids.copy())
         self.neutral = _readonly(neutral.copy())
-        self.deltas = _readonly(np.array(d, dtype=np.float64, order="C", copy=True))
+        own = _own_deltas and d.flags.c_contiguous
+        self.deltas = _readonly(d if own else np.array(d, dtype=np.float64, order="C", copy=True))
         self.names = names
         self.triangles = _readonly(tri.copy())
         self.landmark_ids = landmark_ids
@@ -671,7 +674,8 @@ class BlendshapeRig:
         try:
             units, up = _npz_frame(a)
             rig = cls(a["neutral"], a["deltas"], [str(s) for s in np.atleast_1d(a["names"])],
-                      a["triangles"], None if lm.size == 0 else lm, parts=_npz_parts(a), name_map=_npz_map(a))
+                      a["triangles"], None if lm.size == 0 else lm, parts=_npz_parts(a), name_map=_npz_map(a),
+                      _own_deltas=True)
         except InputError as exc:
             raise InputError(exc.reason, path) from None
         except MemoryError as exc:
@@ -683,7 +687,7 @@ class BlendshapeRig:
         its own units and axes) -> a new rig (cm, Y up) whose ``frame`` is ``frame``."""
         return BlendshapeRig(frame.to_facegeom(self.neutral), frame.to_facegeom(self.deltas), self.names,
                              self.triangles, self.landmark_ids, parts=self.parts, name_map=self.name_map,
-                             frame=frame, population=self.population)
+                             frame=frame, population=self.population, _own_deltas=True)
 
     def renamed(self, target_names: Sequence[str]) -> tuple["BlendshapeRig", tuple[str, ...]]:
         """The same expressions as shapes named ``target_names`` (e.g. ARKit's 52) -> ``(rig, names not reached)``.

@@ -107,7 +107,9 @@ class RigFrame:
 
     def to_facegeom(self, X) -> np.ndarray:
         """Points or offsets ``(..., 3)`` in the rig's frame -> facegeom's (cm, Y up)."""
-        return (np.asarray(X, dtype=np.float64) @ self.rotation.T) * self.scale
+        Y = np.asarray(X, dtype=np.float64) @ self.rotation.T
+        Y *= self.scale  # (in place: one array the size of X, not two)
+        return Y
 
     def to_source(self, X) -> np.ndarray:
         """Points or offsets ``(..., 3)`` in facegeom's frame -> the rig's own units and axes."""
@@ -145,7 +147,9 @@ def _facing(V: np.ndarray, F: np.ndarray, deltas) -> np.ndarray | None:
     D = np.asarray(deltas, dtype=np.float64)
     if D.ndim != 3 or D.shape[0] == 0:
         return None
-    motion = np.sqrt((D ** 2).sum(axis=2)).sum(axis=0)  # (n,)
+    motion = np.zeros(D.shape[1])  # (n,): each vertex's displacement summed over the shapes, one shape at a time
+    for d in D:  # (the same sums, in the same order, as np.sqrt((D ** 2).sum(axis=2)).sum(axis=0), without the
+        motion += np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + d[:, 2] ** 2)  # (B, n, 3) temporaries)
     if not motion.any():
         return None
     F = np.asarray(F, dtype=np.int64)

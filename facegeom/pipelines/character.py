@@ -36,7 +36,6 @@ from facegeom.io.markerseq import MarkerSequence
 from facegeom.io.shape_names import ARKIT_NAMES
 from facegeom.methods.marker_solve import MarkerSolve
 from facegeom.pipelines.solve import SolvedCapture, take_fps
-from facegeom.registration import rms_radius
 
 __all__ = ["onto_character", "take_onto_character", "size_ratio", "read_head", "stored_registration"]
 
@@ -45,6 +44,8 @@ def size_ratio(character, actor) -> float:
     """The character's size over the actor's: the ratio of their neutrals' root mean square radii (1 if unknown)."""
     if actor is None:
         return 1.0
+    from facegeom.registration import rms_radius  # (here: registration imports scipy.spatial)
+
     a = rms_radius(np.asarray(actor.neutral, dtype=np.float64))
     c = rms_radius(np.asarray(character.neutral, dtype=np.float64))
     return float(c / a) if a > 0 and np.isfinite(c / a) else 1.0

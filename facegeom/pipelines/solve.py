@@ -282,8 +282,6 @@ def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
     :func:`facegeom.io.delivery.write_rig_animation`) and the weights as its animation. A ``.glb`` is scaled to
     metres as it is written (``write_rig_glb(..., scale=GLB_SCALE)``: the same file, without a scaled copy of the
     rig's offsets)."""
-    from facegeom.io.delivery import write_rig_animation
-
     rig = solved.rig
     if rig is None:
         raise InputError(f"a {path.suffix} needs the rig's mesh, and this solve carries no rig", path)
@@ -295,6 +293,8 @@ def write_curves_glb(path: Path, solved: SolvedCapture) -> Path:
         motion = {"rotations": s.rotations, "translations": s.translations} if head else {}
         return write_rig_glb(path, rig.neutral, rig.triangles, rig.deltas, s.names, s.weights, solved.fps,
                              scale=GLB_SCALE, **motion)
+    from facegeom.io.delivery import write_rig_animation
+
     motion = {"rotations": s.rotations, "translations": s.translations * GLB_SCALE} if head else {}
     return write_rig_animation(path, rig.neutral * GLB_SCALE, rig.triangles, rig.deltas * GLB_SCALE,
                                s.names, s.weights, solved.fps, **motion)
