@@ -56,13 +56,12 @@ from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import numpy as np
-from scipy.optimize import lsq_linear, nnls
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
 from facegeom.interfaces import FitResult, Params, check_range
-from facegeom.linalg import box_lsq
+from facegeom.linalg import box_lsq, box_qp_many
 from facegeom.methods.fitting import check_fit_inputs, fit_with_poses, result
 from facegeom.methods.landmark_map import GAUSS_NEWTON_STEPS, PRIOR_SD, WARM_STEPS, map_weights, population_prior
 from facegeom.methods.marker_solve import split_markers
@@ -197,7 +196,7 @@ def sem_gram(c, G, tt, exclusion: bool = True, upper: float | None = None, selec
     return (e[0], order[0]) if single else (e, order)
 
 
-def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 256):
+def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int | None = None):
     """SEM's selection with least-squares coefficients and a GCV stop, for ``K`` targets at once.
 
     Each step selects, as the paper does, the remaining candidate of largest
@@ -229,8 +228,12 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
         Upper bound of a coefficient (``None``: only ``e >= 0``). A target whose
         chosen least-squares coefficients leave ``[0, upper]`` is refitted on its
         selection with the bounds (bounded least squares).
-    chunk : int
-        Targets updated together (keeps the ``(chunk, B, B)`` factors in cache).
+    chunk : int or None
+        Targets updated together (bounds the ``(chunk, B, B)`` work arrays).
+        ``None``: as many as keep them near 32 MB (1,400 targets of 53
+        shapes): each step of the selection is a few dozen array operations
+        on all of them, so with fewer targets per chunk Python's share grows
+        (256 took 50 % more time than 1,000 here).
 
     Returns
     -------
@@ -244,15 +247,23 @@ def sem_orthogonal_gram(c, G, tt, m, upper: float | None = None, chunk: int = 25
     G = np.asarray(G, dtype=np.float64)
     tt = np.broadcast_to(np.asarray(tt, dtype=np.float64), (K,))
     m = int(m)
+    if chunk is None:
+        chunk = max(64, 2 ** 22 // max(B * B, 1))
     E = np.zeros((K, B))
     orders = np.full((K, B), -1, dtype=np.int64)
+    best_k = np.zeros(K, dtype=np.int64)
     for k0 in range(0, K, chunk):
-        E[k0:k0 + chunk], orders[k0:k0 + chunk] = _orthogonal_chunk(c[k0:k0 + chunk], G, tt[k0:k0 + chunk], m, upper)
+        sl = slice(k0, k0 + chunk)
+        E[sl], orders[sl], best_k[sl] = _orthogonal_chunk(c[sl], G, tt[sl], m)
+    hi = np.inf if upper is None else upper
+    bad = np.flatnonzero(((E < -1e-12) | (E > hi + 1e-12)).any(axis=1))
+    if bad.size:  # bounded least squares on the chosen selection (all chunks together: fewer, larger batches)
+        E[bad] = _bounded_gram_many(G, c[bad], orders[bad], best_k[bad], E[bad], hi)
     return (E[0], orders[0]) if single else (E, orders)
 
 
-def _orthogonal_chunk(c, G, tt, m, upper):
-    """:func:`sem_orthogonal_gram` on one chunk of targets.
+def _orthogonal_chunk(c, G, tt, m):
+    """:func:`sem_orthogonal_gram` on one chunk of targets, before the bounds: ``e``, ``order``, path length.
 
     The selected shapes are orthonormalised as they come (Gram-Schmidt in the
     inner products, i.e. a Cholesky factor grown a row per step): row ``j`` of
@@ -261,34 +272,63 @@ def _orthogonal_chunk(c, G, tt, m, upper):
     A step then costs ``O(j B)`` per target: the new row, the remaining
     projections ``p -= z_j A_j`` and ``RSS = |dT|^2 - sum z_j^2``. The
     least-squares coefficients are only needed where GCV was best: one
-    triangular solve per target at the end.
+    triangular solve per target at the end, all targets at once. A target stops
+    when no candidate moves towards it any more (on noisy data often well
+    before the last shape); when half of the targets still selecting have
+    stopped, the finished ones are dropped from the work arrays (as
+    :meth:`SEMFitter._greedy_landmarks` does).
     """
     K, B = c.shape
     diag = np.diag(G).copy()
     moves = diag > _TINY
-    inv_norm = np.where(moves, 1.0 / np.sqrt(np.where(moves, diag, 1.0)), 0.0)
+    inv_norm = 1.0 / np.sqrt(np.where(moves, diag, 1.0))
     scale = np.maximum(tt, _TINY)
     S = max(min(B, m - 1), 0)
+    k_out = np.zeros(K, dtype=np.int64)
     A = np.zeros((K, S, B))  # A[k, j] = q_j . dB_i
     z = np.zeros((K, S))  # q_j . dT
-    picked = np.full((K, S), -1, dtype=np.int64)  # the shape behind q_j
     rank = np.zeros(K, dtype=np.int64)
     zz = np.zeros(K)  # sum of z_j^2: the part of |dT|^2 explained
-    proj = c.copy()  # dT^t . dB_i, the remaining motion against every candidate
-    alive = np.broadcast_to(moves, (K, B)).copy()
+    # dT^t . dB_i, the remaining motion against every candidate; -inf once it is no candidate (selected, or a
+    # shape that moves nothing), so that the scores need no mask
+    proj = np.where(moves, c, -np.inf)
     best_gcv = m * tt / float(m) ** 2  # the empty selection
     best_k = np.zeros(K, dtype=np.int64)
-    rows = np.arange(K)
     active = np.ones(K, dtype=bool)
     level = 1e-9 * np.sqrt(scale)
+    c, tt = c.copy(), tt.copy()
+    gid = np.arange(K)  # the chunk's row of each work row
+
+    # every target's factor and right-hand side, kept as they grow (in the chunk's rows): solved at the end, all at
+    # once, up to each target's best GCV. Ut[k, j, :j + 1] is column j of the selection's Cholesky factor (the new
+    # shape on the earlier directions, then its own norm), z_out[k, j] = z_j, p_out[k, j] its shape.
+    Ut = np.zeros((K, S, S))
+    z_out = np.zeros((K, S))
+    p_out = np.zeros((K, S), dtype=np.int64)
+
+    def finish(w):
+        """The work rows ``w`` are done: keep their best GCV's path length."""
+        k_out[gid[w]] = best_k[w]
+
     for step in range(S):
-        score = np.where(alive, proj * inv_norm, -np.inf)
+        n_act = int(active.sum())
+        if n_act == 0:
+            break
+        if n_act <= active.size // 2:  # compact: note the finished targets' path lengths, drop them
+            finish(np.flatnonzero(~active))
+            keep = np.flatnonzero(active)
+            A, z, rank, zz, proj = A[keep], z[keep], rank[keep], zz[keep], proj[keep]
+            best_gcv, best_k, level, c, tt, gid = best_gcv[keep], best_k[keep], level[keep], c[keep], tt[keep], \
+                gid[keep]
+            active = np.ones(keep.size, dtype=bool)
+        rows = np.arange(active.size)
+        score = proj * inv_norm
         p = np.argmax(score, axis=1)
         # a projection at rounding level (the target already reached) is no motion towards it
         active &= score[rows, p] > level
         if not active.any():
             break
-        alive[rows[active], p[active]] = False
+        proj[rows[active], p[active]] = -np.inf
         hi = step  # rank <= step: rows beyond are zero
         Ap = A[rows, :hi, p]  # (K, hi): the new shape on the selected directions
         schur = diag[p] - np.einsum("kj,kj->k", Ap, Ap)
@@ -296,46 +336,65 @@ def _orthogonal_chunk(c, G, tt, m, upper):
         ok = active & (schur > 1e-10 * diag[p])
         if not ok.any():
             continue
+        # the new rows of every work row (no copy of A for the ones that go on: the stopped ones are at most half)
+        row = G[p] - np.matmul(Ap[:, None, :], A[:, :hi])[:, 0]
+        zn = c[rows, p] - np.einsum("kj,kj->k", Ap, z[:, :hi])
         if ok.all():
-            a, pa, Apa, Aa = rows, p, Ap, A[:, :hi]
+            a, pa = rows, p
         else:
             a = rows[ok]
-            pa, Apa, Aa = p[a], Ap[a], A[a, :hi]
+            pa, row, zn = p[a], row[a], zn[a]
         sq = np.sqrt(schur[a])
-        row = (G[pa] - np.einsum("kj,kjb->kb", Apa, Aa)) / sq[:, None]
-        zn = (c[a, pa] - np.einsum("kj,kj->k", Apa, z[a, :hi])) / sq
+        row /= sq[:, None]
+        zn /= sq
         ra = rank[a]
-        A[a, ra] = row
-        z[a, ra] = zn
-        picked[a, ra] = pa
-        rank[a] = ra + 1
-        proj[a] -= zn[:, None] * row
-        zz[a] += zn * zn
-        rss = np.maximum(tt[a] - zz[a], 0.0)
+        ga = gid[a]
+        every = a.size == rows.size
+        ix = slice(None) if every else a  # (a slice updates in place; an index array copies and scatters)
+        if every and ra[0] == hi and (ra == hi).all():  # no skip so far (usual): slices, no scatter
+            Ut[ga, hi, :hi] = Ap
+            A[:, hi] = row
+            z[:, hi] = zn
+        else:
+            Ut[ga, ra, :hi] = Ap[a]  # zero from the target's rank on
+            A[a, ra] = row
+            z[a, ra] = zn
+        Ut[ga, ra, ra] = row[np.arange(a.size), pa]
+        z_out[ga, ra], p_out[ga, ra] = zn, pa
+        rank[ix] = ra + 1
+        proj[ix] -= zn[:, None] * row
+        zz[ix] += zn * zn
+        rss = np.maximum(tt[ix] - zz[ix], 0.0)
         gcv = m * rss / (m - (ra + 1)).astype(np.float64) ** 2
         better = gcv < best_gcv[a]
         best_gcv[a[better]] = gcv[better]
         best_k[a[better]] = ra[better] + 1
-    # coefficients of the selection cut where GCV was best: A[k, :bk, picked[k, :bk]] is upper triangular
+    finish(np.arange(gid.size))
+    e_out, order_out = _best_coefficients(Ut.transpose(0, 2, 1), z_out, p_out, k_out, B)
+    return e_out, order_out, k_out
+
+
+def _best_coefficients(U, z, picked, best_k, B):
+    """Least-squares coefficients ``(K, B)`` and orders of selections cut at ``best_k``.
+
+    ``U[k, :bk, :bk]`` is target ``k``'s Cholesky factor of its selection
+    ``picked[k, :bk]`` (upper triangular up to rounding below the diagonal,
+    which is not read), ``z[k, :bk]`` the right-hand side: one back
+    substitution, vectorised over the targets (a row per step).
+    """
+    K = U.shape[0]
     kmax = int(best_k.max(initial=0))
     best_e = np.zeros((K, B))
     out_order = np.full((K, B), -1, dtype=np.int64)
     if kmax:
-        j = np.arange(kmax)
-        use = j[None] < best_k[:, None]  # (K, kmax)
-        cols = np.where(use, picked[:, :kmax], 0)
-        U = np.take_along_axis(A[:, :kmax], np.broadcast_to(cols[:, None, :], (K, kmax, kmax)), axis=2)
-        U = np.where(use[:, :, None] & use[:, None, :], U, 0.0) + np.where(use, 0.0, 1.0)[:, :, None] * np.eye(kmax)
-        x = np.linalg.solve(U, np.where(use, z[:, :kmax], 0.0)[:, :, None])[:, :, 0]
+        use = np.arange(kmax)[None] < best_k[:, None]  # (K, kmax)
+        x = np.zeros((K, kmax))  # 0 past a target's selection
+        for i in range(kmax - 1, -1, -1):
+            r = z[:, i] - np.einsum("kj,kj->k", U[:, i, i + 1:kmax], x[:, i + 1:])
+            x[:, i] = np.where(use[:, i], r / np.where(use[:, i], U[:, i, i], 1.0), 0.0)
         kk, jj = np.nonzero(use)
         best_e[kk, picked[kk, jj]] = x[kk, jj]
         out_order[:, :kmax] = np.where(use, picked[:, :kmax], -1)
-    hi = np.inf if upper is None else upper
-    bad = np.flatnonzero(((best_e < -1e-12) | (best_e > hi + 1e-12)).any(axis=1))
-    for k in bad:  # bounded least squares on the chosen selection
-        idx = out_order[k][out_order[k] >= 0]
-        best_e[k] = 0.0
-        best_e[k, idx] = _bounded_gram_lsq(G[np.ix_(idx, idx)], c[k, idx], hi)
     return best_e, out_order
 
 
@@ -369,12 +428,46 @@ def _products(Tf, DN, min_rows: int = 64):
 def _bounded_gram_lsq(Gs, cs, upper):
     """``argmin e.Gs.e - 2 cs.e`` over ``0 <= e <= upper`` (via the Cholesky factor of ``Gs``)."""
     from scipy.linalg import cholesky, solve_triangular
+    from scipy.optimize import nnls  # here, not at the top: importing scipy.optimize takes ~0.2 s
 
     n = Gs.shape[0]
     R = cholesky(Gs + 1e-12 * max(np.trace(Gs) / n, _TINY) * np.eye(n))
     y = solve_triangular(R, cs, trans="T")
     x = nnls(R, y)[0]  # the upper bound is rarely reached: try without it first (much faster)
     return x if x.max(initial=0.0) <= upper else box_lsq(R, y, upper, x0=x)
+
+
+def _bounded_gram_many(G, c, order, size, start, upper):
+    """:func:`_bounded_gram_lsq` of ``K`` targets on their selections, batched: coefficients ``(K, B)``.
+
+    Row ``k`` minimises over the shapes ``order[k, :size[k]]`` with ``c[k]``; ``start (K, B)`` is its
+    unconstrained least-squares solution (its coefficients outside the box start held at the bound).
+    Targets are solved by :func:`~facegeom.linalg.box_qp_many` on the same regularised Gram matrices as
+    :func:`_bounded_gram_lsq` (so the minimum is the same, not just close), selections of up to 4 sizes
+    together, padded with identity rows (a padded unknown stays 0): a call per size cost more Python than
+    solving; a target whose active set does not settle is solved by :func:`_bounded_gram_lsq`.
+    """
+    K, B = c.shape
+    out = np.zeros((K, B))
+    padded = -(-size // 4) * 4
+    for n in np.unique(padded):
+        rows = np.flatnonzero(padded == n)
+        real = np.arange(n)[None] < size[rows, None]  # (k, n): the selection, then padding
+        idx = np.where(real, order[rows, :n] if n <= B else np.pad(order[rows], ((0, 0), (0, n - B))), 0)
+        both = real[:, :, None] & real[:, None, :]
+        Gs = np.where(both, G[idx[:, :, None], idx[:, None, :]], 0.0)
+        reg = 1e-12 * np.maximum(np.trace(Gs, axis1=1, axis2=2) / size[rows], _TINY)
+        Gs[:, np.arange(n), np.arange(n)] += np.where(real, reg[:, None], 1.0)
+        cs = np.where(real, np.take_along_axis(c[rows], idx, axis=1), 0.0)
+        x0 = np.where(real, np.take_along_axis(start[rows], idx, axis=1), 0.0)
+        x, ok = box_qp_many(Gs, cs, upper, x0)
+        for j in np.flatnonzero(~ok):
+            sel = idx[j, :size[rows[j]]]
+            x[j] = 0.0
+            x[j, :sel.size] = _bounded_gram_lsq(G[np.ix_(sel, sel)], cs[j, :sel.size], upper)
+        kk, jj = np.nonzero(real)
+        out[rows[kk], idx[kk, jj]] = x[kk, jj]
+    return out
 
 
 def sem_vectors(motions, target_motion, current_motion=None, exclusion: bool = True, upper: float | None = None):
@@ -669,6 +762,8 @@ class SEMFitter(Params):
         return e
 
     def _refit_linear(self, A, b, e, weights=None):
+        from scipy.optimize import lsq_linear  # (imported here: see _bounded_gram_lsq)
+
         sel = np.flatnonzero(e > 0)
         if sel.size == 0:
             return e
@@ -956,6 +1051,8 @@ class SEMFitter(Params):
 
     # ------------------------------------------------------------------ point clouds
     def _fit_points(self, rig, target: PointCloudTarget):
+        from scipy.optimize import lsq_linear, nnls  # (imported here: see _bounded_gram_lsq)
+
         n = rig.n_vertices
         region = np.arange(n) if self.region is None else self.region
         if region.size == 0 or region.min() < 0 or region.max() >= n:
