@@ -76,8 +76,8 @@ def k_ring(F, n_vertices: int | None = None, k: int = 1) -> sp.csr_matrix:
     A = adjacency(F, n_vertices)
     n = A.shape[0]
     step = (A + sp.identity(n, dtype=bool, format="csr")).astype(np.int8).tocsr()
-    R = sp.identity(n, dtype=np.int8, format="csr")
-    for _ in range(int(k)):
+    R = step if k else sp.identity(n, dtype=np.int8, format="csr")  # the 1-ring is A + I itself: no product
+    for _ in range(int(k) - 1):
         R = (R @ step).tocsr()
         R.data[:] = 1  # keep the pattern only (no overflow)
     R = R.astype(bool)
