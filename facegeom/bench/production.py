@@ -104,8 +104,12 @@ class Sizes:
 
 
 def child_env(data: str | None = None) -> dict:
-    """The environment of a child: this one with single-threaded BLAS (and ``FACEGEOM_DATA`` when ``data`` is given)."""
-    env = dict(os.environ, **{k: "1" for k in THREAD_VARIABLES})
+    """The environment of a child: this one with single-threaded BLAS, the registration cache off (a head registered
+    by an earlier run would make the marker route's registration free: the first run on a head is what is timed),
+    and ``FACEGEOM_DATA`` when ``data`` is given."""
+    from facegeom.methods.registration_cache import ENV_VAR
+
+    env = dict(os.environ, **{k: "1" for k in THREAD_VARIABLES}, **{ENV_VAR: "off"})
     if data is not None:
         env["FACEGEOM_DATA"] = str(data)
     return env

@@ -656,8 +656,33 @@ def register_head(model, V, F, *, landmarks=None, units="auto", path=None, sampl
         An empty mesh, NaN/inf, unknown units, landmarks of another mesh, a
         mesh that is not a head, no face area found on it.
     """
-    say = progress or (lambda line: None)
+    from facegeom.methods import registration_cache as cache
+
     V, F = _check_mesh(V, F, path)
+    key = cache.registration_key(model, V, F, landmarks, units, samples, fitter_params) if cache.enabled() else None
+    kept = cache.load(key) if key else None
+    if kept is not None:  # the same head, options, face data and code registered before: the same result
+        arrays, report, lines, when = kept
+        for line in [f"registration: reused from the cache (the same head and options, registered {when})"] + lines:
+            (progress or (lambda line: None))(line)
+        scale, su, mm_per_unit = (float(x) for x in arrays["scalars"])
+        return HeadRegistration(V, F, arrays["template"], scale, arrays["R"], arrays["t"], su, mm_per_unit,
+                                arrays["identity"], report)
+    lines: list[str] = []
+
+    def say(line: str) -> None:
+        lines.append(line)
+        if progress is not None:
+            progress(line)
+
+    reg = _register_head(model, V, F, landmarks, units, path, samples, fitter_params, say)
+    if key:
+        cache.store(key, reg, lines)
+    return reg
+
+
+def _register_head(model, V, F, landmarks, units, path, samples, fitter_params, say) -> HeadRegistration:
+    """:func:`register_head` of a checked mesh, computed."""
     report: dict = {}
     t_all = time.perf_counter()
     N = model.n_vertices
