@@ -182,3 +182,23 @@ def test_writing_holds_a_few_targets_not_all(tmp_path):
     assert peak < bound, f"peak {peak / 1e6:.1f} MB, at most {bound / 1e6:.1f} MB"
     a = read_glb_animation(tmp_path / "r.glb")
     np.testing.assert_array_equal(a.deltas, (D * 0.01).astype(np.float32))
+
+
+def test_quaternions_are_scipys():
+    """The writer's own matrix -> quaternion (no scipy.spatial import on the rig route) is scipy's, up to rounding
+    and the sign convention w >= 0, on random turns and the hard ones (half turns about each axis, the identity)."""
+    from scipy.spatial.transform import Rotation
+
+    from facegeom.io.gltf import quaternions
+
+    rng = np.random.default_rng(0)
+    R = np.concatenate([Rotation.random(2000, random_state=1).as_matrix(), np.eye(3)[None],
+                        Rotation.from_rotvec(np.pi * np.eye(3)).as_matrix(),
+                        Rotation.from_rotvec(rng.normal(size=(50, 3)) * 1e-9).as_matrix()])
+    q = quaternions(R)
+    ref = Rotation.from_matrix(R).as_quat()
+    ref *= np.where(ref[:, 3:] < 0, -1.0, 1.0)
+    same = np.minimum(np.abs(q - ref).max(axis=1), np.abs(q + ref).max(axis=1))  # w = 0: either sign is the turn
+    assert same.max() < 1e-14
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-15)
+    np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(), R, atol=1e-14)
