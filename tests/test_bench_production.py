@@ -5,6 +5,7 @@ import csv
 import json
 import os
 import sys
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -69,6 +70,31 @@ def test_cases_are_named():
 def test_bad_input_is_one_line(tmp_path):
     r = CliRunner().invoke(cli, ["bench", "production", "--cases", "solve", "--out", str(tmp_path)])
     assert r.exit_code != 0 and isinstance(r.exception, InputError)
+    r = CliRunner().invoke(cli, ["bench", "production", "--cases", "help", "--code", str(tmp_path), "--out",
+                                 str(tmp_path / "o")])
+    assert isinstance(r.exception, InputError) and "not a facegeom checkout" in str(r.exception)
+
+
+def test_another_checkouts_commands_are_timed(tmp_path):
+    """--code: the children run the facegeom package of that folder (here a stand-in whose --help is marked)."""
+    import shutil
+
+    from facegeom.bench.production import child_env
+
+    src = Path(__file__).resolve().parents[1] / "facegeom"
+    shutil.copytree(src, tmp_path / "old" / "facegeom", ignore=shutil.ignore_patterns("__pycache__"))
+    env = child_env(code=str(tmp_path / "old"))
+    assert env["PYTHONPATH"].split(os.pathsep)[0] == str((tmp_path / "old").resolve())
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-c", "import facegeom; print(facegeom.__file__)"], env=env, cwd=tmp_path,
+                       capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == str((tmp_path / "old" / "facegeom" / "__init__.py").resolve())
+    out = tmp_path / "bp"
+    r = CliRunner().invoke(cli, ["bench", "production", "--cases", "help", "--repeat", "1", "--code",
+                                 str(tmp_path / "old"), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "production.json").read_text())["code"] == str(tmp_path / "old")
 
 
 def test_the_marker_routes_split_is_read_from_its_output():

@@ -103,15 +103,18 @@ class Sizes:
 # ----------------------------------------------------------------------------- children
 
 
-def child_env(data: str | None = None) -> dict:
+def child_env(data: str | None = None, code: str | None = None) -> dict:
     """The environment of a child: this one with single-threaded BLAS, the registration cache off (a head registered
     by an earlier run would make the marker route's registration free: the first run on a head is what is timed),
-    and ``FACEGEOM_DATA`` when ``data`` is given."""
+    ``FACEGEOM_DATA`` when ``data`` is given, and the ``facegeom`` package of the checkout ``code`` first on the
+    path when it is given (another version's commands, timed beside these: ``git worktree add DIR COMMIT``)."""
     from facegeom.methods.registration_cache import ENV_VAR
 
     env = dict(os.environ, **{k: "1" for k in THREAD_VARIABLES}, **{ENV_VAR: "off"})
     if data is not None:
         env["FACEGEOM_DATA"] = str(data)
+    if code is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(Path(code).resolve()), *filter(None, [env.get("PYTHONPATH")])])
     return env
 
 
@@ -621,7 +624,7 @@ def _load() -> str:
 
 
 def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: Path = HEAD, data: str | None = None,
-        echo: Callable[[str], None] = print) -> list[dict]:
+        echo: Callable[[str], None] = print, code: str | None = None) -> list[dict]:
     """Run the chosen cases, each ``repeat`` times in its own child; one row per command.
 
     Parameters
@@ -643,6 +646,8 @@ def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: 
         The face data bundle the children use (``$FACEGEOM_DATA``); default theirs.
     echo : callable(str)
         Receives a line as each case starts and ends.
+    code : str, optional
+        A checkout whose ``facegeom`` package the children run instead of this one (another version).
 
     Returns
     -------
@@ -654,7 +659,7 @@ def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: 
     setup = SetupCache(out / "setup", echo)
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
-    env = child_env(data)
+    env = child_env(data, code)
     rows = []
     for case in _cases(names, setup, model, sizes, Path(head), echo):
         echo(f"{case.case}: {case.command} ...")
@@ -702,12 +707,12 @@ def table(rows: list[dict]) -> str:
 
 
 def main(model, names, out, sizes: Sizes = Sizes(), repeat: int = 3, head: Path = HEAD, data: str | None = None,
-         echo: Callable[[str], None] = print) -> list[dict]:
+         echo: Callable[[str], None] = print, code: str | None = None) -> list[dict]:
     """Run :func:`run` and write ``production.csv``, ``production.json`` and ``production-summary.md`` into ``out``.
 
     Parameters
     ----------
-    model, names, sizes, repeat, head, data
+    model, names, sizes, repeat, head, data, code
         As in :func:`run`.
     out : path-like
         Output folder.
@@ -727,21 +732,25 @@ def main(model, names, out, sizes: Sizes = Sizes(), repeat: int = 3, head: Path 
             raise InputError("no such rig to subdivide into the character", head)
     load_start, started = _load(), time.strftime("%Y-%m-%d %H:%M")
     echo(f"bench production: {', '.join(names)}; {repeat} run(s) each; load average at start {load_start}")
-    rows = run(model, names, out, sizes, repeat, head, data, echo)
+    if code is not None and not (Path(code) / "facegeom" / "__init__.py").is_file():
+        raise InputError("not a facegeom checkout (no facegeom/__init__.py in it)", code)
+    if code is not None:
+        echo(f"the commands run the facegeom package of {code}")
+    rows = run(model, names, out, sizes, repeat, head, data, echo, code)
     load_end = _load()
     report = Report(out, "production", echo)
     flat = [{k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
     keys = list(dict.fromkeys(k for r in flat for k in r))
     report.csv([{k: r.get(k, "") for k in keys} for r in flat])
     meta = {"machine": machine_note(), "started": started, "load_start": load_start, "load_end": load_end,
-            "repeat": repeat, "sizes": sizes.__dict__, "blas_threads": 1}
+            "repeat": repeat, "sizes": sizes.__dict__, "blas_threads": 1, "code": code}
     report.written.append(write_json(out / "production.json", {**meta, "rows": rows}))
     notes = "\n".join(f"- {r['case']}, `{r['command']}`: {r['note']}" for r in rows)
     note = (f"Each command a child process with single-threaded BLAS; median of {repeat} run(s) (CPU: user + system "
             f"of the child; peak RSS: the largest of the runs). {sizes.frames_rig:,} take frames on the rig route, "
             f"{sizes.frames_markers:,} on the marker route, the head subdivided {sizes.subdivide} time(s). "
             f"{machine_note()}; load average (1, 5, 15 min) {load_start} at start, {load_end} at the end "
-            f"({started}).")
+            f"({started}).{f' The commands ran the facegeom package of {code}.' if code else ''}")
     report.summary(table(rows) + "\n\n" + notes, note)
     report.done()
     return rows

@@ -486,6 +486,9 @@ def bench_retarget_scaling(frames, markers, labels, seed, methods, timeout, mem_
                    "checkout, tests/data/heads/makehuman_arkit.npz).")
 @click.option("--timeout", default=1800.0, show_default=True, type=click.FloatRange(1),
               help="Seconds before a command is stopped (its check then fails).")
+@click.option("--code", type=click.Path(file_okay=False), default=None,
+              help="Run the commands with the facegeom package of this checkout (another version, e.g. from "
+                   "`git worktree add DIR COMMIT`), to time it beside this one.")
 @click.option("--frames-rig", default=100_000, type=click.IntRange(2, 10_000_000), hidden=True)
 @click.option("--frames-markers", default=1000, type=click.IntRange(10, 1_000_000), hidden=True)
 @click.option("--subdivide", default=2, type=click.IntRange(0, 3), hidden=True)
@@ -493,7 +496,7 @@ def bench_retarget_scaling(frames, markers, labels, seed, methods, timeout, mem_
               help="Folder for production.csv, production.json, production-summary.md, the cached set-up (setup/) "
                    "and the commands' output (logs/).")
 @click.pass_obj
-def bench_production(obj: Context, cases, repeat, head, timeout, frames_rig, frames_markers, subdivide, out):
+def bench_production(obj: Context, cases, repeat, head, timeout, code, frames_rig, frames_markers, subdivide, out):
     """The daily paths at production scale, each a child process as a user runs it: CPU, wall, peak memory, checks."""
     from facegeom.bench import production as bp
     from facegeom.errors import InputError
@@ -503,7 +506,7 @@ def bench_production(obj: Context, cases, repeat, head, timeout, frames_rig, fra
         raise InputError(f"--frames-markers {frames_markers} exceeds --frames-rig {frames_rig} (the take's frames)")
     sizes = bp.Sizes(frames_rig=frames_rig, frames_markers=frames_markers, subdivide=subdivide, timeout=timeout)
     bp.main(obj.face_model(), names, Path(out), sizes, repeat, Path(head) if head else bp.HEAD, obj.data,
-            echo=click.echo)
+            echo=click.echo, code=code)
 
 
 @bench.command("batch")
