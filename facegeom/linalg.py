@@ -9,8 +9,6 @@ definite to working precision).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from facegeom.errors import SolveError
 from facegeom.native import quiet_native
@@ -85,7 +83,7 @@ class SPDSolver:
 ILL_CONDITIONED_RESIDUAL = 1e-3
 
 
-def _check_solution(A: sp.spmatrix, solver: SPDSolver, tol: float = 1e-6, probe=None, rhs=None):
+def _check_solution(A, solver: SPDSolver, tol: float = 1e-6, probe=None, rhs=None):
     """A cheap probe: does the factor solve a system accurately? Returns ``(ok, x)``.
 
     ``b`` is random, not ``A @ x``: for a singular ``A`` it is (almost surely)
@@ -189,6 +187,9 @@ def factorize_solve_spd(A, b, backend: str = "auto", probe=None) -> tuple[SPDSol
 
 def _factorize(A, backend: str, probe, rhs):
     """:func:`factorize_spd`, solving ``rhs (n, k)`` (or None) with the check: ``(solver, x)``."""
+    import scipy.sparse as sp  # here: the dense helpers below (a solve's bounded refits) need no sparse import
+    import scipy.sparse.linalg as spla
+
     A = sp.csr_matrix(A, dtype=np.float64)
     n = A.shape[0]
     if A.shape != (n, n):

@@ -56,7 +56,6 @@ from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import numpy as np
-from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from facegeom.errors import InputError
@@ -1059,6 +1058,8 @@ class SEMFitter(Params):
             raise InputError(f"region must hold vertex ids in [0, {n})")
         if self.max_points and region.size > self.max_points:
             region = region[np.linspace(0, region.size - 1, self.max_points).astype(np.int64)]
+        from scipy.spatial import cKDTree  # point clouds only: a marker or landmark solve needs no spatial import
+
         tree = cKDTree(target.points)
         if self.covered_only:  # vertices the scan does not cover take no part (ears, neck of a cropped scan)
             nearest = cKDTree(rig.neutral[region]).query(target.points, workers=-1)[1]
