@@ -277,11 +277,14 @@ def solve_gaps(frames: int = 1000, share: float = 0.05, runs: int = 3) -> dict:
     return out
 
 
-_SOLVE_CHILD = """
-import json, sys
-from facegeom.bench.production import solve_gaps
-print("RESULT " + json.dumps(solve_gaps(int(sys.argv[1]))))
-"""
+def _solve_child() -> str:
+    """The solve-gaps child's program: the protocol's own functions written out (not imported from this module), so
+    that it runs with the facegeom package of another checkout (``--code``), where only the solver is its own."""
+    import inspect
+
+    return "\n".join(["import json, sys, time", "import numpy as np",
+                      *(inspect.getsource(f) for f in (_smooth_weights, _lose_runs, solve_gaps)),
+                      'print("RESULT " + json.dumps(solve_gaps(int(sys.argv[1]))))'])
 
 
 def write_capture(model, path: Path, truth: Path) -> None:
@@ -518,7 +521,7 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                                                            "weight_error_free": free["weight_error"]}
 
         out.append(_Case("solve-gaps", "python -c 'facegeom.bench.production.solve_gaps(1000)'",
-                         [sys.executable, "-c", _SOLVE_CHILD, "1000"], gaps_check,
+                         [sys.executable, "-c", _solve_child(), "1000"], gaps_check,
                          lambda r: r.get("solve_s_per_1000", np.inf) <= 0.25, TARGETS["solve-gaps"]))
 
     if "solve-cli" in names:
