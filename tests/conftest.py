@@ -226,16 +226,3 @@ def cli_error(capsys, argv) -> str:
     assert len(err.strip().splitlines()) == 1 and err.startswith("facegeom: error: "), err
     assert "Traceback" not in err
     return err.strip()
-
-
-# The files that take longest (a minute to several, from a fresh clone's --durations), run first: with one process
-# per core, a long file handed out last leaves the other core idle until it ends (longest first is the classic
-# remedy for that tail). The others keep their order; so does every test inside a file.
-LONGEST_FIRST = ("test_examples.py", "test_transfer_artist.py", "test_docs.py", "test_cli_fit.py",
-                 "test_character.py", "test_transfer_folds.py", "test_transfer.py", "test_public_heads.py",
-                 "test_identity_cloud.py", "test_real_client_threejs.py", "test_viewer_rig.py")
-
-
-def pytest_collection_modifyitems(session, config, items):
-    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
