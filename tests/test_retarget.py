@@ -532,3 +532,45 @@ def test_select_auto_is_per_marker_for_clean_labels_and_shared_for_noisy_ones(se
         assert np.array_equal(auto.result_, TangentRetargeter(select=rule).fit(S, lab, labels).result_)
     assert TangentRetargeter(label_noise=None).fit(S, lab, Yh).select_ == "marker"  # no noise model: as before
 
+
+
+def long_take(T, p=6, seed=0):
+    """An actor's markers over ``T`` frames (expressions that change every few seconds) and a character's: a
+    per-marker affine map of them plus a bend no affine map has."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T, dtype=np.float64)
+    curves = np.stack([np.sin(2 * np.pi * t / per + ph) for per, ph in zip(rng.uniform(90, 400, 4),
+                                                                            rng.uniform(0, 6.3, 4))], 1)
+    dirs = rng.normal(size=(4, p, 3))
+    rest = rng.normal(size=(p, 3)) * 3
+    X = rest[None] + np.einsum("te,epi->tpi", curves, dirs)
+    A = np.eye(3) + 0.2 * rng.normal(size=(3, 3))
+    Y = 1.2 * X @ A.T + 0.3 * np.tanh(X - rest[None]) ** 2
+    return X, Y
+
+
+def test_labels_far_apart_fade_into_the_base_field_instead_of_a_line_in_time():
+    """A long take with its labels in a short stretch: beyond the horizon the result is the base field, not the
+    straight-line extrapolation of the labels' correction (which drifts, or leaves the system singular)."""
+    T = 12000
+    X, Y = long_take(T)
+    keys = np.array([5000, 5150, 5300, 5450, 5600, 5750, 5900, 6050])
+    got = TangentRetargeter().fit(X, keys, Y[keys]).result_
+    far = np.r_[0:3000, 9000:T]  # 10 horizons and more from every label
+    err = np.sqrt(((got - Y)[far] ** 2).mean())
+    scale = np.sqrt(((Y - Y.mean(axis=0)) ** 2).mean())
+    assert err < 0.2 * scale
+    try:
+        line = TangentRetargeter(horizon=None).fit(X, keys, Y[keys]).result_
+    except SolveError:
+        return  # refused as singular: what the horizon avoids
+    err_line = np.sqrt(((line - Y)[far] ** 2).mean())
+    assert err_line > 2 * err, (err_line, err)
+
+
+def test_the_horizon_leaves_labels_closer_than_it_unchanged():
+    X, Y = long_take(1000, seed=1)
+    keys = np.linspace(0, 999, 5).round().astype(int)  # 250 frames apart
+    a = TangentRetargeter().fit(X, keys, Y[keys]).result_
+    b = TangentRetargeter(horizon=None).fit(X, keys, Y[keys]).result_
+    assert np.abs(a - b).max() <= 1e-5 * np.abs(b - b.mean(axis=0)).max()

@@ -31,6 +31,9 @@ The cases (targets in :data:`TARGETS`):
     ``facegeom animate ... --route markers`` on the first 1,000 frames of the
     same take and character: registration, retargeting, deformer fit and the
     ``.glb``; the route's own time split is parsed from its output.
+``marker-route-long``
+    The same on the whole take (100,000 frames): minutes, so it runs once
+    (:data:`LONG_RUNS`) whatever ``repeat`` asks.
 
 Set-up (the character, the take and the capture) is built once into
 ``OUT/setup`` and reused while its parameters, size and modification time
@@ -56,7 +59,7 @@ from facegeom.errors import FacegeomError, InputError
 
 __all__ = ["CASES", "TARGETS", "Sizes", "build_character", "main", "run", "run_child", "solve_gaps", "write_take"]
 
-CASES = ("help", "solve-gaps", "solve-cli", "rig-route", "marker-route")
+CASES = ("help", "solve-gaps", "solve-cli", "rig-route", "marker-route", "marker-route-long")
 """The cases, in the order they run."""
 
 TARGETS = {
@@ -65,7 +68,10 @@ TARGETS = {
     "solve-cli": "<= 1 s wall",
     "rig-route": "<= 2 s CPU, <= 512 MB",
     "marker-route": "<= 10 s CPU",
+    "marker-route-long": "<= 600 s CPU, <= 4096 MB",
 }
+
+LONG_RUNS = 1  # runs of marker-route-long (a run takes minutes; its medians are of one)
 """What each case should meet (the ``target`` column)."""
 
 #: single-threaded BLAS and OpenMP in every child: the numbers of one core, comparable between machines
@@ -480,6 +486,7 @@ class _Case:
     met: Callable[[dict], bool]  # the row's medians and extras -> target met
     target: str
     before: Callable[[], None] = lambda: None  # e.g. remove the previous run's output
+    runs: int | None = None  # runs whatever ``repeat`` asks (None: ``repeat``)
 
 
 def _remove(*paths: Path) -> Callable[[], None]:
@@ -552,7 +559,7 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                          fg + ["solve", capture.name, "-o", curves.name], solve_check,
                          lambda r: r["wall_s"] <= 1.0, TARGETS["solve-cli"], _remove(curves)))
 
-    if {"rig-route", "marker-route"} & set(names):
+    if {"rig-route", "marker-route", "marker-route-long"} & set(names):
         take = setup.get("take.csv", {"frames": sizes.frames_rig}, lambda p: write_take(p[0], sizes.frames_rig))
         hs = head.stat()
         character = setup.get("char.npz", {"head": str(head.resolve()), "head_stamp": [hs.st_size, hs.st_mtime_ns],
@@ -579,25 +586,31 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                          rig_check, lambda r: r["cpu_s"] <= 2.0 and r["rss_mb"] <= 512, TARGETS["rig-route"],
                          _remove(glb)))
 
-    if "marker-route" in names:
-        mr = folder / "mr.glb"
-
+    def marker_case(case, frames, glb, met, runs=None):
         def marker_check(res):
             m = _GLB.search(res["output"])
-            if m is None or not _is_glb(mr):
+            if m is None or not _is_glb(glb):
                 return False, "failed: no animated .glb", {}
             split = marker_route_split(res["output"])
-            frames, within = int(m.group(1)), float(m.group(4))
-            ok = frames == sizes.frames_markers and within <= 0.1 + 5e-4  # the writer's tolerance, as printed
-            note = (f"{frames} frames, every vertex within {within:.3f} mm; "
+            got, within = int(m.group(1)), float(m.group(4))
+            ok = got == frames and within <= 0.1 + 5e-4  # the writer's tolerance, as printed
+            note = (f"{got} frames, every vertex within {within:.3f} mm; "
                     + ", ".join(f"{k} {v:.2f} s" for k, v in split.items()))
             return ok, note if ok else "failed: " + note, {"split_s": split}
 
-        out.append(_Case("marker-route", f"facegeom animate --take {take.name} --frames {sizes.frames_markers} "
-                                         f"--character {character.name} --route markers -o {mr.name}",
-                         fg + ["animate", "--take", take.name, "--frames", str(sizes.frames_markers), "--character",
-                               character.name, "--route", "markers", "-o", mr.name],
-                         marker_check, lambda r: r["cpu_s"] <= 10.0, TARGETS["marker-route"], _remove(mr)))
+        window = ["--frames", str(frames)] if frames < sizes.frames_rig else []
+        return _Case(case, " ".join(["facegeom animate --take", take.name, *window, "--character", character.name,
+                                     "--route markers -o", glb.name]),
+                     fg + ["animate", "--take", take.name, *window, "--character", character.name, "--route",
+                           "markers", "-o", glb.name],
+                     marker_check, met, TARGETS[case], _remove(glb), runs)
+
+    if "marker-route" in names:
+        out.append(marker_case("marker-route", sizes.frames_markers, folder / "mr.glb",
+                               lambda r: r["cpu_s"] <= 10.0))
+    if "marker-route-long" in names:
+        out.append(marker_case("marker-route-long", sizes.frames_rig, folder / "mr-long.glb",
+                               lambda r: r["cpu_s"] <= 600.0 and r["rss_mb"] <= 4096, LONG_RUNS))
     return out
 
 
@@ -667,7 +680,8 @@ def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: 
     for case in _cases(names, setup, model, sizes, Path(head), echo):
         echo(f"{case.case}: {case.command} ...")
         runs, results = [], []
-        for i in range(repeat):
+        times = case.runs or repeat
+        for i in range(times):
             case.before()
             slug = re.sub(r"[^a-z0-9]+", "-", case.command.lower()).strip("-")[:60]
             res = run_child(case.argv, setup.folder, env, logs / f"{slug}-{i + 1}.log", sizes.timeout)
@@ -676,7 +690,7 @@ def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: 
             runs.append({**{k: res[k] for k in ("cpu_s", "wall_s", "rss_mb")},
                          **{k: v for k, v in extra.items() if isinstance(v, float)}})  # e.g. the in-child solve
             results.append((passed, note, extra))
-            echo(f"  run {i + 1}/{repeat}: CPU {res['cpu_s']:.2f} s, wall {res['wall_s']:.2f} s, "
+            echo(f"  run {i + 1}/{times}: CPU {res['cpu_s']:.2f} s, wall {res['wall_s']:.2f} s, "
                  f"peak {res['rss_mb']:.0f} MB; {note}")
             if failure:
                 break  # a broken command fails the same way again
@@ -728,7 +742,7 @@ def main(model, names, out, sizes: Sizes = Sizes(), repeat: int = 3, head: Path 
         The rows of :func:`run`.
     """
     out = Path(out)
-    if {"rig-route", "marker-route"} & set(names):  # before any work: a bad size or head is one line at once
+    if {"rig-route", "marker-route", "marker-route-long"} & set(names):  # before any work: a bad size or head is one line at once
         if sizes.frames_markers > sizes.frames_rig:
             raise InputError(f"the marker route's {sizes.frames_markers} frames exceed the take's {sizes.frames_rig}")
         if not Path(head).is_file():
@@ -751,7 +765,7 @@ def main(model, names, out, sizes: Sizes = Sizes(), repeat: int = 3, head: Path 
     notes = "\n".join(f"- {r['case']}, `{r['command']}`: {r['note']}" for r in rows)
     note = (f"Each command a child process with single-threaded BLAS; median of {repeat} run(s) (CPU: user + system "
             f"of the child; peak RSS: the largest of the runs). {sizes.frames_rig:,} take frames on the rig route, "
-            f"{sizes.frames_markers:,} on the marker route, the head subdivided {sizes.subdivide} time(s). "
+            f"{sizes.frames_markers:,} on the marker route (the whole take on the long one, {LONG_RUNS} run), the head subdivided {sizes.subdivide} time(s). "
             f"{machine_note()}; load average (1, 5, 15 min) {load_start} at start, {load_end} at the end "
             f"({started}).{f' The commands ran the facegeom package of {code}.' if code else ''}")
     report.summary(table(rows) + "\n\n" + notes, note)

@@ -478,7 +478,8 @@ def bench_retarget_scaling(frames, markers, labels, seed, methods, timeout, mem_
 
 @bench.command("production")
 @click.option("--cases", "cases", default="all", show_default=True,
-              help="'all' or comma-separated cases: help, solve-gaps, solve-cli, rig-route, marker-route.")
+              help="'all' or comma-separated cases: help, solve-gaps, solve-cli, rig-route, marker-route, "
+                   "marker-route-long (the whole take through markers: minutes, one run).")
 @click.option("--repeat", default=3, show_default=True, type=click.IntRange(1, 100),
               help="Runs of each command (median CPU and wall, largest peak memory).")
 @click.option("--head", "head", type=click.Path(dir_okay=False), default=None,
