@@ -13,8 +13,8 @@ import numpy as np
 from facegeom.errors import SolveError
 from facegeom.native import quiet_native
 
-__all__ = ["SPDSolver", "banded_inverse_diagonal", "box_lsq", "box_qp_many", "factorize_solve_spd",
-           "factorize_spd"]
+__all__ = ["SPDSolver", "banded_inverse_diagonal", "box_lsq", "box_qp_many", "dct_ortho", "factorize_solve_spd",
+           "factorize_spd", "idct_ortho"]
 
 try:  # optional fast backend
     from cholespy import CholeskySolverD, MatrixType
@@ -225,6 +225,44 @@ def _factorize(A, backend: str, probe, rhs):
         except RuntimeError as exc:
             tried.append(f"splu ({exc})")
     raise SolveError("the system matrix is singular or not positive definite; tried: " + "; ".join(tried))
+
+
+def _dct_scale(N: int) -> np.ndarray:
+    """The orthonormal DCT-II's row scale ``2 f_k``: ``f_0 = sqrt(1 / 4N)``, ``f_k = sqrt(1 / 2N)``."""
+    f = np.full(N, 2.0 * np.sqrt(1.0 / (2.0 * N)))
+    f[0] = 2.0 * np.sqrt(1.0 / (4.0 * N))
+    return f
+
+
+def dct_ortho(x) -> np.ndarray:
+    """The orthonormal DCT-II of the columns of ``x (N, ...)`` (``scipy.fft.dct(x, 2, norm="ortho", axis=0)``).
+
+    ``y_k = 2 f_k sum_n x_n cos(pi k (2n + 1) / 2N)``, by one complex FFT of
+    length ``N`` of the samples reordered (the even ones, then the odd ones
+    backwards: Makhoul, 1980). numpy's FFT: a command that smooths a few curves
+    does not import ``scipy.fft`` (0.1-0.2 s). Equal to scipy's to a few ulps.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    N = x.shape[0]
+    v = np.concatenate([x[0::2], x[1::2][::-1]], axis=0)
+    turn = np.exp(-0.5j * np.pi * np.arange(N) / N).reshape((N,) + (1,) * (x.ndim - 1))
+    scale = _dct_scale(N).reshape(turn.shape)
+    return (np.fft.fft(v, axis=0) * turn).real * scale
+
+
+def idct_ortho(y) -> np.ndarray:
+    """The inverse of :func:`dct_ortho` (``scipy.fft.idct(y, 2, norm="ortho", axis=0)``), along axis 0."""
+    y = np.asarray(y, dtype=np.float64)
+    N = y.shape[0]
+    shape = (N,) + (1,) * (y.ndim - 1)
+    X = y / _dct_scale(N).reshape(shape)
+    back = np.zeros_like(X)  # X_(N-k), X_N = 0
+    back[1:] = X[1:][::-1]
+    v = np.fft.ifft((X - 1j * back) * np.exp(0.5j * np.pi * np.arange(N) / N).reshape(shape), axis=0).real
+    x = np.empty_like(v)
+    h = (N + 1) // 2
+    x[0::2], x[1::2] = v[:h], v[h:][::-1]
+    return x
 
 
 def banded_inverse_diagonal(U: np.ndarray) -> np.ndarray:

@@ -1127,12 +1127,26 @@ def head_angles(rotations) -> np.ndarray:
 
     Radians, intrinsic Y (yaw), then X (pitch), then Z (roll): the ``HeadYaw,
     HeadPitch, HeadRoll`` columns of a Live Link take.
-    """
-    from scipy.spatial.transform import Rotation
 
+    ``R = Ry(yaw) Rx(pitch) Rz(roll)``, read from its entries (numpy: writing curves does not import
+    ``scipy.spatial``, 0.1-0.3 s): ``R[1, 2] = -sin(pitch)``, ``(R[0, 2], R[2, 2]) = cos(pitch) (sin, cos)(yaw)``,
+    ``(R[1, 0], R[1, 1]) = cos(pitch) (sin, cos)(roll)``; pitch in ``[-pi/2, pi/2]``, the others in ``[-pi, pi]``.
+    At pitch ±90 degrees (yaw and roll turn about one axis) the roll is 0 and the yaw carries the turn.
+    The rotations are made orthonormal first (the nearest rotation, by SVD).
+    """
     R = np.asarray(rotations, dtype=np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3):
         raise InputError(f"rotations must be (T, 3, 3), got {R.shape}")
     if R.shape[0] == 0:
         return np.zeros((0, 3))
-    return Rotation.from_matrix(R).as_euler("YXZ")
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt
+    sp = np.clip(-R[:, 1, 2], -1.0, 1.0)
+    pitch = np.arcsin(sp)
+    yaw = np.arctan2(R[:, 0, 2], R[:, 2, 2])
+    roll = np.arctan2(R[:, 1, 0], R[:, 1, 1])
+    lock = np.hypot(R[:, 1, 0], R[:, 1, 1]) < 1e-9  # cos(pitch) ~ 0: R[0] = (cos, sin(pitch) sin, 0)(yaw)
+    if lock.any():
+        roll[lock] = 0.0
+        yaw[lock] = np.arctan2(R[lock, 0, 1] * np.sign(sp[lock]), R[lock, 0, 0])
+    return np.stack([yaw, pitch, roll], axis=1)

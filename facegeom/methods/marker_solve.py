@@ -474,7 +474,7 @@ def smooth_curves(Y, amount="auto", grid: int = 41):
     lam : (K,) float64
         The smoothing strength used per curve (0: left as is).
     """
-    from scipy.fft import dct, idct
+    from facegeom.linalg import dct_ortho, idct_ortho
 
     Y = np.asarray(Y, dtype=np.float64)
     if Y.ndim != 2:
@@ -483,7 +483,7 @@ def smooth_curves(Y, amount="auto", grid: int = 41):
     if T < 4:
         return Y.copy(), np.zeros(K)
     lam_eig = _dct_eigen(T)
-    C = dct(Y, type=2, norm="ortho", axis=0)
+    C = dct_ortho(Y)
     if isinstance(amount, str):
         if amount != "auto":
             raise InputError(f"smoothing must be 'auto', 'off' or a number >= 0, got {amount!r}")
@@ -499,7 +499,7 @@ def smooth_curves(Y, amount="auto", grid: int = 41):
         if isinstance(amount, bool) or not np.isfinite(float(amount)) or float(amount) < 0:
             raise InputError(f"smoothing must be 'auto', 'off' or a number >= 0, got {amount!r}")
         lam = np.full(K, float(amount))
-    Z = idct(C / (1.0 + lam[None] * lam_eig[:, None]), type=2, norm="ortho", axis=0)
+    Z = idct_ortho(C / (1.0 + lam[None] * lam_eig[:, None]))
     return np.clip(Z, Y.min(axis=0), Y.max(axis=0)), lam
 
 
