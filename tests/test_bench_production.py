@@ -32,7 +32,7 @@ def test_every_case_runs_as_a_child_and_passes_its_check(tmp_path, face_model):
     data = json.loads((out / "production.json").read_text())
     rows = data["rows"]
     assert [row["case"] for row in rows] == ["help", "help", "solve-gaps", "solve-cli", "rig-route", "marker-route",
-                                             "marker-route-long"]
+                                             "marker-route-registered", "marker-route-long"]
     assert all(row["check"] == "ok" for row in rows), [row["note"] for row in rows]
     for row in rows:
         assert row["cpu_s"] > 0 and row["wall_s"] > 0 and len(row["runs"]) == 1
@@ -41,15 +41,18 @@ def test_every_case_runs_as_a_child_and_passes_its_check(tmp_path, face_model):
     assert rows[0]["rss_mb"] < 100
     gaps = rows[2]
     assert 0 < gaps["solve_s_per_1000"] < 30 and gaps["weight_error_gaps"] < 0.05
-    for row in rows[-2:]:
+    for row in rows[-3], rows[-1]:
         assert {"rigid fit", "retarget", "deformer fit", "glb write"} <= set(row["split_s"])
-    assert "--frames 60 " in rows[-2]["command"] and "--frames" not in rows[-1]["command"]  # the long one: all
+    assert "--frames 60 " in rows[-3]["command"] and "--frames" not in rows[-1]["command"]  # the long one: all
+    # a head registered before: the registration read from the cache, the rest of the route timed as before
+    assert {"retarget", "deformer fit", "glb write"} == set(rows[-2]["split_s"])
+    assert "warm-up run (not timed)" in r.output and rows[-2]["cpu_s"] < rows[-3]["cpu_s"]
     assert "2000 frames" in rows[-1]["note"]
     assert data["sizes"]["frames_rig"] == 2000 and data["machine"] and data["load_start"]
 
     with open(out / "production.csv", newline="") as fh:
         table = list(csv.DictReader(fh))
-    assert len(table) == 7 and {"cpu_s", "wall_s", "rss_mb", "met", "check"} <= set(table[0])
+    assert len(table) == 8 and {"cpu_s", "wall_s", "rss_mb", "met", "check"} <= set(table[0])
     summary = (out / "production-summary.md").read_text()
     assert summary.startswith("| case ") and "facegeom animate --take take.csv" in summary
     assert "cores, Python" in summary

@@ -31,6 +31,11 @@ The cases (targets in :data:`TARGETS`):
     ``facegeom animate ... --route markers`` on the first 1,000 frames of the
     same take and character: registration, retargeting, deformer fit and the
     ``.glb``; the route's own time split is parsed from its output.
+``marker-route-registered``
+    ``marker-route`` again on a head registered before (every take after the
+    first onto a character): the registration cache is on (the user cache,
+    where any command keeps a head's registration) and an untimed run fills it
+    first.
 ``marker-route-long``
     The same on the whole take (100,000 frames): minutes, so it runs once
     (:data:`LONG_RUNS`) whatever ``repeat`` asks.
@@ -59,7 +64,8 @@ from facegeom.errors import FacegeomError, InputError
 
 __all__ = ["CASES", "TARGETS", "Sizes", "build_character", "main", "run", "run_child", "solve_gaps", "write_take"]
 
-CASES = ("help", "solve-gaps", "solve-cli", "rig-route", "marker-route", "marker-route-long")
+CASES = ("help", "solve-gaps", "solve-cli", "rig-route", "marker-route", "marker-route-registered",
+         "marker-route-long")
 """The cases, in the order they run."""
 
 TARGETS = {
@@ -68,6 +74,7 @@ TARGETS = {
     "solve-cli": "<= 1 s wall",
     "rig-route": "<= 2 s CPU, <= 512 MB",
     "marker-route": "<= 10 s CPU",
+    "marker-route-registered": "<= 10 s CPU",
     "marker-route-long": "<= 600 s CPU, <= 4096 MB",
 }
 
@@ -487,6 +494,8 @@ class _Case:
     target: str
     before: Callable[[], None] = lambda: None  # e.g. remove the previous run's output
     runs: int | None = None  # runs whatever ``repeat`` asks (None: ``repeat``)
+    env: dict | None = None  # environment variables changed for this case's children
+    warm: bool = False  # one untimed run first (e.g. to fill a cache)
 
 
 def _remove(*paths: Path) -> Callable[[], None]:
@@ -559,7 +568,7 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                          fg + ["solve", capture.name, "-o", curves.name], solve_check,
                          lambda r: r["wall_s"] <= 1.0, TARGETS["solve-cli"], _remove(curves)))
 
-    if {"rig-route", "marker-route", "marker-route-long"} & set(names):
+    if {"rig-route", "marker-route", "marker-route-registered", "marker-route-long"} & set(names):
         take = setup.get("take.csv", {"frames": sizes.frames_rig}, lambda p: write_take(p[0], sizes.frames_rig))
         hs = head.stat()
         character = setup.get("char.npz", {"head": str(head.resolve()), "head_stamp": [hs.st_size, hs.st_mtime_ns],
@@ -586,12 +595,16 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                          rig_check, lambda r: r["cpu_s"] <= 2.0 and r["rss_mb"] <= 512, TARGETS["rig-route"],
                          _remove(glb)))
 
-    def marker_case(case, frames, glb, met, runs=None):
+    def marker_case(case, frames, glb, met, runs=None, env=None, warm=False):
         def marker_check(res):
             m = _GLB.search(res["output"])
             if m is None or not _is_glb(glb):
                 return False, "failed: no animated .glb", {}
             split = marker_route_split(res["output"])
+            if warm:  # the head registered before: its registration read, not computed (its lines are replayed)
+                if "registration: reused from the cache" not in res["output"]:
+                    return False, "failed: the head was registered again (no cached registration used)", {}
+                split = {k: v for k, v in split.items() if not k.endswith(" fit") or k == "deformer fit"}
             got, within = int(m.group(1)), float(m.group(4))
             ok = got == frames and within <= 0.1 + 5e-4  # the writer's tolerance, as printed
             note = (f"{got} frames, every vertex within {within:.3f} mm; "
@@ -603,11 +616,16 @@ def _cases(names, setup: SetupCache, model, sizes: Sizes, head: Path, echo) -> l
                                      "--route markers -o", glb.name]),
                      fg + ["animate", "--take", take.name, *window, "--character", character.name, "--route",
                            "markers", "-o", glb.name],
-                     marker_check, met, TARGETS[case], _remove(glb), runs)
+                     marker_check, met, TARGETS[case], _remove(glb), runs, env, warm)
 
     if "marker-route" in names:
         out.append(marker_case("marker-route", sizes.frames_markers, folder / "mr.glb",
                                lambda r: r["cpu_s"] <= 10.0))
+    if "marker-route-registered" in names:
+        from facegeom.methods.registration_cache import ENV_VAR
+
+        out.append(marker_case("marker-route-registered", sizes.frames_markers, folder / "mr.glb",
+                               lambda r: r["cpu_s"] <= 10.0, None, {ENV_VAR: "on"}, True))
     if "marker-route-long" in names:
         out.append(marker_case("marker-route-long", sizes.frames_rig, folder / "mr-long.glb",
                                lambda r: r["cpu_s"] <= 600.0 and r["rss_mb"] <= 4096, LONG_RUNS))
@@ -681,10 +699,16 @@ def run(model, names, out: Path, sizes: Sizes = Sizes(), repeat: int = 3, head: 
         echo(f"{case.case}: {case.command} ...")
         runs, results = [], []
         times = case.runs or repeat
+        case_env = env if case.env is None else {**env, **case.env}
+        if case.warm:
+            case.before()
+            warmed = run_child(case.argv, setup.folder, case_env, logs / f"{case.case}-warm-up.log", sizes.timeout)
+            echo(f"  warm-up run (not timed): CPU {warmed['cpu_s']:.2f} s")
         for i in range(times):
             case.before()
             slug = re.sub(r"[^a-z0-9]+", "-", case.command.lower()).strip("-")[:60]
-            res = run_child(case.argv, setup.folder, env, logs / f"{slug}-{i + 1}.log", sizes.timeout)
+            res = run_child(case.argv, setup.folder, case_env, logs / f"{case.case}-{slug}-{i + 1}.log",
+                            sizes.timeout)
             failure = _failed(res)
             passed, note, extra = (False, failure, {}) if failure else case.check(res)
             runs.append({**{k: res[k] for k in ("cpu_s", "wall_s", "rss_mb")},
@@ -742,7 +766,8 @@ def main(model, names, out, sizes: Sizes = Sizes(), repeat: int = 3, head: Path 
         The rows of :func:`run`.
     """
     out = Path(out)
-    if {"rig-route", "marker-route", "marker-route-long"} & set(names):  # before any work: a bad size or head is one line at once
+    if {"rig-route", "marker-route", "marker-route-registered", "marker-route-long"} & set(names):
+        # before any work: a bad size or head is one line at once
         if sizes.frames_markers > sizes.frames_rig:
             raise InputError(f"the marker route's {sizes.frames_markers} frames exceed the take's {sizes.frames_rig}")
         if not Path(head).is_file():
