@@ -62,6 +62,34 @@ def test_cgal_and_numpy_agree_on_the_scan():
     assert len(a) == 252 and set(map(tuple, a)) == set(map(tuple, b))
 
 
+def test_crossings_checked_again_where_a_pose_changed_are_those_of_the_whole_check():
+    """The unfolding's re-check tests only the triangles a correction moved: on the scan, a bump pushed through
+    the surface and then partly pulled back, the pairs equal a whole check's (found, kept and lost ones)."""
+    from facegeom.io.mesh import read_mesh
+
+    V, F = read_mesh(HEADS / "lee_perry_smith.ply")
+    rest = folds.RestCrossings(V, F)
+    rng = np.random.default_rng(0)
+    N = np.zeros_like(V)
+    np.add.at(N, F.ravel(), np.repeat(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), 3, axis=0))
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    edge = float(np.median(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1)))
+    for seed in range(3):
+        c = V[rng.integers(V.shape[0])]
+        w = np.exp(-((V - c) ** 2).sum(axis=1) / (2 * (6 * edge) ** 2))
+        X0 = V - (8 * edge) * w[:, None] * N  # a dent pushed in through the head: new crossings
+        prev = folds.new_crossings(V, F, X0, rest)
+        patch = np.linalg.norm(V - c, axis=1) < 4 * edge  # the correction moves a patch back out
+        X1 = X0.copy()
+        X1[patch] = V[patch] + 0.3 * (X0[patch] - V[patch])
+        touched = np.flatnonzero(patch[F].any(axis=1))
+        got = folds.recheck_crossings(V, F, X1, rest, prev, touched)
+        whole = np.unique(np.sort(folds.new_crossings(V, F, X1, rest), axis=1), axis=0).reshape(-1, 2)
+        assert got.tolist() == whole.tolist()
+        assert len(prev) > 0  # the dent made crossings: the check has something to keep or lose
+        assert not np.array_equal(np.unique(np.sort(prev, axis=1), axis=0), whole)  # and the correction changed them
+
+
 # ---------------------------------------------------------------------------------------------- the scan
 @pytest.fixture(scope="module")
 def lps(face_model):

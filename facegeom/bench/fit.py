@@ -157,7 +157,7 @@ def run_landmark_throughput(model, specs, seed=0, count=1000, noise_px=1.0, one_
         unposed.append(LandmarkTarget(uv, ids, PinholeCamera(cam.focal, cam.cx, cam.cy)))
     work = [(i, key, targets) for i in range(len(specs))
             for key, targets in (("known_pose", posed), ("estimated_pose", unposed))]
-    rows = [{"method": s.label} for s in specs]
+    rows = [{"method": s.label, "targets": int(count)} for s in specs]
     built = {}
     for i, key, targets in progress_bar(work, "landmark speed", progress, unit="run"):
         if i not in built:  # one fitter per method, for both poses
@@ -204,7 +204,7 @@ def throughput_heading(kind: str, n_methods: int, count: int, repeats: int = 1) 
     str
         One line; the duration is a range, from a quiet machine to a busy one.
     """
-    runs = max(1, n_methods) * max(1, int(repeats))
+    runs = max(1, n_methods) * max(1, int(repeats)) * max(count, 1) / THROUGHPUT_REFERENCE[kind]
     lo, hi = (s * runs for s in THROUGHPUT_SECONDS[kind])
     what = ("landmark fits per second on one rig, 23 landmarks per target, with the pose known and with it "
             "estimated" if kind == "landmark" else "mesh fits per second on one rig, targets in correspondence")
@@ -213,8 +213,18 @@ def throughput_heading(kind: str, n_methods: int, count: int, repeats: int = 1) 
             f"this takes roughly {_duration(lo)} to {_duration(hi)}")
 
 
+def landmark_throughput_targets(cases: int) -> int:
+    """Targets of the landmark throughput that the ``landmarks`` experiment times after ``cases`` fits: ten per case,
+    100 to 1,000 (the default 100 cases: 1,000; a quick run of a few cases does not spend most of its time on the
+    rate; the ``speed`` experiment always times 1,000)."""
+    return int(min(1000, max(100, 10 * int(cases))))
+
+
 THROUGHPUT_SECONDS = {"landmark": (5.0, 30.0), "mesh": (0.5, 3.0)}
-"""Seconds per fitter and timed run of the throughputs (targets included): an idle 2-core machine, a busy one."""
+"""Seconds per fitter and timed run of the throughputs (targets included): an idle 2-core machine, a busy one;
+at :data:`THROUGHPUT_REFERENCE` targets (in proportion for others)."""
+
+THROUGHPUT_REFERENCE = {"landmark": 1000, "mesh": 2000}
 
 
 def _duration(seconds: float) -> str:
@@ -449,7 +459,9 @@ def summarize(results: dict, specs) -> str:
     if "landmark_speed" in results:
         rows = results["landmark_speed"]
         header = ["method", "fits/s, known pose", "fits/s, pose estimated", "path"]
-        parts.append("Landmark throughput (one rig, 23 landmarks)\n\n" + format_table(header, [
+        targets = rows[0].get("targets") if rows else None
+        per = f", {int(targets):,} targets a run" if targets else ""
+        parts.append(f"Landmark throughput (one rig, 23 landmarks{per})\n\n" + format_table(header, [
             [r["method"], r.get("known_pose", float("nan")), r.get("estimated_pose", float("nan")), r.get("path", "-")]
             for r in rows]))
     if "mesh_speed" in results:
@@ -637,8 +649,10 @@ def main(model, specs, experiments, count, seed, out, noise_px=1.0, cloud_cases=
     if "landmarks" in experiments:
         results["landmarks"] = run_landmarks(model, cases, specs, noise_px, seed, progress)
         report.csv(results["landmarks"], "landmarks")
-        echo(throughput_heading("landmark", len(specs), 1000))
-        results["landmark_speed"] = run_landmark_throughput(model, specs, seed, noise_px=noise_px, progress=progress)
+        n_speed = landmark_throughput_targets(count)
+        echo(throughput_heading("landmark", len(specs), n_speed))
+        results["landmark_speed"] = run_landmark_throughput(model, specs, seed, count=n_speed, noise_px=noise_px,
+                                                            progress=progress)
         report.csv(results["landmark_speed"], "landmark-speed")
     if "speed" in experiments:  # only the throughputs, each the median of 3 runs
         if "landmark_speed" not in results:

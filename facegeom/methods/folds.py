@@ -220,6 +220,31 @@ def new_crossings(V, F, X, rest=None) -> np.ndarray:
     return P[~old]
 
 
+def recheck_crossings(V, F, X, rest, prev, touched) -> np.ndarray:
+    """:func:`new_crossings` of ``X`` when, since the pose whose result was ``prev``, only the triangles ``touched``
+    moved: the pairs of ``prev`` without a touched triangle (their triangles kept their places, so their state and
+    the rest filter's verdict are the same), and the touched triangles' pairs tested again -> ``(p, 2)``, the
+    same set of pairs as :func:`new_crossings` gives (sorted rows). A correction moves a small patch, so the test
+    covers that patch's neighbourhood instead of the whole face.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    X = np.asarray(X, dtype=np.float64)
+    prev = np.asarray(prev, dtype=np.int64).reshape(-1, 2)
+    touched = np.asarray(touched, dtype=np.int64)
+    hit = np.zeros(F.shape[0], dtype=bool)
+    hit[touched] = True
+    kept = prev[~(hit[prev[:, 0]] | hit[prev[:, 1]])]
+    moved = np.zeros(F.shape[0], dtype=bool)
+    moved[_moved_triangles(F, X - V, rest.tol)] = True
+    P = crossing_pairs(X, F, touched) if touched.size else np.zeros((0, 2), dtype=np.int64)
+    P = P[moved[P[:, 0]] | moved[P[:, 1]]]  # as new_crossings: a pair with a triangle that moved from the rest
+    m = rest.m
+    old = np.isin(P[:, 0] * m + P[:, 1], rest.pairs[:, 0] * m + rest.pairs[:, 1])
+    old |= rest.near[P[:, 0]] & rest.near[P[:, 1]]
+    out = np.unique(np.r_[kept, P[~old]].reshape(-1, 2), axis=0)
+    return out.astype(np.int64)
+
+
 @dataclass
 class FoldCheck:
     """Per case (a shape, or shapes together, each at weight 1) the flipped triangles and new crossings.
@@ -320,6 +345,7 @@ def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: i
             break
         region_of: dict = {}
         touch_of: dict = {}
+        now: dict = {}  # shape -> vertices whose motion this round changes
         for i in todo:
             reg = np.zeros(n, dtype=bool)
             reg[F[fl[i]].ravel()] = True
@@ -352,6 +378,8 @@ def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: i
             out[k, around] = (Wm @ out[k]) / np.asarray(Wm.sum(axis=1))
             changed[name] = changed.get(name, np.zeros(n, dtype=bool))
             changed[name][around] = True
+            now[name] = now.get(name, np.zeros(n, dtype=bool))
+            now[name][around] = True
         for name, reg in region_of.items():  # flips: the motion re-solved as the harmonic fill from around
             if reg is None or reg.all() or not reg.any():
                 continue
@@ -360,12 +388,13 @@ def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: i
             K_ii = (K[inner][:, inner] + sp.eye(inner.size) * 1e-12).tocsc()
             out[k, inner] = factorize_spd(K_ii).solve(-(K[inner][:, outer] @ out[k, outer]))
             changed[name] = changed.get(name, np.zeros(n, dtype=bool)) | reg
-        region_of.update({x: None for x in touch_of})
-        for i, c in enumerate(cases):  # the cases of a changed shape checked again
-            if any(x in region_of for x in c):
+            now[name] = now.get(name, np.zeros(n, dtype=bool)) | reg
+        for i, c in enumerate(cases):  # the cases of a changed shape checked again (crossings: where it changed)
+            if any(x in now for x in c):
                 X = V + sum(out[names.index(x)] for x in c)
                 fl[i], sf[i] = _split(rest, F, V, X)
-                cr[i] = new_crossings(V, F, X, rest)
+                where = np.any([now[x] for x in c if x in now], axis=0)
+                cr[i] = recheck_crossings(V, F, X, rest, cr[i], np.flatnonzero(where[F].any(axis=1)))
     kept = {}
     for name in list(changed):  # a correction that would reshape the expression is not made: reported instead
         k = names.index(name)
