@@ -106,9 +106,17 @@ class RigFrame:
         return self.units == "cm" and self.up == "y" and not self.turned
 
     def to_facegeom(self, X) -> np.ndarray:
-        """Points or offsets ``(..., 3)`` in the rig's frame -> facegeom's (cm, Y up)."""
-        Y = np.asarray(X, dtype=np.float64) @ self.rotation.T
-        Y *= self.scale  # (in place: one array the size of X, not two)
+        """Points or offsets ``(..., 3)`` in the rig's frame -> facegeom's (cm, Y up): a new array.
+
+        A rig already Y-up and facing +Z is copied, not multiplied by the identity (a matrix product with an
+        inner size of 3 is slow: 0.07-0.15 s for a 76,000-vertex rig's 52 shapes)."""
+        R = self.rotation
+        if np.array_equal(R, np.eye(3)):
+            Y = np.array(X, dtype=np.float64)
+        else:
+            Y = np.asarray(X, dtype=np.float64) @ R.T
+        if self.scale != 1.0:
+            Y *= self.scale  # (in place: one array the size of X, not two)
         return Y
 
     def to_source(self, X) -> np.ndarray:
