@@ -330,10 +330,13 @@ def tracked_clip(ex: Path, out: Path) -> None:
 
 
 def tracked_character(ex: Path, out: Path, rig_path: Path) -> None:
-    """The scanned head, rigged by ``facegeom transfer``, performing the example video (``track --character``)."""
-    facegeom("track", "clip.mp4", "--character", rig_path, "-o", "head_clip.glb", "-o", "clip_curves.npz", cwd=ex)
+    """The scanned head, rigged by ``facegeom transfer``, performing the example video: the tracked weights
+    (``track``'s, as ``track --character`` plays them on the rig) on the rig's shapes. The video is tracked once:
+    :func:`tracked_clip`'s ``clip.npz`` is used when it ran."""
+    if not (ex / "clip.npz").is_file():
+        facegeom("track", "clip.mp4", "-o", "clip.npz", cwd=ex)
     neutral, deltas, names, F = _rig(rig_path)
-    a = np.load(ex / "clip_curves.npz", allow_pickle=False)
+    a = np.load(ex / "clip.npz", allow_pickle=False)
     W, anim_names = a["weights"], [str(x) for x in a["names"]]
     index = [names.index(n) if n in names else -1 for n in anim_names]
     frames = sorted(_peaks(W, 4))

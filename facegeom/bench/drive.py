@@ -547,7 +547,8 @@ if __name__ == "__main__":  # python -m facegeom.bench.drive study SEED CASES | 
 
     _model = load_face_model(None)
     if sys.argv[1:2] == ["speed"]:
-        _specs = parse_methods("tangent-rigid=tangent:smoothness=1,align=rigid,beta=None;tangent", "deformers", [])
+        _specs = parse_methods("tangent-rigid=tangent:smoothness=1,align=rigid,beta=None;tangent;"
+                               "tangent-amplitude=tangent:prior=amplitude", "deformers", [])
         _reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
         print(format_table(["configuration", "fit (s)", "deform (ms)", "deform_many (ms per frame)",
                             "deform_many (x first)"],

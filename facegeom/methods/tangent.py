@@ -733,9 +733,9 @@ class TangentDeformer(Params):
         the lower GCV score
         (:class:`~facegeom.methods.tangent_prior.AmplitudeSmoother`). On the
         realistic protocol 5-8 % better than ``uniform`` at 0.5 mm noise, the
-        same on clean markers, but one ``(M, M)`` eigendecomposition per frame:
-        ~1.2 ms more per deform and ~7x the ``deform_many`` time per frame, so
-        it is not the default (see docs/benchmarks/driving.md).
+        same on clean markers, but one ``(M, M)`` tridiagonal reduction per
+        frame: ~0.8 ms more per deform and ~4x the ``deform_many`` time per
+        frame, so it is not the default (see docs/benchmarks/driving.md).
 
     Notes
     -----
