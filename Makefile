@@ -1,4 +1,4 @@
-# Entry points for a fresh machine: `make demo`, `make test` and `make docs`.
+# Entry points for a fresh machine: `make demo`, `make test`, `make bench` and `make docs`.
 # Each creates .venv (if missing or stale) and installs the project into it, then makes sure the face
 # data is there: found by the data lookup, else downloaded once (ICT-FaceKit, about 400 MB, verified) into
 # the user cache (`facegeom data fetch`; $FACEGEOM_CACHE, $FACEGEOM_DATA_URL for a mirror), and one public real
@@ -9,7 +9,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.facegeom-installed
 DOCS_STAMP = $(VENV)/.facegeom-docs-installed
 
-.PHONY: demo test fuzz face-data install images docs clean
+.PHONY: demo test bench fuzz face-data install images docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,15 @@ face-data: $(STAMP)
 
 demo: face-data
 	$(BIN)/facegeom demo
+
+# the method comparisons at a small size (BENCH_CASES cases or sequences each, one BLAS thread), tables and plots
+# into BENCH_OUT; each `facegeom bench ...` command documents its full protocol and options (--help)
+BENCH_CASES ?= 5
+BENCH_OUT ?= bench-out
+bench: face-data
+	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench drive --cases $(BENCH_CASES) --realistic-cases $(BENCH_CASES) --out $(BENCH_OUT)/drive
+	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench retarget --sequences $(BENCH_CASES) --labels 10,20 --out $(BENCH_OUT)/retarget
+	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench fit --cases $(BENCH_CASES) --realistic-cases $(BENCH_CASES) --out $(BENCH_OUT)/fit
 
 # one test process per core (pytest-xdist; a test file stays on one process, so its fixtures are made once), each
 # with single-threaded BLAS so the processes do not oversubscribe the cores. The package is compiled to bytecode

@@ -378,13 +378,3 @@ def test_cli_batch_on_a_scheduler(client, landmarks, tmp_path):
     r = subprocess.run([sys.executable, "-m", "facegeom", "batch", str(tmp_path / "none.toml")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and r.stderr.strip() == f"facegeom: error: {tmp_path / 'none.toml'}: file not found"
-
-
-def test_demo_batch_step_with_a_relative_folder(tmp_path, monkeypatch, face_model, capsys):
-    from facegeom.cli.demo import _demo_batch
-
-    monkeypatch.chdir(tmp_path)
-    _demo_batch(face_model, Path("bench-out/demo/batch"), count=6)
-    out = capsys.readouterr().out
-    assert "6 ok, 0 failed" in out and "median face error" in out
-    assert len(list((tmp_path / "bench-out/demo/batch/fit").glob("t*.json"))) == 6

@@ -131,43 +131,6 @@ def test_fit_figure_has_no_empty_panel():
         plt.close(fig)
 
 
-# --------------------------------------------------------------------------- the demo's last line
-
-
-def test_demo_ends_with_where_its_results_are(tmp_path, monkeypatch, face_model):
-    from click.testing import CliRunner
-
-    from facegeom.cli import demo as demo_mod
-    from facegeom.cli.main import cli
-
-    def touch(folder, *names):
-        for n in names:
-            (Path(folder) / n).parent.mkdir(parents=True, exist_ok=True)
-            (Path(folder) / n).write_text("x")
-
-    def bench(*names):
-        return lambda **kw: touch(kw["out"], *names)
-
-    old = tmp_path / "demo" / "old-summary.md"  # left by an earlier run: not listed
-    old.parent.mkdir(parents=True)
-    old.write_text("x")
-    os.utime(old, (1e9, 1e9))
-    monkeypatch.setattr(demo_mod, "bench_drive", bench("drive-summary.md", "drive.png"))
-    monkeypatch.setattr(demo_mod, "bench_retarget", bench("retarget-summary.md", "retarget.png"))
-    monkeypatch.setattr(demo_mod, "bench_fit", bench("fit-summary.md", "fit.png"))
-    monkeypatch.setattr(demo_mod, "_demo_batch", lambda model, folder: touch(folder, "fit/batch-summary.csv"))
-    monkeypatch.setattr(demo_mod, "_demo_capture", lambda ctx, folder: touch(folder, "capture.glb"))
-    monkeypatch.setattr(demo_mod, "_demo_viewer", lambda obj_model, path: touch(path.parent, path.name))
-    r = CliRunner().invoke(cli, ["demo", "--out", str(tmp_path / "demo")])
-    assert r.exit_code == 0, r.output
-    last = r.output.strip().splitlines()[-1]
-    assert last.startswith(f"results in {(tmp_path / 'demo').resolve()}: ")
-    for name in ("drive-summary.md", "retarget/retarget-summary.md", "fit/fit-summary.md",
-                 "batch/fit/batch-summary.csv", "fit/fit.png", "view-drive.png", "capture/capture.glb"):
-        assert name in last, name
-    assert "summaries" in last and "images" in last and "animation" in last and "old-summary" not in last
-
-
 # --------------------------------------------------------------------------- viewer: one colour scale
 
 

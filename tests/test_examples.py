@@ -173,7 +173,7 @@ def test_the_extractor():
 def test_the_section_covers_every_task():
     """Every task has a command users run as written: in the README section or on a how-to page."""
     lines = bash_lines(SECTION_TEXT)
-    assert lines[0] == "facegeom data examples examples && cd examples", "the section starts by making the folder"
+    assert lines[1] == "facegeom data examples examples && cd examples", "the section starts by making the folder"
     words = [shlex.split(c, comments=True) for c in COMMANDS + PAGE_COMMANDS]
     heads = {" ".join(w[1:3]) for w in words} | {w[1] for w in words}
     missing = [t for t in TASKS if t not in heads]
@@ -186,6 +186,25 @@ def test_the_section_covers_every_task():
     for c in COMMANDS + PAGE_COMMANDS:
         if shlex.split(c, comments=True)[1] == "view":
             assert "--screenshot" in shlex.split(c, comments=True), f"a view command must render headless: {c}"
+
+
+ACTIVATE = ["source", ".venv/bin/activate"]
+"""The Try-it section's first line: the virtualenv ``make demo`` and ``make test`` make, activated."""
+
+
+def test_try_it_activates_the_virtualenv_first():
+    """The section works as pasted into a new shell: its first command activates ``.venv`` (where ``facegeom``
+    is), and from the checkout's root, where that virtualenv is, the activated shell finds ``facegeom``."""
+    lines = bash_lines(SECTION_TEXT)
+    assert shlex.split(lines[0], comments=True) == ACTIVATE, lines[0]
+    venv = README.parent / ".venv" / "bin" / "activate"
+    if not venv.is_file():
+        pytest.skip(f"no virtualenv at {venv.parent.parent} (make test makes it)")
+    r = subprocess.run(["bash", "--noprofile", "--norc", "-c", f"{lines[0]} && command -v facegeom && facegeom --version"],
+                       cwd=README.parent, env={"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/tmp")},
+                       capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0] == str(venv.parent / "facegeom") and "facegeom, version" in r.stdout
 
 
 def test_readme_txt_commands_are_in_the_section():
@@ -446,6 +465,8 @@ def readme_run(tmp_path_factory, face_model, done):
             if words[0] == "cd":
                 cwd = cwd / words[1]
                 assert cwd.is_dir(), f"README: `{line}`: no folder {cwd}"
+                continue
+            if words == ACTIVATE:  # this test runs facegeom with its own interpreter (test_try_it_activates)
                 continue
             assert words[0] == "facegeom", f"README section: only facegeom commands and cd run here: {line!r}"
             t = time.perf_counter()

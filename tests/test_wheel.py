@@ -94,6 +94,9 @@ def test_wheel_holds_only_the_facegeom_package(wheel):
     assert zipfile.ZipFile(wheel).read(meta["LICENSE"]).decode() == (ROOT / "LICENSE").read_text()
     assert "MIT License" in (ROOT / "LICENSE").read_text()
     assert {"facegeom/model/ICT-FaceKit-registry.txt", "facegeom/model/takes-registry.txt"} <= set(names)
+    # the demo's two public heads, with their sources and licences
+    assert {"facegeom/data/heads/lee_perry_smith.ply", "facegeom/data/heads/makehuman_stylised_arkit.npz",
+            "facegeom/data/heads/SOURCES.md"} <= set(names)
 
 
 def test_commands_run_from_the_installed_wheel(installed):

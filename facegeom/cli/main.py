@@ -42,8 +42,9 @@ COMMANDS: dict[str, LazyCommand] = {
                             "Quadric edge-collapse decimation of IN (pymeshlab) to about --vertices vertices, into "
                             "OUT."),
     "demo": LazyCommand("facegeom.cli.demo", "demo",
-                        "The main job: face driving, expression retargeting and blendshape fitting compared on a "
-                        "few real faces."),
+                        "The product in about two minutes on real data: a face driven by markers, a photo fitted, "
+                        "a capture, a real take and a video played on a scanned head and a stylised character; "
+                        "pictures and .glb files to open."),
     "detect": LazyCommand("facegeom.cli.detect", "detect_cmd",
                           "Find the faces of a photo (or of every photo in a FOLDER): 68 landmarks as an iBUG .pts "
                           "file."),
