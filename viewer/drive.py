@@ -11,13 +11,23 @@ layout of :mod:`facegeom.model.layouts`), or taken from the benchmark itself
 (``bench_case``: row ``case`` of ``facegeom bench drive --seed``). Methods come
 from the registry (``facegeom.deformers`` entry points): each is fitted once on
 the source, and a marker edit only calls every method's factorized ``deform``.
+
+Or the user's own files (:func:`read_drive_files`, ``facegeom view drive MESH
+MARKERS``): the mesh and the marker CSV are read and checked by the very readers
+``facegeom drive MESH MARKERS`` uses, and every method is built as that command
+builds it (:class:`DriveSpec`: its ``--proxy`` policy, the deformer's own default
+parameters), so the ``tangent`` face is what ``facegeom drive MESH MARKERS -o OUT``
+writes. There is no true target then: the row is the mesh | one face per method,
+coloured by how far each vertex moved (mm, the mesh's unit found from its size).
 """
 from __future__ import annotations
 
+import inspect
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -39,9 +49,13 @@ from facegeom.viewer.app import (
 )
 from facegeom.viewer.dragging import MarkerDragging
 
-__all__ = ["DriveCase", "make_drive_case", "DriveView", "DEFAULT_METHODS", "LAYOUTS"]
+__all__ = ["DriveCase", "make_drive_case", "read_drive_files", "DriveSpec", "DriveView", "DEFAULT_METHODS",
+           "FILE_METHODS", "LAYOUTS"]
 
 DEFAULT_METHODS = "rbf;biharmonic;tangent"
+#: The methods shown for the user's files: ``facegeom drive``'s default deformer first, then the other two of
+#: :data:`DEFAULT_METHODS` to compare with (``facegeom.cli.view`` takes the first from the drive command itself).
+FILE_METHODS = "tangent;rbf;biharmonic"
 LAYOUTS = ["ict80", "landmarks68", "random80", "random40"]
 NUDGE_RANGE_MM = 20.0
 KEY_STEP_MM = 0.5  # one arrow-key press (x4 with shift)
@@ -53,13 +67,98 @@ _RBF_KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "
 
 @dataclass
 class DriveCase:
-    """One source/target pair with its markers (all in the data's units, cm)."""
+    """One source/target pair with its markers (in the data's units: cm for the face model, the file's own for
+    the user's files).
+
+    Attributes
+    ----------
+    description : str
+        One line for the panel.
+    source : (n, 3) float64
+        The mesh driven (the identity's neutral face, or the user's mesh).
+    target : (n, 3) float64 or None
+        The same identity with the expression (the truth); ``None`` for the user's files (no truth).
+    handles : (k,) int64
+        Marker vertex ids.
+    labels : (k, 3) float64
+        The markers' positions (where the handles are driven to).
+    triangles : (m, 3) int64 or None
+        The mesh's triangles; ``None``: the face model's.
+    unit_mm : float
+        Millimetres per unit of the coordinates (10: the face model's cm).
+    files : tuple of str
+        ``(MESH, MARKERS)`` of the user's files; empty for a built-in case.
+    """
 
     description: str
     source: np.ndarray  # (n, 3) the identity's neutral face
-    target: np.ndarray  # (n, 3) the same identity with the expression (the truth)
+    target: np.ndarray | None  # (n, 3) the same identity with the expression (the truth), None for user files
     handles: np.ndarray  # (k,) marker vertex ids
     labels: np.ndarray  # (k, 3) the markers' target positions
+    triangles: np.ndarray | None = None  # (m, 3); None: the face model's
+    unit_mm: float = CM_TO_MM
+    files: tuple = field(default_factory=tuple)
+
+
+def read_drive_files(mesh, markers) -> DriveCase:
+    """The user's mesh and markers as a :class:`DriveCase`, read and checked as ``facegeom drive MESH MARKERS``
+    reads them (:func:`facegeom.io.read_mesh`, :func:`facegeom.io.read_markers` with the mesh's vertex count).
+
+    The unit (for the millimetres the panel and the colours speak in) is found from the mesh's size
+    (:func:`facegeom.model.units.find_units`: mm, cm or m); the coordinates are not changed.
+
+    Raises
+    ------
+    InputError
+        A file missing, unreadable or malformed, a marker vertex id out of the mesh's range or repeated: one
+        line naming the file (the messages of ``facegeom drive``).
+    """
+    from facegeom.io import read_markers, read_mesh
+    from facegeom.model.units import TO_CM, find_units
+
+    V, F = read_mesh(mesh)
+    ids, pos = read_markers(markers, n_vertices=V.shape[0])
+    try:
+        unit, _ = find_units(V)
+    except (FacegeomError, ValueError, FloatingPointError):  # a degenerate mesh: no size to tell a unit by
+        unit = "cm"
+    desc = (f"{Path(mesh).name} ({V.shape[0]} vertices, {F.shape[0]} triangles; unit: {unit}, from its size) "
+            f"driven by {Path(markers).name} ({ids.size} markers)")
+    return DriveCase(desc, V, None, ids, pos, triangles=F, unit_mm=TO_CM[unit] * CM_TO_MM,
+                     files=(str(mesh), str(markers)))
+
+
+@dataclass(frozen=True)
+class DriveSpec(MethodSpec):
+    """A deformer spec built as ``facegeom drive`` builds its method: wrapped in its ``--proxy`` policy.
+
+    ``proxy`` is the ``--proxy`` text (``auto``, ``off`` or a vertex count): with ``auto`` (the command's
+    default) meshes above :data:`facegeom.pipelines.proxy.PROXY_ABOVE` vertices are solved on a decimated
+    proxy, smaller ones directly, exactly as the command does. Picklable (the window's worker processes
+    build it).
+    """
+
+    proxy: str = "auto"
+
+    def build(self, kind: str):
+        """The deformer, wrapped in :class:`~facegeom.pipelines.proxy.ProxyDeformer` unless ``proxy`` is off."""
+        from facegeom.pipelines.proxy import PROXY_ABOVE, ProxyDeformer, proxy_policy
+
+        deformer = super().build(kind)
+        size = proxy_policy(self.proxy)
+        if size is None:
+            return deformer
+        above = PROXY_ABOVE if self.proxy.strip().lower() == "auto" else size
+        return ProxyDeformer(deformer, vertices=size, above=above)
+
+
+def _default_param(name: str, param: str, fallback):
+    """The registered deformer ``name``'s default for constructor parameter ``param`` (``fallback`` if none)."""
+    try:
+        p = inspect.signature(registry.get("deformers", name)).parameters.get(param)
+    except (FacegeomError, TypeError, ValueError):
+        return fallback
+    return fallback if p is None or p.default is inspect.Parameter.empty else p.default
 
 
 def make_drive_case(model, seed: int = 0, expression: str = "happiness", intensity: float = 0.9,
@@ -101,11 +200,20 @@ class DriveView(MarkerDragging, BaseView):
 
     Parameters
     ----------
-    model : FaceModel
+    model : FaceModel or None
+        The face model of the built-in cases; ``None`` with ``case`` (the user's files need no face data).
     methods : str or list of MethodSpec
         ``;``-separated specs as for ``facegeom bench drive`` (``[label=]name[:k=v,...]``).
     seed, expression, intensity, layout_name, layout_seed, bench_case
         The case (see :func:`make_drive_case`).
+    case : DriveCase, optional
+        Show this case instead, e.g. the user's files (:func:`read_drive_files`): the case panel is left out,
+        every method is built as ``facegeom drive`` builds it (:class:`DriveSpec` with ``proxy``) and starts
+        from the deformer's own default parameters (tangent's ``beta="auto"``), so a method's face is what
+        ``facegeom drive MESH MARKERS -m METHOD`` writes. Without a target the faces are coloured by how far
+        each vertex moved.
+    proxy : str
+        With ``case``: ``facegeom drive --proxy`` (``auto``, ``off`` or a vertex count).
     background : bool
         Fit and deform every method in its own worker process
         (:mod:`facegeom.viewer.workers`): the window never waits for a fit and a
@@ -118,9 +226,19 @@ class DriveView(MarkerDragging, BaseView):
 
     def __init__(self, model, methods=DEFAULT_METHODS, seed: int = 0, expression: str = "happiness",
                  intensity: float = 0.9, layout_name: str = "ict80", layout_seed: int = 0,
-                 bench_case: int | None = None, background: bool = False):
+                 bench_case: int | None = None, background: bool = False, case: DriveCase | None = None,
+                 proxy: str = "auto"):
         super().__init__()
         self.model = model
+        if case is None and model is None:
+            raise InputError("no case: give the face model (built-in cases) or a case (the user's files)")
+        self.given_case = case
+        self.proxy = str(proxy)
+        if case is not None:
+            from facegeom.pipelines.proxy import proxy_policy
+
+            proxy_policy(self.proxy)  # a bad setting: one line now, not one per method later
+            self.colorbar_title = "displacement from the mesh (mm)"
         specs = (parse_methods(methods, "deformers", LINEUPS["drive"]) if isinstance(methods, str)
                  else list(methods))
         if not specs:
@@ -131,12 +249,17 @@ class DriveView(MarkerDragging, BaseView):
         self.selected: list[str] = [s.label for s in specs]
         self.case_args = dict(seed=int(seed), expression=expression, intensity=float(intensity),
                               layout_name=layout_name, layout_seed=int(layout_seed), bench_case=bench_case)
-        # panel parameters (applied to every tangent / rbf spec); start from the first spec's values
+        # panel parameters (applied to every tangent / rbf spec); start from the first spec's values, else (the
+        # user's files) the deformer's own defaults, as `facegeom drive` builds it, or (built-in cases) tangent
+        # with hard constraints
         tan = next((s.params for s in specs if s.name == "tangent"), {})
-        self.tangent_d = int(tan.get("d", 2))
-        self.tangent_beta = tan.get("beta", None)
+        own = case is not None
+        self.tangent_d = int(tan.get("d", _default_param("tangent", "d", 2) if own else 2))
+        self.tangent_beta = tan.get("beta", _default_param("tangent", "beta", "auto") if own else None)
         self.rbf_kernel = str(next((s.params.get("kernel") for s in specs if s.name == "rbf"
-                                    and "kernel" in s.params), "thin_plate_spline"))
+                                    and "kernel" in s.params),
+                                   _default_param("rbf", "kernel", "thin_plate_spline") if own
+                                   else "thin_plate_spline"))
         self.kernels = list(_rbf_kernels())
         self.background = bool(background)
         self.deformers: dict[str, object] = {}  # in-process mode only
@@ -167,7 +290,7 @@ class DriveView(MarkerDragging, BaseView):
         In background mode the fits only start here; :meth:`poll` installs them.
         """
         self.case_args.update(changes)
-        self.case = make_drive_case(self.model, **self.case_args)
+        self.case = self.given_case if self.given_case is not None else make_drive_case(self.model, **self.case_args)
         self.offsets = np.zeros_like(self.case.labels)
         self.version += 1
         self.marker = min(self.marker, self.case.handles.size - 1)
@@ -182,11 +305,23 @@ class DriveView(MarkerDragging, BaseView):
         self._set_auto_vmax()
         self.rebuild()
 
+    @property
+    def triangles(self) -> np.ndarray:
+        """The ``(m, 3)`` triangles of the case's mesh."""
+        return self.case.triangles if self.case.triangles is not None else self.model.triangles
+
+    def colour_values(self, Y: np.ndarray) -> np.ndarray:
+        """What a face ``Y (n, 3)`` is coloured by (mm): its distance to the true target, or without one (the
+        user's files) how far each vertex moved from the mesh."""
+        c = self.case
+        return np.linalg.norm(Y - (c.source if c.target is None else c.target), axis=1) * c.unit_mm
+
     def _set_auto_vmax(self) -> None:
         """The colour scale from a typical method's 99th percentile, once every method has a face."""
         if not self._auto_vmax or any(self.status.get(x) == "fitting" for x in self.selected):
             return
-        errs = [np.percentile(error_mm(Y, self.case.target)[:FACE_AREA], 99) for x, Y in self.results.items()
+        area = slice(None) if self.case.target is None else slice(FACE_AREA)  # the face model's face area
+        errs = [np.percentile(self.colour_values(Y)[area], 99) for x, Y in self.results.items()
                 if x in self.selected]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)
         self._auto_vmax = False
@@ -204,6 +339,8 @@ class DriveView(MarkerDragging, BaseView):
             params.update(d=self.tangent_d, beta=self.tangent_beta)
         elif s.name == "rbf":
             params.update(kernel=self.rbf_kernel)
+        if self.given_case is not None:  # built as `facegeom drive` builds it (its --proxy policy)
+            return DriveSpec(s.label, s.name, params, proxy=self.proxy)
         return MethodSpec(s.label, s.name, params)
 
     def fit_method(self, label: str) -> None:
@@ -223,14 +360,14 @@ class DriveView(MarkerDragging, BaseView):
             if label not in self.workers:
                 self.workers[label] = MethodWorker()
             job = self.workers[label].submit("fit_deformer", (self.spec_for(label), self.case.source,
-                                                              self.model.triangles, self.case.handles))
+                                                              self.triangles, self.case.handles))
             self._jobs.setdefault(label, {})[job] = ("fit", None)
             self.status[label] = "fitting"
             return
         try:
             d = self.spec_for(label).build("deformers")
             t = time.perf_counter()
-            d.fit(self.case.source, self.model.triangles, self.case.handles)
+            d.fit(self.case.source, self.triangles, self.case.handles)
             self.fit_s[label] = time.perf_counter() - t
             self.deformers[label] = d
             self.status[label] = "ready"
@@ -333,8 +470,8 @@ class DriveView(MarkerDragging, BaseView):
         self._jobs.clear()
 
     def set_offset(self, marker: int, offset_cm) -> None:
-        """Move marker ``marker`` to its label + ``offset_cm``; every method re-deforms. Sliders, keys and drags
-        land here."""
+        """Move marker ``marker`` to its label + ``offset_cm`` (in the case's units: cm for the face model, the
+        mesh's own for the user's files); every method re-deforms. Sliders, keys and drags land here."""
         k = self.case.handles.size
         if not 0 <= int(marker) < k:
             raise InputError(f"marker index {marker} is out of range [0, {k})")
@@ -345,7 +482,7 @@ class DriveView(MarkerDragging, BaseView):
 
     def nudge(self, marker: int, delta_mm) -> None:
         """Add ``delta_mm`` (3,) millimetres to marker ``marker``'s offset."""
-        self.set_offset(marker, self.offsets[int(marker)] + np.asarray(delta_mm, float) / CM_TO_MM)
+        self.set_offset(marker, self.offsets[int(marker)] + np.asarray(delta_mm, float) / self.case.unit_mm)
 
     def set_methods(self, labels: list[str]) -> None:
         """Select the methods shown (fitting the new ones)."""
@@ -373,17 +510,30 @@ class DriveView(MarkerDragging, BaseView):
         self.update_deform()
 
     def errors(self, label: str) -> dict:
-        """``facegeom bench drive``'s error summary for one method's current face."""
-        return face_errors_mm(self.results[label], self.case.target)
+        """``facegeom bench drive``'s error summary for one method's current face.
+
+        Without a target (the user's files): ``moved_max_mm`` / ``moved_mean_mm``, how far the vertices moved,
+        and ``at_markers_max_mm``, the largest distance from a marker vertex to its marker (0 for a method that
+        interpolates its markers; a soft fit such as tangent's ``beta="auto"`` leaves some).
+        """
+        c = self.case
+        Y = self.results[label]
+        if c.target is not None:
+            return face_errors_mm(Y, c.target)
+        moved = self.colour_values(Y)
+        at = np.linalg.norm(Y[c.handles] - self.positions(), axis=1) * c.unit_mm
+        return {"moved_max_mm": float(moved.max()), "moved_mean_mm": float(moved.mean()),
+                "at_markers_max_mm": float(at.max())}
 
     # ------------------------------------------------------------------ scene
     def copies(self) -> list[str]:
-        """Names of the faces in the row, left to right: ``source``, the selected methods, ``target``."""
-        return ["source", *[x for x in self.selected], "target"]
+        """Names of the faces in the row, left to right: ``source``, the selected methods, ``target`` (when the
+        case has one)."""
+        return ["source", *[x for x in self.selected], *(["target"] if self.case.target is not None else [])]
 
     def draggable(self) -> list[str]:
-        """The copies whose markers the mouse can grab: every method's face and the target."""
-        return [*self.selected, "target"]
+        """The copies whose markers the mouse can grab: every method's face and the target (if any)."""
+        return [*self.selected, *(["target"] if self.case.target is not None else [])]
 
     def face(self, name: str) -> np.ndarray:
         """The ``(n, 3)`` face drawn as copy ``name`` (without its row shift): a method's last result, or the
@@ -404,14 +554,15 @@ class DriveView(MarkerDragging, BaseView):
         handle positions it is driven with (a failed method's face is red, a fitting one grey), then
         :meth:`refresh`. On the target, the markers show where the methods are driven to."""
         self._built = True
-        c, F = self.case, self.model.triangles
+        c, F = self.case, self.triangles
         names = self.copies()
         self.shifts = dict(zip(names, row_offsets(c.source, len(names))))
         self.radius = 0.011 * float(np.ptp(c.source[:, 0]))
         self.mesh("source", c.source, F, self.shifts["source"])
         self.points("source markers", c.source[c.handles], self.shifts["source"], radius=self.radius)
-        self.mesh("target", c.target, F, self.shifts["target"])
-        self.points("target markers", self.positions(), self.shifts["target"], radius=self.radius)
+        if c.target is not None:
+            self.mesh("target", c.target, F, self.shifts["target"])
+            self.points("target markers", self.positions(), self.shifts["target"], radius=self.radius)
         for label in self.selected:
             m = self.mesh(label, self.face(label), F, self.shifts[label])
             if label in self.failed:
@@ -433,8 +584,9 @@ class DriveView(MarkerDragging, BaseView):
         if not ps.is_initialized() or not self._built:
             return
         c = self.case
-        self.error_colors(ps.get_surface_mesh("source"), error_mm(c.source, c.target), self.vmax)
-        self.error_colors(ps.get_surface_mesh("target"), np.zeros(c.target.shape[0]), self.vmax)
+        if c.target is not None:  # without one the mesh itself stays grey: nothing moved
+            self.error_colors(ps.get_surface_mesh("source"), error_mm(c.source, c.target), self.vmax)
+            self.error_colors(ps.get_surface_mesh("target"), np.zeros(c.target.shape[0]), self.vmax)
         colors = np.tile(MARKER_COLOR, (c.handles.size, 1))
         colors[self.marker] = SELECTED_COLOR
         P = self.positions()
@@ -453,7 +605,7 @@ class DriveView(MarkerDragging, BaseView):
                 m.set_color(FAILED_COLOR)
             elif label in self.results:
                 m.update_vertex_positions(self.results[label] + self.shifts[label])
-                self.error_colors(m, error_mm(self.results[label], c.target), self.vmax)
+                self.error_colors(m, self.colour_values(self.results[label]), self.vmax)
             else:  # still fitting: the source shape, grey
                 m.remove_all_quantities()
                 m.set_color(TRUTH_COLOR)
@@ -516,15 +668,15 @@ class DriveView(MarkerDragging, BaseView):
         c = self.case
         self._capture_rest_faces()
         v = int(c.handles[self.marker])
-        ids = np.flatnonzero(np.linalg.norm(c.source - c.source[v], axis=1) <= NEAR_CM)
-        return {n: float(np.linalg.norm(self.face(n)[ids] - self._near[n][ids], axis=1).max() * CM_TO_MM)
+        ids = np.flatnonzero(np.linalg.norm(c.source - c.source[v], axis=1) <= NEAR_CM * CM_TO_MM / c.unit_mm)
+        return {n: float(np.linalg.norm(self.face(n)[ids] - self._near[n][ids], axis=1).max() * c.unit_mm)
                 for n in self.copies() if n in self._near}
 
     def at_marker_mm(self) -> dict:
         """Copy name -> distance (mm) from its face's vertex under the selected marker to where that marker is
         driven (label + offset): ~0 for a method that interpolates its markers, the offset for the target."""
         v, P = int(self.case.handles[self.marker]), self.positions()[self.marker]
-        return {n: float(np.linalg.norm(self.face(n)[v] - P) * CM_TO_MM) for n in self.copies()
+        return {n: float(np.linalg.norm(self.face(n)[v] - P) * self.case.unit_mm) for n in self.copies()
                 if n in ("source", "target") or n in self.results}
 
     def state(self) -> dict:
@@ -534,7 +686,7 @@ class DriveView(MarkerDragging, BaseView):
         out = super().state()
         out.update(copies_order=self.copies(), selected=list(self.selected), marker=int(self.marker),
                    hover=self.hover, dragging=self._drag is not None, drags=self.drags,
-                   offsets_mm=(self.offsets * CM_TO_MM).tolist(), status=dict(self.status),
+                   offsets_mm=(self.offsets * self.case.unit_mm).tolist(), status=dict(self.status),
                    fit_s=dict(self.fit_s), deform_ms=dict(self.deform_ms), fit_log=list(self.fit_log),
                    pending=self.pending(), near_marker_mm=self.near_marker_mm(), failed=dict(self.failed),
                    at_marker_mm=self.at_marker_mm())
@@ -566,13 +718,17 @@ class DriveView(MarkerDragging, BaseView):
         import polyscope.imgui as psim
 
         ui, c = self.ui, self.case
-        psim.TextUnformatted(c.description)
+        own = c.target is None  # the user's files: no truth to measure against
+        psim.TextWrapped(c.description)
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
-        psim.TextUnformatted("colour: distance to the true target (mm)")
+        psim.TextUnformatted("colour: displacement from the mesh (mm)" if own
+                             else "colour: distance to the true target (mm)")
         if self.color_max_slider():
             self._auto_vmax = False
             self.refresh()
-        psim.TextUnformatted("per method: last deform (ms), fit (s); error over the face area (mm)")
+        psim.TextUnformatted("per method: last deform (ms), fit (s); how far the mesh moved, how far a marker "
+                             "vertex is from its marker (mm)" if own
+                             else "per method: last deform (ms), fit (s); error over the face area (mm)")
         now = time.monotonic() - self.clock0
         for label in self.selected:
             if label in self.failed:
@@ -587,10 +743,18 @@ class DriveView(MarkerDragging, BaseView):
             e = self.errors(label)
             psim.TextUnformatted(f"{label}: deform {self.deform_ms.get(label, float('nan')):.2f} ms, "
                                  f"fit {self.fit_s.get(label, float('nan')):.2f} s")
-            psim.TextUnformatted(f"    mean {e['mean_mm']:.2f} mm, RMS {e['rms_mm']:.2f} mm, max {e['max_mm']:.1f} mm")
+            if own:
+                psim.TextUnformatted(f"    moved mean {e['moved_mean_mm']:.2f} mm, max {e['moved_max_mm']:.1f} mm; "
+                                     f"at the markers max {e['at_markers_max_mm']:.3f} mm")
+            else:
+                psim.TextUnformatted(f"    mean {e['mean_mm']:.2f} mm, RMS {e['rms_mm']:.2f} mm, "
+                                     f"max {e['max_mm']:.1f} mm")
         psim.Separator()
 
-        if psim.CollapsingHeader("Case", psim.ImGuiTreeNodeFlags_DefaultOpen):
+        if own:
+            psim.TextWrapped(f"your files: {c.files[0]} driven by {c.files[1]}, each method built as `facegeom "
+                             f"drive` builds it (--proxy {self.proxy}), from its own defaults until changed below")
+        elif psim.CollapsingHeader("Case", psim.ImGuiTreeNodeFlags_DefaultOpen):
             a = self.case_args
             changes = {}
             ch, v = ui.input_int("identity seed", a["seed"])
@@ -631,10 +795,15 @@ class DriveView(MarkerDragging, BaseView):
             ch, v = ui.slider_int("tangent d", self.tangent_d, 1, 3)
             if ch:
                 self.set_params(tangent_d=int(v))
-            ch, hard = ui.checkbox("tangent: hard constraints (beta = None)", self.tangent_beta is None)
+            auto = isinstance(self.tangent_beta, str)  # "auto": chosen from the markers, `facegeom drive`'s default
+            ch, on = ui.checkbox("tangent: beta auto (facegeom drive's default)", auto)
             if ch:
-                self.set_params(tangent_beta=None if hard else 100.0)
-            if self.tangent_beta is not None:
+                self.set_params(tangent_beta="auto" if on else None)
+            if not auto:
+                ch, hard = ui.checkbox("tangent: hard constraints (beta = None)", self.tangent_beta is None)
+                if ch:
+                    self.set_params(tangent_beta=None if hard else 100.0)
+            if not auto and self.tangent_beta is not None:
                 ch, v = ui.slider_float("tangent log10 beta", math.log10(self.tangent_beta), -2.0, 4.0, "%.2f")
                 if ch:
                     self.set_params(tangent_beta=float(10.0 ** v))
@@ -643,7 +812,8 @@ class DriveView(MarkerDragging, BaseView):
                 self.set_params(rbf_kernel=v)
 
         if psim.CollapsingHeader("Marker", psim.ImGuiTreeNodeFlags_DefaultOpen):
-            psim.TextWrapped("Drag a marker on any method's face or on the target with the left mouse button "
+            where = "any method's face" if own else "any method's face or on the target"
+            psim.TextWrapped(f"Drag a marker on {where} with the left mouse button "
                              "(a ring shows what a press grabs), nudge the selected one with the arrow keys "
                              "(page up/down: depth; shift: x4) or with the sliders:")
             k = c.handles.size
@@ -651,14 +821,14 @@ class DriveView(MarkerDragging, BaseView):
             if ch:
                 self.marker = int(v)
                 self.refresh()
-            off = self.offsets[self.marker] * CM_TO_MM
+            off = self.offsets[self.marker] * c.unit_mm
             new = off.copy()
             for i, axis in enumerate("xyz"):
                 ch, v = ui.slider_float(f"d{axis} (mm)", off[i], -NUDGE_RANGE_MM, NUDGE_RANGE_MM, "%.2f")
                 if ch:
                     new[i] = v
             if not np.array_equal(new, off):
-                self.set_offset(self.marker, new / CM_TO_MM)
+                self.set_offset(self.marker, new / c.unit_mm)
             if ui.button("reset marker"):
                 self.set_offset(self.marker, np.zeros(3))
             psim.SameLine()
@@ -666,5 +836,5 @@ class DriveView(MarkerDragging, BaseView):
                 self.offsets[:] = 0.0
                 self.update_deform()
             psim.TextUnformatted(f"vertex {int(c.handles[self.marker])}, offset "
-                                 f"{np.linalg.norm(self.offsets[self.marker]) * CM_TO_MM:.2f} mm")
+                                 f"{np.linalg.norm(self.offsets[self.marker]) * c.unit_mm:.2f} mm")
 

@@ -8,11 +8,20 @@ a mesh file in correspondence with the generic ICT rig. Row: the true face (with
 the landmark vertices) | one fitted face per method, coloured by the distance to
 the true face (mm). The panel shows every method's coefficients as a histogram
 over the blendshapes and its largest coefficients by name, against the truth.
+
+A mesh file (``target=``, ``facegeom view fit --target FILE``) is read and fitted
+exactly as ``facegeom fit FILE`` reads and fits it
+(:func:`facegeom.model.read_fit_target` with ``scale="auto"``, then
+:func:`facegeom.methods.fitting.fit_aligned`, which also brings a mesh that is off
+the rig's frame back into it), so a fitter's weights are the ones that command
+writes with ``-m`` that fitter. Weights outside ``[0, 1]`` (fitters without that
+box, e.g. ``sem`` without ``clamp``, the PCA baselines) are flagged in the panel.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +33,8 @@ from facegeom.model.scenarios import fitting_cases
 from facegeom.registry import LINEUPS, MethodSpec, parse_methods
 from facegeom.viewer.app import MARKER_COLOR, BaseView, error_mm, nice_ceiling, row_offsets
 
-__all__ = ["FitCase", "make_fit_case", "FitView", "DEFAULT_METHODS", "KINDS"]
+__all__ = ["FitCase", "make_fit_case", "FitView", "AlignedSpec", "AlignedFitter", "DEFAULT_METHODS", "KINDS",
+           "out_of_box"]
 
 DEFAULT_METHODS = "sem;l1reg;pcadel"
 KINDS = ["landmarks", "mesh"]
@@ -49,6 +59,11 @@ class FitCase:
         What the fitters are given.
     landmark_ids : (L,) int64 or None
         Vertex ids of a landmark target (drawn on every face); ``None`` for a mesh target.
+    aligned : bool
+        Fit as ``facegeom fit`` fits a mesh: through :func:`~facegeom.methods.fitting.fit_aligned`
+        (:class:`AlignedSpec`); the fitted faces are shown in the target's frame.
+    notes : list of str
+        What reading the target did (a unit factor), as ``facegeom fit`` prints it.
     """
 
     description: str
@@ -57,18 +72,80 @@ class FitCase:
     weights: np.ndarray | None  # (B,) the true coefficients, if known
     target: object  # LandmarkTarget | MeshTarget
     landmark_ids: np.ndarray | None
+    aligned: bool = False
+    notes: list = field(default_factory=list)
+
+
+class AlignedFitter:
+    """A fitter run as ``facegeom fit`` runs it on a mesh or a point cloud: :func:`fit_aligned` (the fit itself
+    when the target is in the rig's frame, else pose and expression alternately).
+
+    :meth:`fit` returns the inner fitter's :class:`~facegeom.interfaces.FitResult` with ``info["alignment"]``:
+    the rigid alignment (rig -> target) or ``None``.
+    """
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def fit(self, rig, target):
+        from facegeom.methods.fitting import fit_aligned
+
+        r, pose = fit_aligned(rig, target, self.inner)
+        r.info = {**(r.info if isinstance(r.info, dict) else {}), "alignment": pose}
+        return r
+
+
+@dataclass(frozen=True)
+class AlignedSpec(MethodSpec):
+    """A fitter spec that builds an :class:`AlignedFitter` (picklable: the window's workers build it)."""
+
+    def build(self, kind: str):
+        return AlignedFitter(super().build(kind))
+
+
+def out_of_box(weights, tol: float = 1e-9) -> bool:
+    """Whether any weight lies outside ``[0, 1]`` (beyond ``tol``): a fitter without that box."""
+    w = np.asarray(weights, dtype=np.float64)
+    return bool(w.size and (w.min() < -tol or w.max() > 1.0 + tol))
 
 
 def make_fit_case(model, case: int = 0, seed: int = 0, kind: str = "landmarks", noise_px: float = 1.0,
-                  mesh=None) -> FitCase:
-    """Case ``case`` of ``facegeom bench fit --seed seed`` as a landmark or mesh target; or ``mesh`` (n, 3)."""
+                  mesh=None, target=None) -> FitCase:
+    """Case ``case`` of ``facegeom bench fit --seed seed`` as a landmark or mesh target; or ``mesh`` (n, 3), in
+    the rig's units; or ``target``, a mesh file read as ``facegeom fit TARGET`` reads it (on the generic ICT
+    rig, ``scale="auto"``). Meshes are fitted as ``facegeom fit`` fits them (``aligned``).
+
+    Raises
+    ------
+    InputError
+        A file that cannot be read, or one ``facegeom fit`` would not fit as a mesh in correspondence (another
+        vertex count, no triangles): one line naming it.
+    """
+    if target is not None:
+        from facegeom.io import MESH_FORMATS
+        from facegeom.model import read_fit_target
+
+        rig = BlendshapeRig.from_face_model(model)  # `facegeom fit`'s rig without --rig
+        if Path(target).suffix.lower() not in MESH_FORMATS:
+            raise InputError(f"not a mesh file ({', '.join(MESH_FORMATS)}): this view fits meshes in vertex "
+                             f"correspondence with the ICT face; `facegeom fit` takes landmarks and photos", target)
+        notes: list[str] = []
+        got, tgt = read_fit_target(target, rig, "auto", scale="auto", notes=notes)  # as `facegeom fit TARGET`
+        if got != "mesh":  # a point cloud to `facegeom fit`: another vertex count, or no triangles
+            n = tgt.points.shape[0]
+            why = (f"{n} vertices, not the ICT face's {rig.n_vertices}" if n != rig.n_vertices
+                   else "no triangles")
+            raise InputError(f"{why}: `facegeom fit` fits it as a point cloud, which this view does not show; give "
+                             f"a mesh in vertex correspondence with the ICT face", target)
+        return FitCase(f"{Path(target).name} on the generic ICT rig, fitted as `facegeom fit {Path(target).name}` "
+                       f"fits it", rig, tgt.vertices, None, tgt, None, aligned=True, notes=notes)
     if mesh is not None:
         rig = BlendshapeRig.from_face_model(model)
         V = np.asarray(mesh, dtype=np.float64)
         if V.shape != (rig.n_vertices, 3):
             raise InputError(f"the target mesh has {V.shape[0]} vertices but the rig {rig.n_vertices}: it must be "
                              f"in correspondence with the ICT face")
-        return FitCase("a mesh target on the generic ICT rig", rig, V, None, MeshTarget(V), None)
+        return FitCase("a mesh target on the generic ICT rig", rig, V, None, MeshTarget(V), None, aligned=True)
     if kind not in KINDS:
         raise InputError(f"unknown target kind {kind!r}; choose one of {', '.join(KINDS)}")
     if case < 0:
@@ -99,8 +176,9 @@ class FitView(BaseView):
     model : FaceModel
     methods : str or list of MethodSpec
         Fitter specs (``;``-separated, as for ``facegeom bench fit``).
-    case, seed, kind, noise_px, mesh
-        The target (see :func:`make_fit_case`).
+    case, seed, kind, noise_px, mesh, target
+        The target (see :func:`make_fit_case`); ``target``: a mesh file, fitted as ``facegeom fit TARGET`` fits
+        it (the weights shown are the ones it writes with ``-m`` the same fitter).
     background : bool
         Fit in worker processes (:mod:`facegeom.viewer.workers`): the window opens at
         once and never freezes; a fitter still running shows "fitting..." and its face
@@ -112,7 +190,7 @@ class FitView(BaseView):
     colorbar_title = "distance to the true face (mm)"
 
     def __init__(self, model, methods=DEFAULT_METHODS, case: int = 0, seed: int = 0, kind: str = "landmarks",
-                 noise_px: float = 1.0, mesh=None, background: bool = False):
+                 noise_px: float = 1.0, mesh=None, background: bool = False, target=None):
         super().__init__()
         self.background = bool(background)
         self.workers: dict = {}
@@ -127,7 +205,10 @@ class FitView(BaseView):
         for name in registry.available("fitters"):
             self.specs.setdefault(name, MethodSpec(name, name, {}))
         self.selected = [s.label for s in specs]
-        self.case_args = dict(case=int(case), seed=int(seed), kind=kind, noise_px=float(noise_px), mesh=mesh)
+        self.case_args = dict(case=int(case), seed=int(seed), kind=kind, noise_px=float(noise_px), mesh=mesh,
+                              target=target)
+        if mesh is not None or target is not None:  # the user's mesh: no truth behind it, only the target
+            self.colorbar_title = "distance to the target (mm)"
         self.results: dict[str, object] = {}
         self.time_ms: dict[str, float] = {}
         self.failed: dict[str, str] = {}
@@ -152,7 +233,7 @@ class FitView(BaseView):
     def _set_auto_vmax(self) -> None:
         if not self._auto_vmax or self.pending():
             return
-        errs = [np.percentile(error_mm(r.vertices, self.case.truth)[:FACE_AREA], 99) for r in self.results.values()]
+        errs = [np.percentile(error_mm(self.face(x), self.case.truth)[:FACE_AREA], 99) for x in self.results]
         self.vmax = nice_ceiling(float(np.median(errs)) if errs else 5.0)  # a typical method's 99th pct.
         self._auto_vmax = False
 
@@ -198,6 +279,19 @@ class FitView(BaseView):
             self.poll()
         super().callback()
 
+    def spec(self, label: str) -> MethodSpec:
+        """Fitter ``label``'s spec as it is run on the case: an :class:`AlignedSpec` for a mesh fitted as
+        ``facegeom fit`` fits one."""
+        s = self.specs[label]
+        return AlignedSpec(s.label, s.name, dict(s.params)) if self.case.aligned else s
+
+    def face(self, label: str) -> np.ndarray:
+        """Fitter ``label``'s face ``(n, 3)`` where the truth is: the fitted face, moved by the alignment
+        (rig -> target) when the target was off the rig's frame."""
+        r = self.results[label]
+        pose = r.info.get("alignment") if isinstance(r.info, dict) else None
+        return r.vertices if pose is None else r.vertices @ np.asarray(pose.R).T + np.asarray(pose.t)
+
     def fit_method(self, label: str) -> None:
         """Build fitter ``label`` and fit it to the case (timed, in ``time_ms``).
 
@@ -212,11 +306,11 @@ class FitView(BaseView):
             if label not in self.workers:
                 self.workers[label] = MethodWorker()
             self.results.pop(label, None)
-            self._jobs[label] = self.workers[label].submit("fit_fitter", (self.specs[label], self.case.rig,
+            self._jobs[label] = self.workers[label].submit("fit_fitter", (self.spec(label), self.case.rig,
                                                                           self.case.target))
             return
         try:
-            f = self.specs[label].build("fitters")
+            f = self.spec(label).build("fitters")
             t = time.perf_counter()
             self.results[label] = f.fit(self.case.rig, self.case.target)
             self.time_ms[label] = (time.perf_counter() - t) * 1e3
@@ -245,15 +339,20 @@ class FitView(BaseView):
         """Copy name -> its face as drawn (row shift included)."""
         if not self._built:
             return {}
-        return {n: (self.case.truth if n == "truth" else self.results[n].vertices) + self.shifts[n]
+        return {n: (self.case.truth if n == "truth" else self.face(n)) + self.shifts[n]
                 for n in self.copies() if n in self.shifts}
 
     def state(self) -> dict:
-        """:meth:`BaseView.state` plus ``copies_order``, ``pending`` fitters, ``time_ms`` and ``failed``."""
+        """:meth:`BaseView.state` plus ``copies_order``, ``pending`` fitters, ``time_ms``, ``failed`` and
+        ``out_of_box`` (the shown fitters with a weight outside ``[0, 1]``)."""
         out = super().state()
         out.update(copies_order=self.copies(), pending=self.pending(), time_ms=dict(self.time_ms),
-                   failed=dict(self.failed))
+                   failed=dict(self.failed), out_of_box=self.out_of_box())
         return out
+
+    def out_of_box(self) -> list[str]:
+        """The shown fitters with a weight outside ``[0, 1]`` (fitters without that box), flagged in the panel."""
+        return [x for x in self.shown() if out_of_box(self.results[x].weights)]
 
     def shown(self) -> list[str]:
         """The selected fitters that have a result (failed ones left out), in selection order."""
@@ -275,12 +374,12 @@ class FitView(BaseView):
         m = self.mesh("truth", c.truth, F, self.shifts["truth"])
         self.error_colors(m, np.zeros(c.truth.shape[0]), self.vmax)
         for label in self.shown():
-            V = self.results[label].vertices
+            V = self.face(label)
             m = self.mesh(label, V, F, self.shifts[label])
             self.error_colors(m, error_mm(V, c.truth), self.vmax)
         if c.landmark_ids is not None:
             for name in names:
-                V = c.truth if name == "truth" else self.results[name].vertices
+                V = c.truth if name == "truth" else self.face(name)
                 pc = self.points(f"{name} landmarks", V[c.landmark_ids], self.shifts[name], color=MARKER_COLOR)
                 pc.set_radius(r, relative=False)
 
@@ -291,8 +390,7 @@ class FitView(BaseView):
         if not ps.is_initialized() or not self._built:
             return
         for label in self.shown():
-            self.error_colors(ps.get_surface_mesh(label), error_mm(self.results[label].vertices, self.case.truth),
-                              self.vmax)
+            self.error_colors(ps.get_surface_mesh(label), error_mm(self.face(label), self.case.truth), self.vmax)
 
     # ------------------------------------------------------------------ panel
     def histogram(self, label: str, weights: np.ndarray) -> None:
@@ -301,8 +399,9 @@ class FitView(BaseView):
 
         w = np.asarray(weights, dtype=np.float64)
         lo, hi = min(0.0, float(w.min())), max(1.0, float(w.max()))
+        box = f", outside [0, 1]: {w.min():.2f} to {w.max():.2f}" if out_of_box(w) else ""
         psim.PlotHistogram(f"##{label} coefficients", w.astype(np.float32),
-                           overlay_text=f"{label}: {int((np.abs(w) > 1e-3).sum())} active of {w.size}",
+                           overlay_text=f"{label}: {int((np.abs(w) > 1e-3).sum())} active of {w.size}{box}",
                            scale_min=lo, scale_max=hi, graph_size=(self.panel_width - 30.0, 42.0))
 
     def named_rows(self) -> list[int]:
@@ -324,8 +423,9 @@ class FitView(BaseView):
         if not cols or not psim.BeginTable("coefficients", len(cols) + 1, psim.ImGuiTableFlags_RowBg):
             return
         psim.TableSetupColumn("shape")
+        flagged = set(self.out_of_box())
         for label, _ in cols:
-            psim.TableSetupColumn(label)
+            psim.TableSetupColumn(label + (" *" if label in flagged else ""))
         psim.TableHeadersRow()
         for i in self.named_rows():
             psim.TableNextRow()
@@ -335,6 +435,9 @@ class FitView(BaseView):
                 psim.TableNextColumn()
                 psim.ProgressBar(float(np.clip(abs(w[i]), 0.0, 1.0)), (-1.0, 0.0), f"{w[i]:+.2f}" if w[i] else "0")
         psim.EndTable()
+        if flagged:
+            psim.TextWrapped("* unconstrained: weights outside [0, 1] (this fitter has no such box; `facegeom "
+                             "fit`'s default fitter keeps every weight in it)")
 
     def panel(self) -> None:
         """Timings and mean face-area errors (mm), coefficient histograms and table, then the Target and
@@ -343,8 +446,10 @@ class FitView(BaseView):
 
         ui, c = self.ui, self.case
         psim.TextWrapped(c.description)
+        for line in c.notes:
+            psim.TextWrapped(line)
         psim.TextWrapped("left to right: " + " | ".join(self.copies()))
-        psim.TextUnformatted("colour: distance to the true face (mm)")
+        psim.TextUnformatted(f"colour: {self.colorbar_title}")
         if self.color_max_slider():
             self._auto_vmax = False
             self.refresh_colors()
@@ -361,8 +466,11 @@ class FitView(BaseView):
             if label not in self.results:
                 continue
             r = self.results[label]
-            e = error_mm(r.vertices, c.truth)[:FACE_AREA].mean()
+            e = error_mm(self.face(label), c.truth)[:FACE_AREA].mean()
             psim.TextUnformatted(f"{label}: {self.time_ms[label]:.0f} ms, mean vertex error {e:.2f} mm")
+            if out_of_box(r.weights):
+                psim.TextColored((0.95, 0.6, 0.1, 1.0), f"    unconstrained: weights {r.weights.min():.2f} to "
+                                                        f"{r.weights.max():.2f}, outside [0, 1]")
         psim.TextUnformatted("coefficients by blendshape (rig order)")
         if c.weights is not None:
             self.histogram("truth", c.weights)
@@ -370,7 +478,8 @@ class FitView(BaseView):
             self.histogram(label, self.results[label].weights)
         self.coefficient_table()
         psim.Separator()
-        if self.case_args["mesh"] is None and psim.CollapsingHeader("Target", psim.ImGuiTreeNodeFlags_DefaultOpen):
+        if (self.case_args["mesh"] is None and self.case_args["target"] is None
+                and psim.CollapsingHeader("Target", psim.ImGuiTreeNodeFlags_DefaultOpen)):
             a, changes = self.case_args, {}
             ch, v = ui.input_int("case", a["case"])
             if ch:

@@ -68,6 +68,26 @@ def _check_screenshot(screenshot, *inputs) -> None:
     check_writable_folder(screenshot)
 
 
+def _cli_default(command: str, option: str) -> str:
+    """The default of ``option`` of the command ``facegeom COMMAND`` (``drive``, ``fit``), read from the command
+    itself: the views show by default what those commands compute by default."""
+    from facegeom.cli import single
+
+    return next(p.default for p in getattr(single, command).params if p.name == option)
+
+
+def _given(ctx: click.Context, *names: str) -> list[str]:
+    """The options among ``names`` (parameter names) set on the command line (or the environment), as flags."""
+    from click.core import ParameterSource
+
+    given = []
+    for p in ctx.command.params:
+        if p.name in names and ctx.get_parameter_source(p.name) in (ParameterSource.COMMANDLINE,
+                                                                    ParameterSource.ENVIRONMENT):
+            given.append(max(p.opts, key=len))
+    return given
+
+
 def _run(view, screenshot, size, exit_after=None, state_path=None):
     w, h = _size(size)
     view.run(screenshot=screenshot, width=w, height=h, echo=click.echo, exit_after=exit_after, state_path=state_path)
@@ -81,10 +101,20 @@ def view():
     """
 
 
+#: built-in-case options of `view drive`, which pick the face model's case: they do not go with MESH MARKERS
+_DRIVE_CASE_OPTIONS = ("seed", "expression", "intensity", "bench_case", "layout_name", "layout_seed")
+
+
 @view.command("drive")
-@click.option("--methods", default="rbf;biharmonic;tangent", show_default=True,
+@click.argument("mesh", required=False, type=click.Path(dir_okay=False))
+@click.argument("markers", required=False, type=click.Path(dir_okay=False))
+@click.option("--methods", default=None, show_default="rbf;biharmonic;tangent; with MESH MARKERS "
+                                                       "tangent;rbf;biharmonic, `facegeom drive`'s default first",
               help="';'-separated deformer specs [label=]name[:k=v,...], or 'all' (bench drive's); "
                    "more can be switched on in the panel.")
+@click.option("--proxy", default=None, metavar="auto|off|N", show_default="auto",
+              help="With MESH MARKERS: as `facegeom drive --proxy` (meshes over 150,000 vertices are solved on a "
+                   "decimated copy).")
 @click.option("--seed", default=0, show_default=True, type=int,
               help="Identity seed (or bench seed with --bench-case).")
 @click.option("--expression", default="happiness", show_default=True,
@@ -97,19 +127,41 @@ def view():
 @click.option("--layout", "layout_name", default="ict80", show_default=True,
               help="Marker layout: ict80, landmarks68 or random<k>.")
 @click.option("--layout-seed", default=0, show_default=True, type=int, help="Seed of a random layout.")
-@click.option("--marker", default=0, show_default=True, type=click.IntRange(0), help="Marker selected at start.")
+@click.option("--marker", default=0, show_default=True, type=click.IntRange(0),
+              help="Marker selected at start (a row of MARKERS, from 0).")
 @click.option("--nudge", default=None, metavar="DX,DY,DZ",
               help="Move the selected marker by this offset (mm) before showing (e.g. for a screenshot).")
 @_output_options
-@click.pass_obj
-def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_name, layout_seed, marker, nudge,
-               screenshot, size, exit_after, state_path):
-    """Source | every deformer | true target, error colours (mm); drag or nudge a marker, all update live."""
+@click.pass_context
+def view_drive(ctx, mesh, markers, methods, proxy, seed, expression, intensity, bench_case, layout_name, layout_seed,
+               marker, nudge, screenshot, size, exit_after, state_path):
+    """Source | every deformer | true target (or your MESH driven by your MARKERS); drag a marker, all follow live.
+
+    With MESH MARKERS (what `facegeom drive MESH MARKERS -o OUT` reads: a mesh .obj/.ply/.off and a CSV
+    vertex_id,x,y,z): your mesh | each deformer driving it by your markers, built as `facegeom drive` builds it
+    (its default, tangent, first: that face is what it writes), coloured by how far each vertex moved (mm; the
+    mesh's unit found from its size). No face data is needed then. Without them: a built-in case of the face
+    model (--seed, --expression, --intensity, --bench-case, --layout), beside its true target.
+    """
     from facegeom.errors import InputError
     from facegeom.viewer.app import check_display
 
+    files = mesh is not None
+    if files and markers is None:
+        if Path(mesh).suffix.lower() == ".csv":
+            raise InputError("MESH is missing: give the mesh first, then this marker file (facegeom view drive "
+                             "MESH MARKERS), or neither for the built-in case", mesh)
+        raise InputError("MARKERS is missing: give the marker file (a CSV vertex_id,x,y,z, as `facegeom drive` "
+                         "reads) after the mesh, or neither file for the built-in case", mesh)
+    if files:
+        given = _given(ctx, *_DRIVE_CASE_OPTIONS)
+        if given:
+            raise InputError(f"{given[0]} picks a built-in case of the face model: it does not go with your files "
+                             f"MESH MARKERS ({mesh}, {markers})")
+    elif proxy is not None:
+        raise InputError("--proxy goes with MESH MARKERS (your files; the built-in cases are never proxied)")
     check_display(screenshot)
-    _check_screenshot(screenshot)
+    _check_screenshot(screenshot, mesh, markers)
     _size(size)
     delta = None
     if nudge is not None:
@@ -119,11 +171,25 @@ def view_drive(obj, methods, seed, expression, intensity, bench_case, layout_nam
             delta = []
         if len(delta) != 3:
             raise InputError(f"--nudge must be three comma-separated numbers (mm), got {nudge!r}")
-    from facegeom.viewer.drive import DriveView
+    from facegeom.viewer.drive import DEFAULT_METHODS, FILE_METHODS, DriveView, read_drive_files
 
-    v = DriveView(obj.face_model(), methods, seed=seed, expression=expression, intensity=intensity,
-                  layout_name=layout_name, layout_seed=layout_seed, bench_case=bench_case,
-                  background=screenshot is None)  # a window: fits in worker processes, it never freezes
+    if files:
+        from facegeom.pipelines.proxy import proxy_policy
+
+        proxy = "auto" if proxy is None else proxy
+        proxy_policy(proxy)
+        case = read_drive_files(mesh, markers)  # the readers and checks of `facegeom drive MESH MARKERS`
+        if marker >= case.handles.size:
+            raise InputError(f"--marker {marker} is out of range: the file has {case.handles.size} markers",
+                             markers)
+        if methods is None:  # `facegeom drive`'s default first
+            methods = ";".join(dict.fromkeys([_cli_default("drive", "method"), *FILE_METHODS.split(";")]))
+        v = DriveView(None, methods, case=case, proxy=proxy, background=screenshot is None)
+    else:
+        v = DriveView(ctx.obj.face_model(), DEFAULT_METHODS if methods is None else methods, seed=seed,
+                      expression=expression, intensity=intensity, layout_name=layout_name, layout_seed=layout_seed,
+                      bench_case=bench_case,
+                      background=screenshot is None)  # a window: fits in worker processes, it never freezes
     if marker >= v.case.handles.size:
         raise InputError(f"--marker {marker} is out of range: the layout has {v.case.handles.size} markers")
     v.marker = marker
@@ -193,9 +259,16 @@ def view_animate(obj, input_path, rig_path, neutral, names_map, units, up, retar
          exit_after, state_path)
 
 
+#: built-in-target options of `view fit`: they pick one of the face model's cases, not --target FILE
+_FIT_CASE_OPTIONS = ("case", "seed", "kind", "noise_px")
+
+
 @view.command("fit")
-@click.option("--methods", default="sem;l1reg;pcadel", show_default=True,
-              help="';'-separated fitter specs, or 'all' (bench fit's).")
+@click.option("--methods", default=None,
+              show_default="sem;l1reg;pcadel; with --target: `facegeom fit`'s default, sem-ls",
+              help="';'-separated fitter specs, or 'all' (bench fit's); more can be switched on in the panel. "
+                   "Fitters without the [0, 1] box (sem without clamp, the PCA baselines) are flagged when a "
+                   "weight leaves it.")
 @click.option("--case", default=0, show_default=True, type=click.IntRange(0),
               help="Case N of `facegeom bench fit --seed SEED` (random identity and sparse expression).")
 @click.option("--seed", default=0, show_default=True, type=int)
@@ -204,30 +277,38 @@ def view_animate(obj, input_path, rig_path, neutral, names_map, units, up, retar
 @click.option("--noise-px", default=1.0, show_default=True, type=click.FloatRange(0),
               help="Landmark noise (pixels).")
 @click.option("--target", "target_path", type=click.Path(dir_okay=False), default=None,
-              help="Fit this mesh instead (in correspondence with the ICT face; generic rig).")
+              help="Fit this mesh instead (in correspondence with the ICT face; generic rig), read and fitted as "
+                   "`facegeom fit TARGET` does (units found, a mesh off the rig's frame aligned): with the default "
+                   "--methods the weights shown are the ones it writes.")
 @_output_options
-@click.pass_obj
-def view_fit(obj, methods, case, seed, kind, noise_px, target_path, screenshot, size, exit_after, state_path):
-    """A target beside every fitter's face (error colours) and its coefficients by blendshape name."""
+@click.pass_context
+def view_fit(ctx, methods, case, seed, kind, noise_px, target_path, screenshot, size, exit_after, state_path):
+    """A target beside every fitter's face (error colours) and its coefficients by blendshape name.
+
+    Without --target: case --case of `facegeom bench fit --seed SEED` (a random identity and expression, given as
+    --kind landmarks or mesh), compared across --methods (default sem;l1reg;pcadel). With --target MESH: your mesh
+    on the generic ICT rig, fitted by `facegeom fit`'s default fitter (sem-ls) unless --methods says otherwise.
+    """
     from facegeom.errors import InputError
     from facegeom.viewer.app import check_display
 
+    if target_path is not None:
+        given = _given(ctx, *_FIT_CASE_OPTIONS)
+        if given:
+            raise InputError(f"{given[0]} picks a built-in target of the face model: it does not go with --target "
+                             f"{target_path}")
     check_display(screenshot)
     _check_screenshot(screenshot, target_path)
     _size(size)
-    from facegeom.viewer.fit import FitView
+    from facegeom.viewer.fit import DEFAULT_METHODS, FitView
 
-    mesh = None
-    if target_path is not None:
-        from facegeom.io import read_mesh
-
-        mesh, _ = read_mesh(target_path)
-        model = obj.face_model()
-        if mesh.shape[0] != model.n_vertices:
-            raise InputError(f"the mesh has {mesh.shape[0]} vertices but the ICT face {model.n_vertices}: "
-                             f"it must be in vertex correspondence", target_path)
-    _run(FitView(obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px, mesh=mesh,
-                 background=screenshot is None), screenshot, size, exit_after, state_path)
+    if methods is None:  # with --target: what `facegeom fit TARGET` runs
+        methods = DEFAULT_METHODS if target_path is None else _cli_default("fit", "method")
+    v = FitView(ctx.obj.face_model(), methods, case=case, seed=seed, kind=kind, noise_px=noise_px,
+                target=target_path, background=screenshot is None)  # a window: fits in worker processes
+    for line in v.case.notes:  # what reading the target did, as `facegeom fit` says it
+        click.echo(line)
+    _run(v, screenshot, size, exit_after, state_path)
 
 
 @view.command("rig")
