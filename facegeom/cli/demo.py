@@ -226,6 +226,7 @@ def _performances_picture(out: Path, rig_path: Path, video: bool) -> None:
     fig, axes = figure(k, rows=len(rows), width=14, height=4.0 * len(rows))
     R = rotation(-20, 5)
     for r, (title, path, W, names) in enumerate(rows):
+        click.echo(f"  drawing the {title}")
         frames = _peaks(np.asarray(W), k)
         rig, meshes = _rig_frames(path, np.asarray(W), list(names), frames)
         keep = head_only(rig.neutral)

@@ -26,7 +26,7 @@ def examples(ctx, folder, force):
     check_folder(folder, force)  # before the face data is loaded
     obj = ctx.find_root().obj
     model = obj.face_model() if obj is not None else load_face_model()
-    paths = write_examples(model, folder, force=force)
+    paths = write_examples(model, folder, force=force, progress=click.echo)
     click.echo(f"wrote {len(paths)} files to {folder} (what each is and the command that uses it: "
                f"{Path(folder) / 'README.txt'}):")
     written = {p.relative_to(folder).as_posix() for p in map(Path, paths)}

@@ -336,6 +336,7 @@ GCV_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # identity_scale="gcv": factors of t
 DOF_SCALE_MAX = 16.0  # identity_scale="dof": the largest factor (the GCV grid's largest)
 STATS_FLOOR = 1e-3  # expression_statistics: variance added to every weight (a std of ~0.03)
 NOISE_FLOOR = 0.5  # estimate_noise: the landmark sigma re-estimated is at least this fraction of noise_px
+PROGRESS_ROUNDS = 100  # fit(progress=...): a line every this many rounds (~2-3 s on a head's point cloud)
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
 CLOUD_ALIGN_MM = 5.0  # point clouds: a median closest-point distance of the mean face above this is off the frame
 CLOUD_BAND_CM = 1.0  # point clouds: the face area's vertices within this of its edge (model units, cm) form the band
@@ -688,7 +689,7 @@ class IdentityFitter(Params):
         return band
 
     # ------------------------------------------------------------------ fit
-    def fit(self, model, targets) -> IdentityFit:
+    def fit(self, model, targets, progress=None) -> IdentityFit:
         """Fit one identity and, per target, a pose and an expression.
 
         Parameters
@@ -700,6 +701,9 @@ class IdentityFitter(Params):
             :class:`~facegeom.model.targets.MeshTarget` (``n`` vertices) or
             :class:`~facegeom.model.targets.PointCloudTarget`, freely mixed; all
             of the same person.
+        progress : callable, optional
+            Called with a line every :data:`PROGRESS_ROUNDS` rounds (a point cloud's fit
+            runs hundreds of rounds, several seconds); the result does not depend on it.
 
         Returns
         -------
@@ -739,8 +743,12 @@ class IdentityFitter(Params):
         if stats is not None and stats[0].size != model.n_expressions:
             raise InputError(f"expression_stats has {stats[0].size} weights, the model {model.n_expressions}")
         n_id = self._n_id(model)
-        with threadpool_limits(limits=1, user_api="blas"):  # small dense solves: threads only cost here
-            return self._fit(model, targets, n_id, t0)
+        self._progress, self._rounds_done = progress, 0
+        try:
+            with threadpool_limits(limits=1, user_api="blas"):  # small dense solves: threads only cost here
+                return self._fit(model, targets, n_id, t0)
+        finally:
+            self._progress = None
 
     def _rounds(self, state, x, rounds, E_prev):
         """Pose / shape rounds from ``x`` -> ``(x, rounds run, converged)``.
@@ -766,6 +774,9 @@ class IdentityFitter(Params):
                 state.apply_pose_steps(p)
             state.rematch(x)
             E = state.energy(x)
+            self._rounds_done = getattr(self, "_rounds_done", 0) + 1
+            if getattr(self, "_progress", None) is not None and self._rounds_done % PROGRESS_ROUNDS == 0:
+                self._progress(f"  identity fit: {self._rounds_done} rounds")
             if state.settled(E, E_prev, self.tol):
                 converged = True
                 break

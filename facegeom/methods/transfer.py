@@ -789,7 +789,7 @@ def _register_head(model, V, F, landmarks, units, path, samples, fitter_params, 
         pos[wts == 0] = G[wts == 0]
         targets.append(MeshTarget(pos, wts))
     params = {"expressions": False, "region": np.arange(0, N, IDENTITY_STRIDE), **(fitter_params or {})}
-    fit = IdentityFitter(**params).fit(model, targets)
+    fit = IdentityFitter(**params).fit(model, targets, progress=say)
     Rf, tf = fit.rotations[0], fit.translations[0]
     Y = fit.vertices(0)  # the identity's neutral, model frame
     # head ~ s_pre R (Rf y + tf) + t  (cm)  -> head units: / su

@@ -510,8 +510,12 @@ def _write_clip(path: Path, scene: dict) -> None:
     deltas = np.asarray(model.expression_deltas, dtype=np.float64)
     f, c, d = _place(model, neutral, w, h)
     camera = renderer.camera_for(f)
+    say = scene.get("progress")
+    T = len(scene["weights"])
     with VideoWriter(path, TAKE_FPS, w, h) as out:
         for k, W in enumerate(scene["weights"]):
+            if say is not None and k % CLIP_PROGRESS_FRAMES == 0:
+                say(f"  rendering the video clip.mp4: frame {k + 1} of {T}")
             V = neutral + np.tensordot(W, deltas, axes=1)
             R, t = scene["rotations"][k], scene["translations"][k]
             pose = camera.with_pose(R, -R @ c + t + np.array([0.0, 0.0, -d]))
@@ -545,6 +549,7 @@ def _writers(ex: Examples) -> dict:
     return out
 
 
+CLIP_PROGRESS_FRAMES = 30  # write_examples(progress=...): a line every this many frames of the rendered video
 PICTURES = ("face.jpg", "clip.mp4")
 """The example files rendered by polyscope off-screen (skipped where no renderer starts)."""
 
@@ -601,7 +606,8 @@ def check_folder(folder: str | os.PathLike, force: bool = False) -> Path:
     return folder
 
 
-def write_examples(model, folder: str | os.PathLike, force: bool = False, seed: int = SEED) -> list[Path]:
+def write_examples(model, folder: str | os.PathLike, force: bool = False, seed: int = SEED,
+                   progress=None) -> list[Path]:
     """Write every example file into ``folder``: all of them or, on any error, none.
 
     Parameters
@@ -614,6 +620,9 @@ def write_examples(model, folder: str | os.PathLike, force: bool = False, seed: 
         Overwrite example files already there (other files are never touched).
     seed : int
         Seed of every random choice.
+    progress : callable, optional
+        Called with a line as the rendered pictures are made (the photograph, every
+        :data:`CLIP_PROGRESS_FRAMES` frames of the video: the slow part, several seconds).
 
     Returns
     -------
@@ -629,6 +638,7 @@ def write_examples(model, folder: str | os.PathLike, force: bool = False, seed: 
     folder = check_folder(folder, force)
     names = example_paths()
     ex = make_examples(model, seed)
+    ex.scene["progress"] = progress
     writers = _writers(ex)
     if not pictures_possible():  # no off-screen renderer here: everything else, and a line in README.txt says so
         names = [n for n in names if n not in PICTURES]
