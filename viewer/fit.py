@@ -88,6 +88,7 @@ class AlignedFitter:
         self.inner = inner
 
     def fit(self, rig, target):
+        """The inner fitter's result on ``target`` after ``facegeom fit``'s alignment (the pose in ``info``)."""
         from facegeom.methods.fitting import fit_aligned
 
         r, pose = fit_aligned(rig, target, self.inner)
@@ -100,6 +101,7 @@ class AlignedSpec(MethodSpec):
     """A fitter spec that builds an :class:`AlignedFitter` (picklable: the window's workers build it)."""
 
     def build(self, kind: str):
+        """The spec's fitter wrapped in an :class:`AlignedFitter`."""
         return AlignedFitter(super().build(kind))
 
 

@@ -88,6 +88,7 @@ def frame_axes(ax, P, pad=0.04, title=None, keep=None):
 
 
 def figure(cols, rows=1, width=16.0, height=None):
+    """A white figure of ``rows x cols`` panels ``width`` inches wide -> ``(fig, axes (rows, cols))``."""
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(rows, cols, figsize=(width, height or width / cols * rows * 1.15), squeeze=False)
@@ -96,6 +97,7 @@ def figure(cols, rows=1, width=16.0, height=None):
 
 
 def save(fig, path: Path) -> None:
+    """Write ``fig`` as a PNG at :data:`DPI` (no software stamp, so the bytes depend on the picture only) and close it."""
     import matplotlib.pyplot as plt
 
     fig.savefig(path, dpi=DPI, facecolor="white", metadata={"Software": None})
@@ -103,6 +105,7 @@ def save(fig, path: Path) -> None:
 
 
 def credit(fig, text: str) -> None:
+    """A small credit line (a licence's attribution) in the figure's bottom-right corner."""
     fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=8, color="#555555")
 
 
