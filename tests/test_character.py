@@ -16,6 +16,10 @@ from scipy.spatial.transform import Rotation
 from facegeom.errors import InputError
 from tests.conftest import validate
 
+GENERIC = ("--identity", "off")
+"""These captures are made from the generic face itself: solved on it as it is (no actor's identity to fit), the
+solve is exact."""
+
 CHARACTER = Path(__file__).parent / "data" / "heads" / "makehuman_arkit.npz"
 
 
@@ -119,7 +123,7 @@ def test_solve_onto_the_character(capture, character, tmp_path, capsys, validato
     from facegeom.pipelines.character import size_ratio
 
     d, rig, W, R, t = capture
-    main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
+    main(["solve", str(d / "cap.npz"), *GENERIC, "--character", str(CHARACTER), "--smooth", "off", "-o",
           str(tmp_path / "c.npz")])
     out = capsys.readouterr().out
     assert "the head's motion about the performance's mean pose, its translations x" in out
@@ -144,7 +148,7 @@ def test_solve_onto_the_character(capture, character, tmp_path, capsys, validato
     np.testing.assert_allclose(rel, np.einsum("tij,tkj->tik", np.einsum("ji,tjk->tik", ref, R)[1:],
                                               np.einsum("ji,tjk->tik", ref, R)[:-1]), atol=1e-4)
     # the .glb: the character's mesh and shapes, its node turning and moving as the actor's head (metres)
-    main(["solve", str(d / "cap.npz"), "--character", str(CHARACTER), "--smooth", "off", "-o",
+    main(["solve", str(d / "cap.npz"), *GENERIC, "--character", str(CHARACTER), "--smooth", "off", "-o",
           str(tmp_path / "c.glb")])
     issues = validate(validator_env, tmp_path / "c.glb")
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0
@@ -179,7 +183,7 @@ def test_livelink_out_fills_head_and_eye_columns(capture, tmp_path):
     from facegeom.io.takes import EYE_YAW_PER_WEIGHT, head_angles, read_take
 
     d, rig, W, R, t = capture
-    main(["solve", str(d / "cap.npz"), "--smooth", "off", "-o", str(tmp_path / "s.csv")])
+    main(["solve", str(d / "cap.npz"), *GENERIC, "--smooth", "off", "-o", str(tmp_path / "s.csv")])
     tk = read_take(tmp_path / "s.csv")
     np.testing.assert_allclose(tk.rotations[:, :3], head_angles(R), atol=1e-3)
     assert np.abs(tk.rotations[:, 3:]).max() < 1e-6  # no eye look in this capture: straight ahead

@@ -577,10 +577,12 @@ def bench_cleanup_corpus(folder, out, no_decimate, max_faces, timeout):
               help="'all' (sem-ls, sem, sem+, l1reg, l2reg, pcaexp, pcadel) or ';'-separated fitter specs.")
 @click.option("--takes", "takes_path", type=click.Path(), default=None, help="Folder of takes.")
 @click.option("--no-speed", is_flag=True, help="Skip the 1,000-frame speed measurement.")
+@click.option("--no-identity", is_flag=True,
+              help="Skip the actor-unknown table (the generic face, with and without the actor's identity fitted).")
 @click.option("--out", type=click.Path(file_okay=False), default="bench-out/solve", show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_obj
-def bench_solve(obj: Context, cases, frames, seed, methods, takes_path, no_speed, out, quiet):
+def bench_solve(obj: Context, cases, frames, seed, methods, takes_path, no_speed, no_identity, out, quiet):
     """Marker solve: real-take sequences on random identities, noise, lost markers, head motion; every fitter."""
     from facegeom.bench import solve as bs
     from facegeom.registry import parse_methods
@@ -588,7 +590,7 @@ def bench_solve(obj: Context, cases, frames, seed, methods, takes_path, no_speed
     specs = parse_methods(methods, "fitters", LINEUPS_SOLVE)
     model = obj.face_model()
     bs.main(model, _load_takes(model, takes_path), specs, cases, frames, seed, out, echo=click.echo,
-            progress=not quiet, time_it=not no_speed)
+            progress=not quiet, time_it=not no_speed, identity=not no_identity)
 
 
 LINEUPS_SOLVE = ["sem-ls", "sem", "sem+=sem:clamp=true,stop=ric", "l1reg", "l2reg", "pcaexp", "pcadel"]

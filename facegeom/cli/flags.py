@@ -37,6 +37,8 @@ ARGUMENT_FLAGS: dict[str, str] = {
     "units=mm|cm|m": "--units mm|cm|m",  # model.units.rig_frame(units=) / --units
     "up=y|z": "--up y|z",  # model.units.rig_frame(up=) / --up
     "(rig_path=)": "(--rig)",  # model.load_rig(rig_path=) / --rig
+    "pass identity='off'": "pass --identity off",  # pipelines.solve.solve_file(identity=) / solve --identity
+    "solve with identity='auto'": "solve without --identity off",  # the same
     "give it a role with roles= (": "give it a role with --piece NAME=ROLE (",  # methods.transfer(roles=) / --piece
 }
 

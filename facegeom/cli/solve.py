@@ -63,6 +63,10 @@ class _Progress:
 @click.option("--smooth", default="auto", show_default=True,
               help="Temporal smoothing of the curves: auto (a Whittaker smoother, strength per curve by generalised "
                    "cross-validation; on 0.5 mm marker noise it halves the weight error), off, or a strength.")
+@click.option("--identity", type=click.Choice(["auto", "off"]), default="auto", show_default=True,
+              help="On the generic face (no --rig): auto fits the actor's identity from the capture first (the "
+                   "face's shape from frames that look neutral, so that the actor's proportions do not read as "
+                   "expressions); off solves on the generic face as it is. A rig of your own is used as it is.")
 @click.option("--character", "character_path", type=click.Path(), default=None,
               help="Play the solved performance on this character's rig (an OBJ folder, .glb/.gltf or .npz, e.g. from "
                    "`facegeom transfer`): its shapes driven by name from the actor's, the head's motion scaled to "
@@ -72,7 +76,7 @@ class _Progress:
                    "character's shapes (gains per shape).")
 @click.pass_obj
 def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, output, fitter, params, markers,
-              smooth, character_path, character_map):
+              smooth, identity, character_path, character_map):
     """Solve the markers of CAPTURE (a marker sequence) to weight curves of the rig, head motion removed."""
     import numpy as np
 
@@ -94,14 +98,14 @@ def solve_cmd(obj: Context, capture, rig_path, neutral, names_map, units, up, ou
     f = registry.create("fitters", fitter, **parse_params(params))
     progress = _Progress()
     try:
-        solved = solve_file(capture, rig, f, fitter, markers, amount, progress)
+        solved = solve_file(capture, rig, f, fitter, markers, amount, progress, identity)
     finally:
         progress.close()
     if character_path:
         from facegeom.pipelines.character import onto_character
 
         solved = onto_character(solved, load_cli_rig(character_path, obj.face_model, names_map=character_map),
-                                actor=rig)
+                                actor=solved.rig)
     write_curves(output, solved)
     for line in solved.notes:
         click.echo(as_flags(line))

@@ -47,7 +47,7 @@ from facegeom.interfaces import as_handles
 from facegeom.io.files import atomic_path, read_csv_rows
 from facegeom.io.shape_names import ARKIT_NAMES, ShapeMap
 from facegeom.io.markerseq import MarkerSequence, read_marker_sequence
-from facegeom.methods.marker_solve import MarkerSolve, solve_markers
+from facegeom.methods.marker_solve import MarkerSolve, marker_noise, solve_markers
 from facegeom.model.layouts import layout as named_layout
 
 __all__ = ["CURVE_WRITERS", "RigAnimation", "SolvedCapture", "arkit_map", "livelink_rotations", "marker_vertices",
@@ -197,13 +197,17 @@ def check_capture_range(P, rest, path=None) -> None:
 
 
 def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem-ls", markers=None,
-               smooth="off", progress=None) -> SolvedCapture:
+               smooth="off", progress=None, identity: str = "auto") -> SolvedCapture:
     """Read the marker sequence ``capture`` and solve it on ``rig`` with ``fitter``.
 
     ``smooth`` is ``"off"``, ``"auto"`` or a number (see
     :func:`facegeom.methods.marker_solve.smooth_curves`); ``progress(frames_done, frames)``
-    is called as chunks finish. Errors name the capture file.
+    is called as chunks finish. ``identity``: ``"auto"`` fits the actor's
+    identity from the capture first when ``rig`` is a face model's generic face
+    (:func:`actor_rig`), ``"off"`` solves on ``rig`` as it is. Errors name the capture file.
     """
+    if identity not in IDENTITY_CHOICES:
+        raise InputError(f"identity must be one of {', '.join(IDENTITY_CHOICES)}, got {identity!r}")
     seq = read_marker_sequence(capture)
     notes = []
     own = getattr(getattr(rig, "frame", None), "units", RIG_UNIT)
@@ -227,6 +231,13 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
             raise
         raise InputError(exc.reason, capture) from None
     check_capture_range(seq.positions, rig.neutral[ids], capture)
+    fitted = None
+    if identity == "auto" and getattr(rig, "population", None) is not None:
+        rig, fitted = actor_rig(rig, seq.positions, ids, capture)
+        notes.append(f"the actor's identity fitted from {fitted.frames.size} frames of the capture (the generic "
+                     f"face's markers moved {fitted.info['moved_mm']:.2g} mm RMS; marker residual "
+                     f"{fitted.info['residual_mm'][0]:.2g} -> {fitted.info['residual_mm'][1]:.2g} mm); pass "
+                     f"identity='off' to solve on the generic face as it is")
     try:
         res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
     except InputError as exc:
@@ -234,9 +245,63 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
             raise
         raise InputError(exc.reason, capture) from None
     check_residual(res.rms, capture, markers)
+    if fitted is not None:
+        res.info["identity"] = fitted.identity
+    warn = fit_warning(res.rms, marker_noise(seq.positions), fitted is None and getattr(rig, "population", None) is not None)
+    if warn:
+        notes.append(warn)
     fps = getattr(seq, "fps", None)
     known = fps is not None and np.isfinite(fps) and fps > 0
     return SolvedCapture(res, seq, ids, fitter_label, float(fps) if known else DEFAULT_FPS, bool(known), rig, notes)
+
+
+IDENTITY_CHOICES = ("auto", "off")
+"""``solve_file``'s ``identity``: fit the actor's identity on a generic face (auto), or not (off)."""
+
+
+def actor_rig(rig, positions, ids, capture=None):
+    """The actor's rig for a capture on a face model's generic face ``rig`` (``rig.population`` set): the model's
+    identity fitted from the markers (:func:`facegeom.methods.marker_identity.fit_capture_identity`), the rig's
+    shapes, names, mapping and frame kept -> ``(rig, CaptureIdentity)``."""
+    from facegeom.methods.marker_identity import fit_capture_identity
+    from facegeom.model.rig import BlendshapeRig
+
+    try:
+        fit = fit_capture_identity(rig.population, positions, ids)
+    except InputError as exc:
+        raise InputError(exc.reason, exc.path or capture) from None
+    actor = BlendshapeRig(fit.rig.neutral, rig.deltas, rig.names, rig.triangles, rig.landmark_ids, parts=rig.parts,
+                          name_map=rig.name_map, frame=rig.frame)
+    return actor, fit
+
+
+#: A solve whose median marker residual is more than this many times what the markers' noise explains says the
+#: rig's face is not the actor's: the weights then carry the difference (a generic face's eyes set wider than the
+#: actor's read as eyeWide in every frame). Noise ``s`` per coordinate leaves a residual of about ``1.5 s`` on the
+#: actor's own rig (3 coordinates, less the pose's and expression's share: 0.8 mm at 0.5 mm, 1.6 mm at 1 mm);
+#: ``s`` is estimated from the capture (:func:`~facegeom.methods.marker_solve.marker_noise`), an over-estimate.
+RESIDUAL_WARN_FACTOR = 2.25
+#: ... and never below this (mm): a nearly noise-free capture leaves a little on its own rig too.
+RESIDUAL_WARN_MM = 1.0
+
+
+def fit_warning(rms, noise, generic: bool = False) -> str:
+    """A warning line when the solve's median marker residual (``rms``, cm) is more than the markers' noise
+    (``noise``: sigma per coordinate, cm) explains (:data:`RESIDUAL_WARN_FACTOR`, at least
+    :data:`RESIDUAL_WARN_MM`), else ``""``."""
+    r = np.asarray(rms, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return ""
+    med = float(np.median(r)) * CM_TO_MM
+    limit = max(RESIDUAL_WARN_MM, RESIDUAL_WARN_FACTOR * float(noise) * CM_TO_MM if np.isfinite(noise) else 0.0)
+    if med <= limit:
+        return ""
+    fix = ("solve with identity='auto' to fit the actor's identity first" if generic
+           else "solve on the actor's own rig (rig_path=), or on the generic face, whose identity is fitted")
+    return (f"warning: the rig does not fit the actor's face (marker residual median {med:.2g} mm, more than the "
+            f"markers' noise explains, {limit:.2g} mm): the weights take up the difference in shape and can stick; "
+            f"{fix}")
 
 
 #: A solve whose median marker residual is above this (mm) did not fit the rig: the markers are not on this
@@ -273,7 +338,8 @@ def write_curves_npz(path: Path, solved: SolvedCapture) -> Path:
             rotations=s.rotations, translations=s.translations, poses=s.poses, raw_weights=s.raw_weights,
             smoothing=s.smoothing, rms=s.rms, lost=s.lost, marker_names=np.array(solved.sequence.names),
             vertex_ids=solved.vertex_ids, fitter=np.array(solved.fitter), units=np.array(RIG_UNIT),
-            source=np.array(str(solved.sequence.path)), time_s=np.float64(s.time_s))
+            source=np.array(str(solved.sequence.path)), time_s=np.float64(s.time_s),
+            **({"identity": np.asarray(s.info["identity"])} if "identity" in s.info else {}))
     return path
 
 
