@@ -49,6 +49,9 @@ def test_track_writes_every_output_and_follows_the_head(clip, face_model, tmp_pa
     assert r.returncode == 0, r.stderr
     assert "45 frames" in r.stdout and "face in 45" in r.stdout and "frames per CPU second" in r.stdout
     assert ".tmp." not in r.stdout  # notes name the outputs, not the temporary files they were written into
+    # into a pipe (no terminal, no bar): a line as the frames start, as the fit begins and as the preview is drawn
+    assert "track: 1/45 frames" in r.stderr and "track: face points found in 45 of 45 frames; fitting" in r.stderr
+    assert "track: drawing the preview" in r.stderr
     truth = load_truth(clip.parent / (clip.stem + ".truth.npz"))
     z = np.load(f"{out}.npz")
     T = 45

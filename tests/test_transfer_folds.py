@@ -176,8 +176,11 @@ def test_a_correction_that_would_reshape_the_shape_is_not_made():
     V, F = _two_triangles(5.0)
     D = np.zeros((1, 6, 3))
     D[0, 3:] = [0.0, 0.0, -5.0]  # the second triangle driven through the first
-    out, before, after, changed, kept = folds.unfold(V, F, D, ["push"], pairs=(), report_kept=True)
+    said = []
+    out, before, after, changed, kept = folds.unfold(V, F, D, ["push"], pairs=(), report_kept=True,
+                                                     progress=said.append)
     assert before.total == 1 and after.total == 0 and changed == {"push": 6} and not kept  # corrected
+    assert said == ["1 of 1 shapes and pairs fold at weight 1; correcting them ..."]  # said before correcting
     out, before, after, changed, kept = folds.unfold(V, F, D, ["push"], pairs=(), max_change=0.01,
                                                      report_kept=True)
     assert before.total == 1 and after.total == 1 and set(kept) == {"push"} and not changed

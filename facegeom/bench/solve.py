@@ -158,7 +158,8 @@ def actor_unknown(model, takes, cases: int, frames: int, seed: int = 0, progress
             t0 = time.perf_counter()
             rig, fit_s = (actor if rig_label == RIGS[0] else generic), 0.0
             if rig_label == RIGS[2]:
-                rig = fit_capture_identity(model, X, ids).rig
+                fit = fit_capture_identity(model, X, ids)
+                rig = fit.rig if fit.info["better"] else generic  # as facegeom solve decides
                 fit_s = time.perf_counter() - t0
             s = solve_markers(X, ids, rig, smooth="auto")
             dt = time.perf_counter() - t0

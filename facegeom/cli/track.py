@@ -50,7 +50,6 @@ def track_cmd(obj, video, outputs, character_path, character_map, rig_path, rig_
     import time
 
     import numpy as np
-    from tqdm import tqdm
 
     from facegeom.cli.flags import as_flags
     from facegeom.cli.solve import parse_smooth
@@ -85,19 +84,16 @@ def track_cmd(obj, video, outputs, character_path, character_map, rig_path, rig_
     from facegeom.pipelines.track import track_video, write_track_npz
     from facegeom.pipelines.solve import write_curves
 
-    bar = tqdm(total=None, unit="frame", desc="track", leave=False, dynamic_ncols=True, disable=None)  # a terminal only
+    from facegeom.cli.progress import Ticker
 
-    def progress(done, total):
-        if total and bar.total != total:
-            bar.total = total
-        bar.update(done - bar.n)
-
+    progress = Ticker("track", "frame")  # a bar on a terminal, a line every few seconds in a pipe or a log
     t0 = time.process_time()
     try:
         result = track_video(video, model, rig=rig, focal=focal, smooth=smooth_value, calibration=calibration,
-                             detector=detector, progress=progress, max_frames=max_frames)
+                             detector=detector, progress=progress, max_frames=max_frames,
+                             stage=lambda line: click.echo(f"track: {line}", err=True))
     finally:
-        bar.close()
+        progress.close()
     solved = result.solved
     played = solved
     if character is not None:
@@ -117,6 +113,7 @@ def track_cmd(obj, video, outputs, character_path, character_map, rig_path, rig_
     if preview:
         from facegeom.pipelines.track_preview import write_preview
 
+        click.echo(f"track: drawing the preview, {Path(preview).name} ...", err=True)
         write_preview(video, result, preview)
     cpu = time.process_time() - t0
     lines = solved.notes + (played.notes[len(solved.notes):] if played is not solved else [])

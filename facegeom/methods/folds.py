@@ -300,7 +300,7 @@ def check_shapes(V, F, deltas, names, pairs=PAIRS, rest=None) -> FoldCheck:
 
 
 def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: int = 1,
-           max_change: float | None = None, report_kept: bool = False):
+           max_change: float | None = None, report_kept: bool = False, progress=None):
     """Remove the folds :func:`check_shapes` finds by smoothing each offending shape's motion there.
 
     Per round, in each shape of every case (a shape, or a pair) that folds: the flipped triangles' vertices,
@@ -312,7 +312,8 @@ def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: i
     (relative, Frobenius; default :data:`MAX_CHANGE`) is left as it was and reported: that is no longer a
     local defect but the expression itself (the MakeHuman head's lips, folded in the artist's own rig too).
     -> ``(deltas (K, n, 3) corrected, before: FoldCheck, after: FoldCheck, changed: {shape: vertices
-    re-solved})``, and ``kept: {shape: relative change}`` with ``report_kept``.
+    re-solved})``, and ``kept: {shape: relative change}`` with ``report_kept``. ``progress(line)`` hears how
+    many fold once they are found, before they are corrected.
     """
     import time
 
@@ -331,6 +332,9 @@ def unfold(V, F, deltas, names, pairs=PAIRS, rest=None, rounds: int = 6, ring: i
     before = check_shapes(V, F, deltas, names, pairs, rest)
     cases = before.cases
     fl, cr, sf = list(before.flipped), list(before.crossings), list(before.scan_flipped)
+    if progress is not None:
+        bad = sum(1 for i in range(len(cases)) if fl[i].size or len(cr[i]))
+        progress(f"{bad} of {len(cases)} shapes and pairs fold at weight 1" + ("; correcting them ..." if bad else ""))
     E = np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]
     Adj = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
     Adj = ((Adj + Adj.T) > 0).astype(np.float64)

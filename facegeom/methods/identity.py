@@ -336,7 +336,7 @@ GCV_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # identity_scale="gcv": factors of t
 DOF_SCALE_MAX = 16.0  # identity_scale="dof": the largest factor (the GCV grid's largest)
 STATS_FLOOR = 1e-3  # expression_statistics: variance added to every weight (a std of ~0.03)
 NOISE_FLOOR = 0.5  # estimate_noise: the landmark sigma re-estimated is at least this fraction of noise_px
-PROGRESS_ROUNDS = 100  # fit(progress=...): a line every this many rounds (~2-3 s on a head's point cloud)
+PROGRESS_ROUNDS = 50  # fit(progress=...): a line every this many rounds (~1.5-2 s on a head's point cloud)
 CLOUD_SAMPLES = 10000  # point clouds: at most this many cloud points take part in the cloud -> model term
 CLOUD_ALIGN_MM = 5.0  # point clouds: a median closest-point distance of the mean face above this is off the frame
 CLOUD_BAND_CM = 1.0  # point clouds: the face area's vertices within this of its edge (model units, cm) form the band

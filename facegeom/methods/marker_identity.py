@@ -46,7 +46,7 @@ import numpy as np
 
 from facegeom.constants import CM_TO_MM
 from facegeom.errors import InputError
-from facegeom.methods.marker_solve import _cross_matrix, _rodrigues, solve_markers
+from facegeom.methods.marker_solve import _cross_matrix, _rodrigues, marker_noise, solve_markers
 from facegeom.model.rig import BlendshapeRig
 
 __all__ = ["CaptureIdentity", "NOISE_MM", "fit_capture_identity", "pick_frames"]
@@ -66,7 +66,7 @@ EXPRESSION_SD = 1.0
 EXPRESSION_L1 = 5.0
 """``l1``: the sparsity prior's rate, :class:`~facegeom.methods.identity.IdentityFitter`'s default."""
 
-CANDIDATES = 4
+CANDIDATES = 2
 """Without a solve of the whole capture, this many frames per fitted frame are solved on the generic face to
 choose from (spread over the take)."""
 
@@ -83,6 +83,18 @@ cycle, and the projected Newton steps take over)."""
 BOUND_TOL = 1e-9
 """A weight this close to a bound, with its gradient pointing out, is held at the bound."""
 
+AT_NOISE = 1.5
+"""No fit when the generic face's median marker residual on the chosen frames is at most this many times the
+markers' noise (:func:`~facegeom.methods.marker_solve.marker_noise`, an over-estimate): the residual a solve leaves
+on the actor's own rig is about 1.5 times the noise per coordinate (3 coordinates, less the pose's and expression's
+share), so there is no shape left for an identity to explain."""
+
+BETTER = 0.9
+"""The fitted identity is worth using (``info["better"]``) when the solve's median marker residual on the fitted
+frames falls below this share of the generic face's: an actor the generic face already matches (a capture of the
+generic face itself, whose residual is its noise) keeps the generic face, which the fit's priors would only bias
+(weight error 0.006 on the generic face, 0.023 with a fitted identity, on such a capture of 600 frames)."""
+
 POSE_DAMPING = 1e-6
 """The pose step's damping, relative to the identity prior's weight (a guard for a degenerate frame only)."""
 
@@ -95,20 +107,33 @@ class CaptureIdentity:
     ----------
     identity : (I,) float64
         The actor's identity coefficients.
-    rig : BlendshapeRig
-        The actor's rig: the model's neutral moved by the identity, its expressions.
+    neutral : (n, 3) float64
+        The actor's neutral: the model's moved by the identity.
+    rig : BlendshapeRig (property)
+        The actor's rig: :attr:`neutral` with the model's expressions.
     frames : (K,) int64
         The capture's frames the identity was fitted on.
     info : dict
-        ``time_s``, ``rounds``, ``residual_mm`` (RMS marker distance over the
-        frames, generic face then actor's face), ``moved_mm`` (RMS distance of
-        the marker vertices between the generic and the actor's neutral).
+        ``time_s``, ``rounds``, ``residual_mm`` (the median marker residual of
+        a solve of the fitted frames, on the generic face then on the actor's),
+        ``better`` (the actor's face lowers it below :data:`BETTER` of the
+        generic face's: use it), ``skipped`` (no fit: the generic face's
+        residual is at the markers' noise, :data:`AT_NOISE`), ``noise_mm``
+        (the markers' noise estimated from the capture), ``moved_mm`` (RMS
+        distance of the marker vertices between the generic and the actor's
+        neutral).
     """
 
     identity: np.ndarray
-    rig: BlendshapeRig
+    neutral: np.ndarray
     frames: np.ndarray
     info: dict = field(default_factory=dict)
+    model: object = field(default=None, repr=False)
+
+    @property
+    def rig(self) -> BlendshapeRig:
+        """The actor's rig (the model's expressions on :attr:`neutral`), built when read."""
+        return BlendshapeRig.from_face_model(self.model, self.identity)
 
 
 def pick_frames(X, weights, frames: int = FRAMES) -> np.ndarray:
@@ -132,8 +157,8 @@ def pick_frames(X, weights, frames: int = FRAMES) -> np.ndarray:
 
 
 def _candidate_solve(X, ids, generic, count):
-    """Solve ``count`` frames spread over the capture on the generic face: weights, rotations, translations of
-    every frame (NaN on the others)."""
+    """Solve ``count`` frames spread over the capture on the generic face: weights, rotations, translations and
+    marker residuals of every frame (NaN on the others)."""
     T = X.shape[0]
     usable = np.flatnonzero(np.isfinite(X).all(axis=2).sum(axis=1) >= 3)
     if usable.size == 0:
@@ -143,8 +168,15 @@ def _candidate_solve(X, ids, generic, count):
     W = np.full((T, generic.n_shapes), np.nan)
     R = np.full((T, 3, 3), np.nan)
     t = np.full((T, 3), np.nan)
-    W[cand], R[cand], t[cand] = s.raw_weights, s.rotations, s.translations
-    return W, R, t
+    rms = np.full(T, np.nan)
+    W[cand], R[cand], t[cand], rms[cand] = s.raw_weights, s.rotations, s.translations, s.rms
+    return W, R, t, rms
+
+
+def _at_markers(rig, neutral, ids) -> BlendshapeRig:
+    """``rig``'s shapes on ``neutral``, restricted to the marker vertices ``ids`` (a few hundred numbers to solve on,
+    not the whole head's)."""
+    return BlendshapeRig(neutral[ids], rig.deltas[:, ids], rig.names, np.zeros((1, 3), np.int64))
 
 
 def _aligned(X, R, t):
@@ -263,8 +295,8 @@ def _shape_step(U, Dk, n0, Y, M, sig2, prior, lin, nb, w0, a0):
     return a, x
 
 
-def fit_capture_identity(model, positions, vertex_ids, weights=None, rotations=None, translations=None,
-                         frames: int = FRAMES, noise_mm: float = NOISE_MM, rounds: int = ROUNDS) -> CaptureIdentity:
+def fit_capture_identity(model, positions, vertex_ids, frames: int = FRAMES, noise_mm: float = NOISE_MM, rounds: int = ROUNDS,
+                         generic: BlendshapeRig | None = None) -> CaptureIdentity:
     """Fit the actor's identity of ``model`` from a marker capture (see the module docstring).
 
     Parameters
@@ -274,15 +306,13 @@ def fit_capture_identity(model, positions, vertex_ids, weights=None, rotations=N
     positions : (T, p, 3)
         Markers in the rig's unit, NaN where lost.
     vertex_ids : (p,)
-    weights, rotations, translations : (T, B), (T, 3, 3), (T, 3) or None
-        A solve of the capture on the generic face (picks the frames, starts the
-        poses; NaN rows: frames not solved); None: ``CANDIDATES x frames``
-        frames spread over the capture are solved here first.
     frames : int >= 1
         Frames to fit on.
     noise_mm : float > 0
         Marker noise sigma per coordinate, mm.
     rounds : int >= 1
+    generic : BlendshapeRig or None
+        The model's generic face as a rig, if already built (else built here).
 
     Returns
     -------
@@ -297,10 +327,17 @@ def fit_capture_identity(model, positions, vertex_ids, weights=None, rotations=N
         raise InputError(f"noise_mm must be a positive number, got {noise_mm!r}")
     X = np.asarray(positions, dtype=np.float64)
     ids = np.asarray(vertex_ids, dtype=np.int64)
-    generic = BlendshapeRig.from_face_model(model)
-    if weights is None or rotations is None or translations is None:
-        weights, rotations, translations = _candidate_solve(X, ids, generic, CANDIDATES * frames)
+    generic = BlendshapeRig.from_face_model(model) if generic is None else generic
+    weights, rotations, translations, rms = _candidate_solve(X, ids, generic, CANDIDATES * frames)
     pick = pick_frames(X, weights, frames)
+    before = float(np.median(rms[pick])) * CM_TO_MM
+    noise = marker_noise(X) * CM_TO_MM
+    I = int(model.n_identities)
+    if before <= AT_NOISE * noise:  # the generic face explains the markers to their noise: nothing to fit
+        info = {"time_s": time.perf_counter() - t0, "rounds": 0, "frames": int(pick.size),
+                "residual_mm": (before, before), "better": False, "skipped": True, "noise_mm": noise,
+                "moved_mm": 0.0}
+        return CaptureIdentity(np.zeros(I), generic.neutral, pick, info, model)
     Xk = X[pick]
     R, t = np.array(rotations[pick]), np.array(translations[pick])
     found = np.isfinite(Xk).all(axis=2)  # (K, p)
@@ -314,13 +351,6 @@ def fit_capture_identity(model, positions, vertex_ids, weights=None, rotations=N
     a = np.zeros(U.shape[1])
     Xz = np.where(found[..., None], Xk, 0.0)
 
-    def residual(a, w, R, t):
-        F = (n0 + U @ a)[None] + w @ D.T  # (K, 3p): the faces at the markers
-        Fx = np.einsum("kij,kpj->kpi", R, F.reshape(-1, p, 3)) + t[:, None]
-        d = np.linalg.norm(Fx - Xz, axis=2)[found]
-        return float(np.sqrt(np.mean(d ** 2))) * CM_TO_MM
-
-    before = residual(a, w, R, t)
     K, B = w.shape
     prior = np.r_[np.full(B, sig2 / EXPRESSION_SD ** 2), np.full(6, POSE_DAMPING * sig2)]
     lin = np.r_[np.full(B, sig2 * EXPRESSION_L1), np.zeros(6)]
@@ -339,9 +369,14 @@ def fit_capture_identity(model, positions, vertex_ids, weights=None, rotations=N
         a = a_new
         if change < 1e-3 * max(1.0, float(np.linalg.norm(a))) and float(np.abs(turn).max()) < 1e-5:
             break
-    rig = BlendshapeRig.from_face_model(model, a)
-    moved = np.linalg.norm(rig.neutral[ids] - generic.neutral[ids], axis=1)
+    if not np.isfinite(a).all():
+        raise InputError("the identity fit of the capture did not converge (a non-finite coefficient)")
+    neutral = model.identity_neutral(a)
+    moved = np.linalg.norm(neutral[ids] - generic.neutral[ids], axis=1)
+    # the solve's own residual on the fitted frames, the generic face's and the actor's: is the fit worth it?
+    after = float(np.median(solve_markers(Xk, np.arange(p), _at_markers(generic, neutral, ids)).rms)) * CM_TO_MM
     info = {"time_s": time.perf_counter() - t0, "rounds": done, "frames": int(pick.size),
-            "residual_mm": (before, residual(a, w, R, t)),
+            "residual_mm": (before, after), "better": bool(after < BETTER * before), "skipped": False,
+            "noise_mm": noise,
             "moved_mm": float(np.sqrt(np.mean(moved ** 2))) * CM_TO_MM}
-    return CaptureIdentity(a, rig, pick, info)
+    return CaptureIdentity(a, neutral, pick, info, model)

@@ -1163,26 +1163,30 @@ def stored_character(model, V, F, arrays, path=None) -> Character | None:
 
 
 def transfer_character(model, character: Character, engine: str = "deformation",
-                       unfold: bool = True) -> TransferResult:
+                       unfold: bool = True, progress=None) -> TransferResult:
     """Every expression onto the whole registered head: the skin by ``engine``, the other pieces by their role.
 
     ``unfold``: the skin's shapes checked at weight 1, alone and in :data:`~facegeom.methods.folds.PAIRS`
     (triangles flipped against the rest pose, new self-intersections) and corrected where they fold
     (:func:`~facegeom.methods.folds.unfold`); the report in ``info["folds"]``
-    (:func:`~facegeom.methods.folds.fold_report`).
+    (:func:`~facegeom.methods.folds.fold_report`). ``progress(line)`` hears of each stage as it ends and begins.
     """
     from facegeom.methods.pieces import piece_deltas
 
+    say = progress or (lambda line: None)
     reg = character.registration
     res = transfer_expressions(model, reg, engine)
+    say(f"transfer ({engine}): {len(res.names)} shapes onto {character.vertices.shape[0]} vertices in "
+        f"{res.time_s:.2f} s")
     skin = res.deltas
     info = dict(res.info)
     if unfold:
+        say("checking every shape at weight 1, alone and in pairs, for folds ...")
         from facegeom.methods.folds import fold_report
         from facegeom.methods.folds import unfold as fix
 
         skin, before, after, changed, kept = fix(reg.head_vertices, reg.head_faces, res.deltas, res.names,
-                                                 report_kept=True)
+                                                 report_kept=True, progress=progress)
         info["folds"] = fold_report(before, after, changed, kept)
     deltas = piece_deltas(model, reg, character.vertices, character.pieces, skin, res.names)
     return TransferResult(deltas, res.names, res.engine, res.time_s,
@@ -1202,8 +1206,7 @@ def transfer_head(model, V, F, *, engine: str = "deformation", landmarks=None, u
         raise InputError(f"unknown transfer engine {engine!r}; use one of {', '.join(ENGINES)}")
     ch = register_character(model, V, F, landmarks=landmarks, units=units, path=path, progress=progress,
                             parts=parts, roles=roles)
-    res = transfer_character(model, ch, engine)
-    say(f"transfer ({engine}): {len(res.names)} shapes onto {ch.vertices.shape[0]} vertices in {res.time_s:.2f} s")
+    res = transfer_character(model, ch, engine, progress=progress)
     folds = res.info.get("folds")
     if folds is not None:
         for line in fold_lines(folds):

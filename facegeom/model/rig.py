@@ -707,6 +707,12 @@ class BlendshapeRig:
                             self.landmark_ids, parts=self.parts, frame=self.frame)
         return rig, missing
 
+    def with_neutral(self, neutral) -> "BlendshapeRig":
+        """The same shapes, names, mapping and frame on another neutral ``(n, 3)`` (a person's face): the
+        read-only deltas are shared, not copied; no ``population`` (the rig is one person's)."""
+        return BlendshapeRig(neutral, self.deltas, self.names, self.triangles, self.landmark_ids, parts=self.parts,
+                             name_map=self.name_map, frame=self.frame, _own_deltas=True)
+
     def with_name_map(self, name_map: NameMapping | None) -> "BlendshapeRig":
         """The same rig with another mapping file's rows (``None``: none)."""
         return BlendshapeRig(self.neutral, self.deltas, self.names, self.triangles, self.landmark_ids,

@@ -233,11 +233,19 @@ def solve_file(capture: str | os.PathLike, rig, fitter, fitter_label: str = "sem
     check_capture_range(seq.positions, rig.neutral[ids], capture)
     fitted = None
     if identity == "auto" and getattr(rig, "population", None) is not None:
-        rig, fitted = actor_rig(rig, seq.positions, ids, capture)
-        notes.append(f"the actor's identity fitted from {fitted.frames.size} frames of the capture (the generic "
-                     f"face's markers moved {fitted.info['moved_mm']:.2g} mm RMS; marker residual "
-                     f"{fitted.info['residual_mm'][0]:.2g} -> {fitted.info['residual_mm'][1]:.2g} mm); pass "
-                     f"identity='off' to solve on the generic face as it is")
+        actor, fit = actor_rig(rig, seq.positions, ids, capture)
+        before, after = fit.info["residual_mm"]
+        if fit.info["better"]:
+            rig, fitted = actor, fit
+            notes.append(f"the actor's identity fitted from {fit.frames.size} frames of the capture (the generic "
+                         f"face's markers moved {fit.info['moved_mm']:.2g} mm RMS; marker residual {before:.2g} -> "
+                         f"{after:.2g} mm); pass identity='off' to solve on the generic face as it is")
+        elif fit.info["skipped"]:
+            notes.append(f"the generic face fits the actor: its marker residual, {before:.2g} mm, is within the "
+                         f"markers' frame-to-frame jitter ({fit.info['noise_mm']:.2g} mm); no identity fitted")
+        else:
+            notes.append(f"the generic face fits the actor: a fitted identity would change the marker residual "
+                         f"only from {before:.2g} to {after:.2g} mm, so the generic face is used as it is")
     try:
         res = solve_markers(seq.positions, ids, rig, fitter, smooth=smooth, chunk=250, progress=progress)
     except InputError as exc:
@@ -264,15 +272,12 @@ def actor_rig(rig, positions, ids, capture=None):
     identity fitted from the markers (:func:`facegeom.methods.marker_identity.fit_capture_identity`), the rig's
     shapes, names, mapping and frame kept -> ``(rig, CaptureIdentity)``."""
     from facegeom.methods.marker_identity import fit_capture_identity
-    from facegeom.model.rig import BlendshapeRig
 
     try:
-        fit = fit_capture_identity(rig.population, positions, ids)
+        fit = fit_capture_identity(rig.population, positions, ids, generic=rig)
     except InputError as exc:
         raise InputError(exc.reason, exc.path or capture) from None
-    actor = BlendshapeRig(fit.rig.neutral, rig.deltas, rig.names, rig.triangles, rig.landmark_ids, parts=rig.parts,
-                          name_map=rig.name_map, frame=rig.frame)
-    return actor, fit
+    return rig.with_neutral(fit.neutral), fit
 
 
 #: A solve whose median marker residual is more than this many times what the markers' noise explains says the

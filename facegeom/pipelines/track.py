@@ -300,7 +300,7 @@ def _read_points(path, tracker_opts, progress, max_frames):
 
 def track_video(path: str | os.PathLike, model, rig: BlendshapeRig | None = None, focal: float | None = None,
                 smooth="auto", calibration: bool = True, detector: str = "auto", progress=None,
-                max_frames: int | None = None, offset_sd: float | None = OFFSET_SD) -> TrackResult:
+                max_frames: int | None = None, offset_sd: float | None = OFFSET_SD, stage=None) -> TrackResult:
     """Track the face of the video at ``path`` (see the module docstring).
 
     Parameters
@@ -324,6 +324,8 @@ def track_video(path: str | os.PathLike, model, rig: BlendshapeRig | None = None
         Stop after this many frames.
     offset_sd : float or None
         The per-point offsets of the identity fit (:func:`facegeom.methods.video_identity.fit_identity_frames`).
+    stage : callable, optional
+        ``stage(line)`` as the fit begins, after the frames are read.
 
     Raises
     ------
@@ -339,6 +341,10 @@ def track_video(path: str | os.PathLike, model, rig: BlendshapeRig | None = None
         raise InputError(f"the focal length must be a positive number of pixels, not {focal!r}")
     t_start = time.perf_counter()
     vp = read_video_points(path, detector, progress, max_frames)
+    if stage is not None:
+        stage(f"face points found in {int(vp.found.sum())} of {vp.found.size} frames; fitting "
+              + ("the camera and every frame's pose and expression ..." if rig is not None else
+                 "the actor's identity, the camera and every frame's pose and expression ..."))
     return solve_points(vp, model, rig=rig, focal=focal, smooth=smooth, calibration=calibration,
                         offset_sd=offset_sd, t_start=t_start)
 
