@@ -33,6 +33,7 @@ bench: face-data
 	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench drive --cases $(BENCH_CASES) --realistic-cases $(BENCH_CASES) --out $(BENCH_OUT)/drive
 	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench retarget --sequences $(BENCH_CASES) --labels 10,20 --out $(BENCH_OUT)/retarget
 	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench fit --cases $(BENCH_CASES) --realistic-cases $(BENCH_CASES) --experiments landmarks,meshes --out $(BENCH_OUT)/fit
+	OPENBLAS_NUM_THREADS=1 $(BIN)/facegeom bench solve --cases $(BENCH_CASES) --frames 300 --out $(BENCH_OUT)/solve
 
 # one test process per core (pytest-xdist; a test file stays on one process, so its fixtures are made once), each
 # with single-threaded BLAS so the processes do not oversubscribe the cores. The package is compiled to bytecode

@@ -176,7 +176,13 @@ def test_the_source_folders_are_the_installed_packages():
     config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
     assert {v: k for k, v in config["package-dir"].items()} == PACKAGES
     folders = sorted(module_name(p.parent / "__init__.py") for folder in PACKAGES for p in (ROOT / folder).rglob("__init__.py"))
-    assert sorted(config["packages"]) == folders, "list every package in pyproject's [tool.setuptools] packages"
+    data = sorted(set(config["packages"]) - set(folders))
+    assert sorted(set(config["packages"]) - set(data)) == folders, \
+        "list every package in pyproject's [tool.setuptools] packages"
+    for name in data:  # data folders (no Python), listed so that setuptools ships them without a warning
+        path = ROOT.joinpath(*name.split("."))
+        assert path.is_dir() and not list(path.glob("*.py")) and name in config["package-data"], name
+    assert {"facegeom.data.heads", "facegeom.vision.data"} <= set(data)
 
 
 def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
