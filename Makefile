@@ -14,7 +14,8 @@ DOCS_STAMP = $(VENV)/.facegeom-docs-installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@echo "installing facegeom and its dependencies into $(VENV) (a minute or two; pip says what it does)"
+	$(BIN)/python -m pip install --progress-bar off -e '.[test]'
 	touch $(STAMP)
 
 install: $(STAMP)
