@@ -449,7 +449,7 @@ def read_usd_rig(path: str | os.PathLike, *, isolated: bool = True) -> UsdRig:
     path : str or os.PathLike
         The file.
     isolated : bool
-        Read in a forked child process (where ``os.fork`` exists), so that a crash of usd-core's native reader
+        Read in a child process (a fresh interpreter), so that a crash of usd-core's native reader
         on a malformed file (a corrupt ``.usdc`` crate can make it read out of bounds) is an InputError, not the
         end of this process. False: read here (only for files known to be sound).
 
@@ -472,7 +472,7 @@ def read_usd_rig(path: str | os.PathLike, *, isolated: bool = True) -> UsdRig:
         :data:`READ_SECONDS` on the file (isolated); usd-core not installed.
     """
     _pxr(path)
-    if isolated and hasattr(os, "fork"):
+    if isolated:
         return _read_in_child(path)
     return _read_here(path)
 
@@ -494,66 +494,56 @@ def _read_here(path) -> UsdRig:
         raise InputError(f"malformed USD data ({type(exc).__name__}: {_first_line(exc)})", path) from None
 
 
+_CHILD = """
+import os, pickle, sys
+sys.path.insert(0, sys.argv[2])
+import faulthandler
+faulthandler.disable()  # a crash here is the parent's InputError, not a report on stderr
+from facegeom.errors import InputError
+from facegeom.io.usd import _read_here
+try:
+    result = ("ok", _read_here(sys.argv[1]))
+except InputError as exc:
+    result = ("input", exc.reason)
+except BaseException as exc:  # a bug: reported by the parent
+    result = ("bug", f"{type(exc).__name__}: {exc}")
+try:
+    data = pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)
+except BaseException as exc:  # e.g. MemoryError pickling
+    data = pickle.dumps(("bug", f"{type(exc).__name__}: {exc}"))
+sys.stdout.buffer.write(data)
+sys.stdout.flush()
+os._exit(0)
+"""
+"""The reading child's program: a fresh interpreter (not a fork: a fork of a process whose usd-core already
+runs worker threads can hang in the child on their locks), its result pickled to stdout."""
+
+
 def _read_in_child(path) -> UsdRig:
-    """:func:`_read_here` in a forked child; its result (or its InputError's reason) comes back pickled."""
+    """:func:`_read_here` in a child process (a fresh interpreter); its result (or its InputError's reason) comes
+    back pickled."""
     import pickle
-    import select
     import signal
-    import time
+    import subprocess
+    import sys
 
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: read, send, and leave without running any exit handler of the parent
-        try:
-            os.close(r)
-            try:
-                import faulthandler
-
-                faulthandler.disable()  # a crash here is the parent's InputError, not a report on stderr
-                from pxr import Work
-
-                Work.SetConcurrencyLimit(1)  # the parent's worker threads are not in the child
-                try:
-                    result = ("ok", _read_here(path))
-                except InputError as exc:
-                    result = ("input", exc.reason)
-                except BaseException as exc:  # noqa: BLE001 - a bug: reported by the parent
-                    result = ("bug", f"{type(exc).__name__}: {exc}")
-                data = pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)
-            except BaseException as exc:  # noqa: BLE001 - e.g. MemoryError pickling
-                data = pickle.dumps(("bug", f"{type(exc).__name__}: {exc}"))
-            with os.fdopen(w, "wb") as fh:
-                fh.write(data)
-        finally:
-            os._exit(0)
-    os.close(w)
-    chunks, status = [], None
+    package_root = str(Path(__file__).resolve().parents[2])  # where this facegeom is imported from
+    cmd = [sys.executable, "-c", _CHILD, os.fspath(path), package_root]
     try:
-        deadline = time.monotonic() + READ_SECONDS
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise InputError(f"usd-core read the file for more than {READ_SECONDS} s; stopped", path)
-            ready, _, _ = select.select([r], [], [], min(left, 1.0))
-            if ready:
-                chunk = os.read(r, 1 << 20)
-                if not chunk:
-                    break
-                chunks.append(chunk)
-        _, status = os.waitpid(pid, 0)
-    finally:
-        os.close(r)
-        if status is None:  # interrupted or timed out: the child goes too
-            try:
-                os.kill(pid, signal.SIGKILL)
-                os.waitpid(pid, 0)
-            except OSError:  # pragma: no cover - already gone
-                pass
-    if os.WIFSIGNALED(status):
-        name = signal.Signals(os.WTERMSIG(status)).name
+        proc = subprocess.run(cmd, capture_output=True, timeout=READ_SECONDS)
+    except subprocess.TimeoutExpired:
+        raise InputError(f"usd-core read the file for more than {READ_SECONDS} s; stopped", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot start the USD reader: {exc}", path) from None
+    if proc.returncode < 0:
+        name = signal.Signals(-proc.returncode).name
         raise InputError(f"usd-core crashed reading the file ({name}): it is malformed", path)
+    if proc.returncode > 0 and not proc.stdout:  # the reader itself did not start (no usd-core, no numpy ...)
+        lines = proc.stderr.decode("utf-8", "replace").strip().splitlines()
+        raise InputError(f"the USD reader stopped before reading the file ({lines[-1][:200] if lines else 'no message'})",
+                         path)
     try:
-        kind, value = pickle.loads(b"".join(chunks))
+        kind, value = pickle.loads(proc.stdout)
     except Exception:  # noqa: BLE001 - not a pickle: no result
         raise InputError("usd-core ended reading the file without a result: it is malformed", path) from None
     if kind == "ok":
